@@ -1,0 +1,13 @@
+"""ColorGrid: a multi-agent gridworld for inferring a partner's hidden, changing goal."""
+
+from colorgrid.config import AGENTS, COLOR_NAMES, ENV_ID, EnvConfig
+from colorgrid.env import ACTION_NAMES, BatchEnv
+from colorgrid.pettingzoo_env import ColorGridParallelEnv, env, parallel_env
+from colorgrid.render import render_ansi, render_rgb
+from colorgrid.state import EnvState
+
+__all__ = [
+    "AGENTS", "ACTION_NAMES", "COLOR_NAMES", "ENV_ID", "BatchEnv", "ColorGridParallelEnv", "EnvConfig", "EnvState",
+    "env", "parallel_env", "render_ansi", "render_rgb",
+]
+__version__ = "0.1.0"

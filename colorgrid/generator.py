@@ -1,0 +1,60 @@
+"""Initial states: where agents and blocks start, and the first goal color."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from colorgrid import rng
+from colorgrid.config import EnvConfig
+
+
+def block_goes_left(config: EnvConfig) -> np.ndarray:
+    """[N] bool: in hemisphere mode, blocks with even index start in the left half.
+
+    Alternating by index spreads every color evenly over both halves.
+    """
+    return np.arange(config.num_blocks) % 2 == 0
+
+
+def _shuffled_prefix(seeds: np.ndarray, cells: np.ndarray, count: int, offset: int) -> np.ndarray:
+    """[n, count]: the first ``count`` cells of a uniform random permutation of ``cells``.
+
+    A partial Fisher-Yates shuffle, vectorised over envs (the loop runs over
+    positions, not envs). ``offset`` keeps the draws of different halves apart.
+    """
+    n, m = seeds.shape[0], cells.shape[0]
+    perm = np.tile(cells, (n, 1))
+    rows = np.arange(n)
+    k = np.arange(count)
+    picks = k + rng.below(seeds[:, None], m - k, 0, rng.STREAM_LAYOUT, index=offset + k)  # [n, count]
+    for k in range(count):
+        j = picks[:, k]
+        perm[rows, k], perm[rows, j] = perm[rows, j], perm[rows, k].copy()
+    return perm[:, :count]
+
+
+def initial_layout(config: EnvConfig, seeds: np.ndarray):
+    """Draw starting cells for episodes with the given seeds.
+
+    seeds: [n] uint64. Returns ``agent_cell [n, A]``, ``block_cell [n, N]`` (flat
+    cells ``row * W + col``, all distinct) and ``goal [n]``. Without hemispheres
+    agents and blocks take the first cells of a random permutation of the grid;
+    with them, the leader and the even-indexed blocks come from the left half's
+    permutation, the follower and the odd-indexed blocks from the right half's.
+    """
+    H, W = config.height, config.width
+    A, N = config.num_agents, config.num_blocks
+    cells = np.arange(H * W)
+    if not config.hemispheres:
+        order = _shuffled_prefix(seeds, cells, A + N, 0)
+        agent_cell, block_cell = order[:, :A], order[:, A:]
+    else:
+        goes_left = block_goes_left(config)
+        left = _shuffled_prefix(seeds, cells[cells % W < W // 2], 1 + goes_left.sum(), 0)
+        right = _shuffled_prefix(seeds, cells[cells % W >= W // 2], 1 + (~goes_left).sum(), H * W)
+        agent_cell = np.stack([left[:, 0], right[:, 0]], axis=1)
+        block_cell = np.empty((seeds.shape[0], N), dtype=np.int64)
+        block_cell[:, goes_left] = left[:, 1:]
+        block_cell[:, ~goes_left] = right[:, 1:]
+    goal = rng.below(seeds, config.num_colors, 0, rng.STREAM_GOAL)
+    return agent_cell.astype(np.int64), block_cell.astype(np.int64), goal

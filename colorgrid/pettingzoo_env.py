@@ -1,0 +1,125 @@
+"""PettingZoo views of the batched environment: a thin wrapper over a batch of one."""
+
+from __future__ import annotations
+
+import numpy as np
+from gymnasium import spaces
+from pettingzoo import ParallelEnv
+from pettingzoo.utils.conversions import parallel_to_aec
+
+from colorgrid.config import AGENTS, ENV_ID, EnvConfig
+from colorgrid.env import BatchEnv
+from colorgrid.render import render_ansi, render_rgb
+
+RENDER_MODES = ("rgb_array", "ansi", "human")
+
+
+class ColorGridParallelEnv(ParallelEnv):
+    """ColorGrid as a PettingZoo ``ParallelEnv`` (agents ``"leader"`` and ``"follower"``).
+
+    Each agent observes ``{"observation": uint8 [num_colors + 2, H, W],
+    "goal_info": float32 [num_colors]}``. Infos carry the unshaped block rewards,
+    pickups and the true goal color (for evaluation: it is not an observation).
+    ``render_mode="human"`` prints the ANSI view to the terminal.
+    """
+
+    metadata = {"name": ENV_ID, "render_modes": list(RENDER_MODES), "is_parallelizable": True, "render_fps": 5}
+
+    def __init__(self, config: EnvConfig | None = None, render_mode: str | None = None):
+        if render_mode is not None and render_mode not in RENDER_MODES:
+            raise ValueError(f"render_mode must be one of {list(RENDER_MODES)} or None, got {render_mode!r}")
+        self.config = config if config is not None else EnvConfig()
+        self.render_mode = render_mode
+        self.batch = BatchEnv(self.config, num_envs=1, autoreset=False)
+        self.possible_agents = list(AGENTS)
+        self.agents: list[str] = []
+        cfg = self.config
+        obs_space = spaces.Dict({
+            "observation": spaces.Box(0, 1, (cfg.num_planes, cfg.height, cfg.width), dtype=np.uint8),
+            "goal_info": spaces.Box(0.0, 1.0, (cfg.num_colors,), dtype=np.float32),
+        })
+        self._observation_spaces = {a: obs_space for a in AGENTS}
+        self._action_spaces = {a: spaces.Discrete(cfg.num_actions) for a in AGENTS}
+
+    def observation_space(self, agent: str) -> spaces.Space:
+        return self._observation_spaces[agent]
+
+    def action_space(self, agent: str) -> spaces.Space:
+        return self._action_spaces[agent]
+
+    def reset(self, seed: int | None = None, options: dict | None = None):
+        obs, _ = self.batch.reset(seed=seed)
+        self.agents = list(AGENTS)
+        seed_used = int(self.batch.state.seed[0])
+        return self._split(obs), {a: {"seed": seed_used} for a in AGENTS}
+
+    def step(self, actions: dict):
+        if not self.agents:
+            raise RuntimeError("the episode has ended: call reset() before step()")
+        missing = [a for a in self.agents if a not in actions]
+        if missing:
+            raise ValueError(f"actions missing for agent(s) {missing}; expected one per agent in {self.agents}")
+        joint = np.array([[int(actions[a]) for a in AGENTS]], dtype=np.int64)
+        obs, rewards, terms, truncs, info = self.batch.step(joint)
+        out_obs = self._split(obs)
+        infos = {
+            a: {
+                "block_reward": float(info["block_reward"][0, i]),
+                "team_reward": float(info["team_reward"][0]),
+                "goal_pickup": bool(info["goal_pickup"][0, i]),
+                "wrong_pickup": bool(info["wrong_pickup"][0, i]),
+                "distance_shaping": float(info["distance_shaping"][0, i]),
+                "potential_shaping": float(info["potential_shaping"][0, i]),
+                "goal_color": int(info["goal_color"][0]),
+                "goal_switched": bool(info["goal_switched"][0]),
+            }
+            for i, a in enumerate(AGENTS)
+        }
+        out = (
+            out_obs,
+            {a: float(rewards[0, i]) for i, a in enumerate(AGENTS)},
+            {a: bool(terms[0, i]) for i, a in enumerate(AGENTS)},
+            {a: bool(truncs[0, i]) for i, a in enumerate(AGENTS)},
+            infos,
+        )
+        if truncs[0].all() or terms[0].all():
+            self.agents = []
+        if self.render_mode == "human":
+            self.render()
+        return out
+
+    def render(self):
+        if self.render_mode is None or self.batch.state is None:
+            return None
+        if self.render_mode == "rgb_array":
+            return render_rgb(self.batch.state, self.config)
+        text = render_ansi(self.batch.state, self.config, color=self.render_mode == "human")
+        if self.render_mode == "ansi":
+            return text
+        print(text, flush=True)
+        return None
+
+    def state(self) -> np.ndarray:
+        """The global state as the shared observation planes (both agents see the whole grid)."""
+        return self.batch._obs[0].copy()
+
+    def close(self) -> None:
+        pass
+
+    def _split(self, obs: dict) -> dict:
+        planes = obs["observation"][0]
+        return {a: {"observation": planes.copy(), "goal_info": obs["goal_info"][0, i].copy()}
+                for i, a in enumerate(AGENTS)}
+
+
+def parallel_env(config: EnvConfig | None = None, render_mode: str | None = None, **overrides) -> ColorGridParallelEnv:
+    """A ``ParallelEnv``; ``overrides`` are EnvConfig fields applied on top of ``config``."""
+    config = config if config is not None else EnvConfig()
+    if overrides:
+        config = config.replace(**overrides)
+    return ColorGridParallelEnv(config, render_mode=render_mode)
+
+
+def env(config: EnvConfig | None = None, render_mode: str | None = None, **overrides):
+    """The AEC version, through PettingZoo's ``parallel_to_aec`` conversion."""
+    return parallel_to_aec(parallel_env(config, render_mode=render_mode, **overrides))

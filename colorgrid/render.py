@@ -1,0 +1,115 @@
+"""Pictures of one environment: an RGB frame and an ANSI text view.
+
+Rendering is a pure function of a state (a batch of one, or one env of a
+batch picked by ``index``). It is separate from observations: the network sees
+0/1 planes, a person sees this. The replay exporter, the play server and the
+tests all draw through here.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+from PIL import Image, ImageDraw, ImageFont
+
+from colorgrid.config import EnvConfig
+from colorgrid.state import EnvState
+
+# RGB per block color, in the order of ``config.COLOR_NAMES``.
+PALETTE = np.array(
+    [[220, 50, 47], [46, 160, 67], [38, 110, 220], [245, 145, 30],
+     [140, 70, 190], [30, 190, 200], [140, 90, 50], [235, 110, 180]], dtype=np.uint8)
+FLOOR = np.array([236, 236, 232], dtype=np.uint8)
+GRID_LINE = np.array([210, 210, 204], dtype=np.uint8)
+LEADER_RGB = np.array([25, 25, 25], dtype=np.uint8)
+FOLLOWER_RGB = np.array([255, 255, 255], dtype=np.uint8)
+HEADER_BG = np.array([40, 44, 52], dtype=np.uint8)
+HEADER_HEIGHT = 22
+GOAL_BORDER = 4
+
+
+@lru_cache(maxsize=16)
+def tiles(num_colors: int, cell: int) -> np.ndarray:
+    """[num_colors + 3, cell, cell, 3] uint8 tiles: floor, one per block color, leader, follower."""
+    out = np.empty((num_colors + 3, cell, cell, 3), dtype=np.uint8)
+    out[:] = FLOOR
+    out[:, -1, :] = GRID_LINE
+    out[:, :, -1] = GRID_LINE
+    margin = max(1, cell // 8)
+    for k in range(num_colors):
+        out[1 + k, margin:cell - margin - 1, margin:cell - margin - 1] = PALETTE[k]
+    font = _font(max(8, cell - 4))
+    for i, (letter, body, ink) in enumerate((("L", LEADER_RGB, FOLLOWER_RGB), ("F", FOLLOWER_RGB, LEADER_RGB))):
+        img = Image.fromarray(out[num_colors + 1 + i])
+        draw = ImageDraw.Draw(img)
+        draw.ellipse([0, 0, cell - 2, cell - 2], fill=tuple(int(v) for v in body), outline=(0, 0, 0))
+        draw.text(((cell - 1) / 2, (cell - 1) / 2), letter, fill=tuple(int(v) for v in ink), font=font, anchor="mm")
+        out[num_colors + 1 + i] = np.asarray(img)
+    return out
+
+
+@lru_cache(maxsize=8)
+def _font(size: int):
+    try:
+        return ImageFont.load_default(size=size)
+    except TypeError:  # Pillow without FreeType sizes
+        return ImageFont.load_default()
+
+
+def cell_ids(state: EnvState, config: EnvConfig, index: int = 0) -> np.ndarray:
+    """[H, W] int: tile id per cell (0 floor, 1 + color for blocks, then leader, follower)."""
+    ids = state.block_colors(config)[index] + 1
+    rows, cols = np.divmod(state.agent_cell[index], config.width)
+    ids[rows, cols] = config.num_colors + 1 + np.arange(config.num_agents)
+    return ids
+
+
+def render_grid(state: EnvState, config: EnvConfig, index: int = 0, cell: int = 16) -> np.ndarray:
+    """[H*cell, W*cell, 3] uint8: the board alone, from a tile cache."""
+    ids = cell_ids(state, config, index)
+    board = tiles(config.num_colors, cell)[ids]  # [H, W, cell, cell, 3]
+    return board.transpose(0, 2, 1, 3, 4).reshape(config.height * cell, config.width * cell, 3)
+
+
+def render_rgb(state: EnvState, config: EnvConfig, index: int = 0, cell: int = 16) -> np.ndarray:
+    """[HEADER + H*cell + 2*border, W*cell + 2*border, 3] uint8: board framed in the goal color.
+
+    The header names the step, the goal color (with a swatch) and the team score;
+    the frame around the board is the goal color, so it reads at a glance.
+    """
+    board = render_grid(state, config, index, cell)
+    goal = int(state.goal[index])
+    b = GOAL_BORDER
+    h, w = board.shape[:2]
+    frame = np.empty((HEADER_HEIGHT + h + 2 * b, w + 2 * b, 3), dtype=np.uint8)
+    frame[:HEADER_HEIGHT] = HEADER_BG
+    frame[HEADER_HEIGHT:] = PALETTE[goal]
+    frame[HEADER_HEIGHT + b:HEADER_HEIGHT + b + h, b:b + w] = board
+    img = Image.fromarray(frame[:HEADER_HEIGHT])
+    draw = ImageDraw.Draw(img)
+    font = _font(13)
+    draw.rectangle([6, 5, 18, 17], fill=tuple(int(v) for v in PALETTE[goal]))
+    team = float(state.score[index].sum())
+    text = f"goal {config.color_names[goal]}   step {int(state.t[index])}/{config.horizon}   team {team:+g}"
+    draw.text((24, 4), text, fill=(255, 255, 255), font=font)
+    frame[:HEADER_HEIGHT] = np.asarray(img)
+    return frame
+
+
+_ANSI_COLOR = ("31", "32", "34", "33", "35", "36", "33", "95")
+
+
+def render_ansi(state: EnvState, config: EnvConfig, index: int = 0, color: bool = True) -> str:
+    """Text view: one character per cell (``.`` floor, color initial for blocks, ``L``/``F`` agents)."""
+    ids = cell_ids(state, config, index)
+    symbols = ["."] + [name[0] for name in config.color_names] + ["L", "F"]
+    if color:
+        symbols = (["\x1b[2m.\x1b[0m"]
+                   + [f"\x1b[{_ANSI_COLOR[k]}m{symbols[1 + k]}\x1b[0m" for k in range(config.num_colors)]
+                   + ["\x1b[1;7mL\x1b[0m", "\x1b[1;7mF\x1b[0m"])
+    goal = config.color_names[int(state.goal[index])]
+    scores = " ".join(f"{name} {float(v):+g}" for name, v in zip(("leader", "follower"), state.score[index]))
+    lines = [f"step {int(state.t[index])}/{config.horizon}  goal {goal}  {scores}"]
+    lines += [" ".join(symbols[v] for v in row) for row in ids]
+    return "\n".join(lines)

@@ -1,0 +1,37 @@
+"""Shared test helpers."""
+
+import numpy as np
+
+from colorgrid import BatchEnv, EnvConfig
+from colorgrid.scenario import state_from_text
+
+UP, DOWN, LEFT, RIGHT, STAY = range(5)
+
+
+def env_from_text(config: EnvConfig, text: str, goal=0, seed=0) -> BatchEnv:
+    env = BatchEnv(config, num_envs=1, seed=seed)
+    env.load_state(state_from_text(config, text, goal=goal, seed=seed))
+    return env
+
+
+def step1(env: BatchEnv, leader: int, follower: int):
+    return env.step(np.array([[leader, follower]]))
+
+
+def check_consistent(env: BatchEnv) -> None:
+    """The state's redundant views and the observation planes agree with each other."""
+    s, cfg = env.state, env.config
+    B, HW = env.num_envs, cfg.height * cfg.width
+    flat = s.block_at.reshape(B, HW)
+    assert ((flat >= 0).sum(axis=1) == cfg.num_blocks).all()
+    assert (np.take_along_axis(flat, s.block_cell, axis=1) == np.arange(cfg.num_blocks)).all()
+    assert (np.take_along_axis(flat, s.agent_cell, axis=1) < 0).all(), "a block lies under an agent"
+    assert (s.agent_cell[:, 0] != s.agent_cell[:, 1]).all(), "agents overlap"
+    obs = env._obs.reshape(B, cfg.num_planes, HW)
+    colors = s.block_colors(cfg).reshape(B, HW)
+    for k in range(cfg.num_colors):
+        assert (obs[:, k] == (colors == k)).all()
+    for a in range(cfg.num_agents):
+        expected = np.zeros((B, HW), dtype=np.uint8)
+        expected[np.arange(B), s.agent_cell[:, a]] = 1
+        assert (obs[:, cfg.num_colors + a] == expected).all()
