@@ -33,6 +33,27 @@ def cmd_demo(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_eval(args: argparse.Namespace) -> int:
+    """Evaluate a leader with one follower, or several on the same seeds (--compare)."""
+    import json
+    from pathlib import Path
+
+    from colorgrid.evaluate import evaluate, format_reports
+
+    config = config_from_args(args)
+    if args.episodes < 1:
+        raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
+    followers = args.compare or [args.follower]
+    reports = [evaluate(config, args.leader, name, args.episodes, args.seed) for name in followers]
+    print(format_reports(reports))
+    if args.json:
+        payload = reports[0] if len(reports) == 1 else {"reports": reports}
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(payload, indent=2))
+        print(f"wrote {args.json}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="colorgrid", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -42,6 +63,16 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--quiet", action="store_true", help="print only the final score")
     add_config_arguments(demo)
     demo.set_defaults(func=cmd_demo)
+
+    ev = sub.add_parser("eval", help="evaluate agents over a batch of episodes")
+    ev.add_argument("--leader", default="astar", help="leader policy: a scripted name or a checkpoint .pt")
+    ev.add_argument("--follower", default="bayes", help="follower policy: a scripted name or a checkpoint .pt")
+    ev.add_argument("--compare", nargs="+", metavar="FOLLOWER", help="evaluate several followers on the same seeds")
+    ev.add_argument("--episodes", type=int, default=100)
+    ev.add_argument("--seed", type=int, default=0, help="episode i uses seed + i")
+    ev.add_argument("--json", help="also write the report(s) as JSON to this path")
+    add_config_arguments(ev)
+    ev.set_defaults(func=cmd_eval)
     return parser
 
 

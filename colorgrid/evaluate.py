@@ -1,0 +1,89 @@
+"""The evaluation harness: metrics over a batch of episodes, as a table and as JSON."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from colorgrid.config import AGENTS, ENV_ID, EnvConfig
+from colorgrid.policies import make_policy
+from colorgrid.rollout import EpisodeBatch, run_episodes
+
+
+def mean_ci(values: np.ndarray) -> dict:
+    """Mean and the half-width of its 95% normal confidence interval."""
+    values = np.asarray(values, dtype=np.float64)
+    n = values.size
+    half = 1.96 * values.std(ddof=1) / np.sqrt(n) if n > 1 else float("nan")
+    return {"mean": float(values.mean()), "ci95": float(half)}
+
+
+def summarize(batch: EpisodeBatch) -> dict:
+    """Per-agent and team metrics of a batch of episodes (see docs/EVALUATION.md)."""
+    agents = {}
+    for i, name in enumerate(AGENTS):
+        goal = batch.goal_pickup[:, :, i].sum(axis=0)
+        wrong = batch.wrong_pickup[:, :, i].sum(axis=0)
+        entry = {
+            "block_reward": mean_ci(batch.block_reward[:, :, i].sum(axis=0)),
+            "goal_pickups": mean_ci(goal),
+            "wrong_pickups": mean_ci(wrong),
+            "net_pickups": mean_ci(goal - wrong),
+        }
+        probs = batch.goal_probs[i]
+        if probs is not None:
+            truth = np.take_along_axis(probs, batch.goal[:, :, None], axis=2)[..., 0]  # [T, B]
+            entry["belief"] = {
+                "accuracy": float((probs.argmax(axis=2) == batch.goal).mean()),
+                "log_loss": float(-np.log(np.clip(truth, 1e-6, 1.0)).mean()) + 0.0,
+            }
+        agents[name] = entry
+    return {
+        "agents": agents,
+        "team_reward": mean_ci(batch.team_reward.sum(axis=0)),
+        "goal_switches_per_episode": float(batch.goal_switched.sum(axis=0).mean()),
+    }
+
+
+def evaluate(config: EnvConfig, leader: str, follower: str, episodes: int, seed: int) -> dict:
+    """Run ``episodes`` episodes (env i seeded ``seed + i``) and summarize them."""
+    start, cpu = time.perf_counter(), time.process_time()
+    leader_policy, follower_policy = make_policy(leader), make_policy(follower)
+    batch = run_episodes(config, leader_policy, follower_policy, episodes, seed)
+    report = summarize(batch)
+    report.update({
+        "env_id": ENV_ID, "config": config.to_dict(), "episodes": episodes, "seed": seed,
+        "leader": leader_policy.describe(), "follower": follower_policy.describe(),
+        "wall_seconds": time.perf_counter() - start, "cpu_seconds": time.process_time() - cpu,
+    })
+    return report
+
+
+def format_reports(reports: list[dict]) -> str:
+    """A side-by-side table, one column per report (e.g. per follower, on the same seeds)."""
+    def ci(m):
+        return f"{m['mean']:+.2f} ± {m['ci95']:.2f}"
+
+    head = [f"{r['leader']['policy']} + {r['follower']['policy']}" for r in reports]
+    rows = [("team reward", [ci(r["team_reward"]) for r in reports])]
+    for name in AGENTS:
+        rows += [
+            (f"{name} block reward", [ci(r["agents"][name]["block_reward"]) for r in reports]),
+            (f"{name} goal pickups", [f"{r['agents'][name]['goal_pickups']['mean']:.2f}" for r in reports]),
+            (f"{name} wrong pickups", [f"{r['agents'][name]['wrong_pickups']['mean']:.2f}" for r in reports]),
+            (f"{name} net pickups", [ci(r["agents"][name]["net_pickups"]) for r in reports]),
+        ]
+    rows += [
+        ("follower belief accuracy", [f"{r['agents']['follower']['belief']['accuracy']:.1%}"
+                                      if "belief" in r["agents"]["follower"] else "-" for r in reports]),
+        ("follower belief log-loss", [f"{r['agents']['follower']['belief']['log_loss']:.3f}"
+                                      if "belief" in r["agents"]["follower"] else "-" for r in reports]),
+        ("wall time", [f"{r['wall_seconds']:.2f} s" for r in reports]),
+    ]
+    width = max(18, *(len(h) for h in head))
+    lines = [f"{'':<26}" + "".join(f"{h:>{width + 2}}" for h in head)]
+    lines += [f"{label:<26}" + "".join(f"{v:>{width + 2}}" for v in values) for label, values in rows]
+    r0 = reports[0]
+    lines.append(f"{r0['episodes']} episodes, seeds {r0['seed']}..{r0['seed'] + r0['episodes'] - 1}, {r0['env_id']}")
+    return "\n".join(lines)

@@ -1,0 +1,168 @@
+"""A follower that infers the leader's goal with a hidden Markov model and acts on its belief."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from colorgrid.config import EnvConfig
+from colorgrid.policies.base import AgentInput, PolicyOutput
+from colorgrid.policies.grid import decode, manhattan_to_nearest
+from colorgrid.policies.scripted import Seeker
+
+
+@dataclass(frozen=True)
+class BayesConfig:
+    """Parameters of the Bayesian follower's leader model and decision rule."""
+
+    rationality: float = 2.0
+    """Boltzmann rationality beta: a leader move that shortens the Manhattan distance to the
+    nearest block of color k by delta has weight exp(beta * delta) under goal k. 0 = moves carry
+    no information; large = the leader always takes a shortest step."""
+    lapse: float = 0.1
+    """Probability that a move is unrelated to the goal (detours around blocks, human slips)."""
+    reward_noise: float = 1e-3
+    """Likelihood given to a reward that contradicts a goal hypothesis (guards against mistakes)."""
+    collect_threshold: float = 0.7
+    """Collect blocks of a color only when its probability is at least this and the expected
+    reward is positive (break-even is wrong_penalty / (goal_reward + wrong_penalty))."""
+    standby_radius: int = 3
+    """While unsure, stay within this Manhattan distance of the leader, on free cells."""
+
+    def __post_init__(self) -> None:
+        for name in ("rationality", "reward_noise"):
+            if not getattr(self, name) >= 0:
+                raise ValueError(f"BayesConfig.{name} must be >= 0, got {getattr(self, name)!r}")
+        if not 0 <= self.lapse <= 1:
+            raise ValueError(f"BayesConfig.lapse must be in [0, 1], got {self.lapse!r}")
+        if not 0 <= self.collect_threshold <= 1:
+            raise ValueError(f"BayesConfig.collect_threshold must be in [0, 1], got {self.collect_threshold!r}")
+
+
+def transition(belief: np.ndarray, switch_prob: float) -> np.ndarray:
+    """[B, C] -> [B, C]: one step of the goal's Markov chain (switch to another color uniformly)."""
+    C = belief.shape[1]
+    return (1 - switch_prob) * belief + switch_prob * (1 - belief) / (C - 1)
+
+
+def move_likelihood(dist_before: np.ndarray, dist_after: np.ndarray, observed: np.ndarray,
+                    rationality: float, lapse: float) -> np.ndarray:
+    """[B, C]: probability of the leader's observed move under each goal color.
+
+    dist_before: [B, C] distance from the leader's old cell to the nearest block of each color;
+    dist_after: [B, M, C] the same from the cell each of the M actions leads to;
+    observed: [B, M] bool, actions consistent with the leader's new cell.
+    """
+    logits = rationality * (dist_before[:, None, :] - dist_after)  # [B, M, C]
+    logits -= logits.max(axis=1, keepdims=True)
+    pi = np.exp(logits)
+    pi /= pi.sum(axis=1, keepdims=True)
+    M = dist_after.shape[1]
+    p = (pi * observed[:, :, None]).sum(axis=1)
+    return (1 - lapse) * p + lapse * observed.sum(axis=1, keepdims=True) / M
+
+
+def reward_likelihood(picked: np.ndarray, reward: np.ndarray, config: EnvConfig, penalty_coef: float,
+                      agent_index: int, noise: float) -> np.ndarray:
+    """[B, C]: probability of the observed reward under each goal color.
+
+    picked: [B, A] colors collected last step (-1 none); reward: [B] this agent's unshaped reward.
+    In shared mode the reward covers both agents' pickups; in individual mode only its own.
+    """
+    B, C = picked.shape[0], config.num_colors
+    counted = picked if config.reward_mode == "shared" else picked[:, agent_index:agent_index + 1]
+    goal = np.arange(C)[None, None, :]
+    value = np.where(counted[:, :, None] == goal, config.goal_reward, -config.wrong_penalty * penalty_coef)
+    predicted = np.where(counted[:, :, None] >= 0, value, 0.0).sum(axis=1)  # [B, C]
+    return np.where(np.abs(predicted - reward[:, None]) < 1e-4, 1.0, noise)
+
+
+class BayesFollower(Seeker):
+    """Keeps a posterior over the goal color and collects only when it is confident.
+
+    Hidden Markov model: uniform prior at the episode start; the goal's transition is
+    the env's ``switch_prob``; evidence each step is (a) the leader's move, scored by a
+    Boltzmann-rational model of how much it shortened the leader's distance to the
+    nearest block of each color, and (b) the blocks either agent collected, with the
+    reward observed. ``goal_probs`` is the belief over the *current* goal.
+    """
+
+    name = "bayes"
+    has_belief = True
+
+    def __init__(self, params: BayesConfig | None = None):
+        self.params = params or BayesConfig()
+
+    def describe(self) -> dict:
+        from dataclasses import asdict
+
+        return {"policy": self.name, "params": asdict(self.params)}
+
+    def reset(self, config: EnvConfig, num_envs: int, agent_index: int, seed: int = 0) -> None:
+        super().reset(config, num_envs, agent_index, seed)
+        C = config.num_colors
+        self.belief = np.full((num_envs, C), 1.0 / C)
+        self.prev_blocks = None
+        self.prev_cells = None
+
+    def update(self, inp: AgentInput, block_color: np.ndarray, agent_cell: np.ndarray) -> None:
+        """Fold last step's evidence into the belief and advance it to the current goal."""
+        cfg, p = self.config, self.params
+        fresh = inp.episode_start | (self.prev_cells is None)
+        if self.prev_cells is not None and not np.all(fresh):
+            go = ~fresh
+            lik = self._evidence(inp, block_color, agent_cell, go)
+            post = self.belief[go] * lik
+            post /= post.sum(axis=1, keepdims=True)
+            self.belief[go] = transition(post, cfg.switch_prob)
+        self.belief[fresh] = 1.0 / cfg.num_colors
+        self.prev_blocks, self.prev_cells = block_color.copy(), agent_cell.copy()
+
+    def _evidence(self, inp: AgentInput, block_color, agent_cell, rows) -> np.ndarray:
+        cfg, p = self.config, self.params
+        leader_before = self.prev_cells[rows, 0]
+        follower_before = self.prev_cells[rows, 1]
+        table = self.leader_table[leader_before]  # [n, M] cells each leader action leads to
+        table = np.where(table == follower_before[:, None], leader_before[:, None], table)
+        observed = table == agent_cell[rows, 0][:, None]
+        cells = np.concatenate([leader_before[:, None], table], axis=1)
+        d = manhattan_to_nearest(cfg, self.prev_blocks[rows], cells)  # [n, 1 + M, C]
+        lik = move_likelihood(d[:, 0], d[:, 1:], observed, p.rationality, p.lapse)
+        lik *= reward_likelihood(inp.prev_picked_color[rows], inp.prev_reward[rows], cfg, inp.penalty_coef,
+                                 self.agent_index, p.reward_noise)
+        return lik
+
+    def act(self, inp: AgentInput) -> PolicyOutput:
+        cfg, p = self.config, self.params
+        if not hasattr(self, "leader_table"):
+            from colorgrid.env import move_table
+
+            self.leader_table = move_table(cfg)[0]
+        block_color, agent_cell = decode(inp.observation, cfg)
+        self.update(inp, block_color, agent_cell)
+        me, leader = agent_cell[:, self.agent_index], agent_cell[:, 0]
+        expected = self.belief * cfg.goal_reward - (1 - self.belief) * cfg.wrong_penalty * inp.penalty_coef
+        wanted = (self.belief >= p.collect_threshold) & (expected > 0)
+        sure = wanted.any(axis=1)
+        actions = self.standby(block_color, me, leader)
+        if sure.any():
+            actions[sure], _ = self.seek(wanted[sure], block_color[sure], me[sure], leader[sure])
+        return PolicyOutput(actions, self.belief.astype(np.float32).copy())
+
+    def standby(self, block_color: np.ndarray, me: np.ndarray, leader: np.ndarray) -> np.ndarray:
+        """Stay near the leader without collecting: step toward it over free cells if far, else wander."""
+        B = block_color.shape[0]
+        W = self.config.width
+        actions = self.mover.wander(block_color, me, leader, self.rng)
+        nxt, moves = self.mover.neighbours(me, leader)  # [B, 4]
+        free = moves & (block_color.reshape(B, -1)[np.arange(B)[:, None], nxt] < 0)
+        lr, lc = np.divmod(leader, W)
+        nr, nc = np.divmod(nxt, W)
+        gap = np.abs(nr - lr[:, None]) + np.abs(nc - lc[:, None])  # [B, 4] distance after each move
+        mr, mc = np.divmod(me, W)
+        now = np.abs(mr - lr) + np.abs(mc - lc)
+        gap = np.where(free, gap, 1 << 20)
+        closer = (now > self.params.standby_radius) & (gap.min(axis=1) < now)
+        actions[closer] = gap[closer].argmin(axis=1)
+        return actions

@@ -1,0 +1,114 @@
+"""Batched grid reasoning for scripted agents: decoding planes, distance fields, greedy steps."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from colorgrid.config import EnvConfig
+from colorgrid.env import move_table
+
+INF = np.int32(1 << 20)
+
+
+def decode(observation: np.ndarray, config: EnvConfig):
+    """Planes -> ``block_color [B, H, W]`` (-1 if none) and ``agent_cell [B, A]``."""
+    C = config.num_colors
+    blocks = observation[:, :C]
+    block_color = np.where(blocks.any(axis=1), blocks.argmax(axis=1), -1)
+    B = observation.shape[0]
+    agent_cell = observation[:, C:].reshape(B, config.num_agents, -1).argmax(axis=2)
+    return block_color, agent_cell
+
+
+def allowed_cells(config: EnvConfig, agent_index: int) -> np.ndarray:
+    """[H, W] bool: cells this agent may stand on (its half in hemisphere mode)."""
+    mask = np.ones((config.height, config.width), dtype=bool)
+    if config.hemispheres:
+        half = config.width // 2
+        if agent_index == 0:
+            mask[:, half:] = False
+        else:
+            mask[:, :half] = False
+    return mask
+
+
+def distance_field(targets: np.ndarray, passable: np.ndarray, start_cell: np.ndarray | None = None) -> np.ndarray:
+    """[B, H, W] int32 shortest 4-connected path lengths to the nearest target (``INF`` if none).
+
+    targets, passable: [B, H, W] bool (targets must be passable to count). Breadth-first
+    relaxation for the whole batch at once; with ``start_cell [B]`` it stops as soon
+    as every env's start cell is reached, which is all a greedy step needs (the
+    start's neighbours on a shortest path are final by then). At most H*W rounds.
+    """
+    B, H, W = targets.shape
+    dist = np.where(targets & passable, 0, INF).astype(np.int32)
+    padded = np.full((B, H + 2, W + 2), INF, dtype=np.int32)
+    rows = np.arange(B)
+    start_r, start_c = (None, None) if start_cell is None else np.divmod(start_cell, W)
+    for _ in range(H * W):
+        if start_cell is not None and (dist[rows, start_r, start_c] < INF).all():
+            break
+        padded[:, 1:-1, 1:-1] = dist
+        best = np.minimum(np.minimum(padded[:, :-2, 1:-1], padded[:, 2:, 1:-1]),
+                          np.minimum(padded[:, 1:-1, :-2], padded[:, 1:-1, 2:])) + 1
+        new = np.where(passable, np.minimum(dist, best), dist)
+        if np.array_equal(new, dist):
+            break
+        dist = new
+    return dist
+
+
+class Mover:
+    """Turns distance fields into actions for one agent (walls, halves and the other agent applied)."""
+
+    def __init__(self, config: EnvConfig, agent_index: int):
+        self.config = config
+        self.agent_index = agent_index
+        self.table = move_table(config)[agent_index]  # [H*W, num_moves]
+        self.num_moves = 4  # scripted agents move; stay is never needed to follow a path
+
+    def neighbours(self, cell: np.ndarray, other_cell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``[B, 4]`` target cells of the four moves and whether each really moves the agent."""
+        nxt = self.table[cell, : self.num_moves]
+        moves = (nxt != cell[:, None]) & (nxt != other_cell[:, None])
+        return nxt, moves
+
+    def descend(self, dist: np.ndarray, cell: np.ndarray, other_cell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Greedy step down ``dist``: ``actions [B]`` and ``found [B]`` (a finite neighbour existed).
+
+        Ties go to the first move in action order (up, down, left, right).
+        """
+        B = dist.shape[0]
+        nxt, moves = self.neighbours(cell, other_cell)
+        values = dist.reshape(B, -1)[np.arange(B)[:, None], nxt]
+        values = np.where(moves, values, INF)
+        return values.argmin(axis=1), values.min(axis=1) < INF
+
+    def wander(self, block_color: np.ndarray, cell: np.ndarray, other_cell: np.ndarray,
+               rng: np.random.Generator, avoid_blocks: bool = True) -> np.ndarray:
+        """A random move to a neighbouring cell with no block (any move if none is free)."""
+        B = cell.shape[0]
+        nxt, moves = self.neighbours(cell, other_cell)
+        if avoid_blocks:
+            free = moves & (block_color.reshape(B, -1)[np.arange(B)[:, None], nxt] < 0)
+            moves = np.where(free.any(axis=1, keepdims=True), free, moves)
+        noise = rng.random((B, self.num_moves)) + moves * 2.0  # prefer allowed moves, random among them
+        return noise.argmax(axis=1)
+
+
+def manhattan_to_nearest(config: EnvConfig, block_color: np.ndarray, cells: np.ndarray) -> np.ndarray:
+    """``[B, K, C]``: Manhattan distance from each of ``cells [B, K]`` to the nearest block of each color.
+
+    Uses the fact that every env holds exactly ``blocks_per_color`` blocks of each color.
+    """
+    B, H, W = block_color.shape
+    rows, cols = np.divmod(cells, W)  # [B, K]
+    flat = block_color.reshape(B, -1)
+    out = np.empty(cells.shape + (config.num_colors,), dtype=np.float64)
+    for k in range(config.num_colors):
+        env_idx, block_cells = np.nonzero(flat == k)
+        if block_cells.size != B * config.blocks_per_color:
+            raise ValueError(f"expected {config.blocks_per_color} blocks of color {k} in every env")
+        br, bc = np.divmod(block_cells.reshape(B, 1, -1), W)  # [B, 1, n]
+        out[..., k] = (np.abs(br - rows[:, :, None]) + np.abs(bc - cols[:, :, None])).min(axis=2)
+    return out

@@ -1,0 +1,44 @@
+"""The evaluation command, run as a user would."""
+
+import json
+import subprocess
+import sys
+
+
+def run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "colorgrid.cli", *args], capture_output=True, text=True, timeout=300)
+
+
+def test_eval_prints_a_table_and_writes_documented_json(tmp_path):
+    out = tmp_path / "report.json"
+    result = run_cli("eval", "--leader", "astar", "--follower", "bayes", "--episodes", "4", "--seed", "3",
+                     "--set", "horizon=32", "--json", str(out))
+    assert result.returncode == 0, result.stderr
+    assert "follower belief accuracy" in result.stdout and "astar + bayes" in result.stdout
+    report = json.loads(out.read_text())
+    assert {"env_id", "config", "episodes", "seed", "leader", "follower", "agents", "team_reward",
+            "wall_seconds", "cpu_seconds", "goal_switches_per_episode"} <= set(report)
+    assert report["config"]["horizon"] == 32 and report["episodes"] == 4
+    follower = report["agents"]["follower"]
+    assert {"block_reward", "goal_pickups", "wrong_pickups", "net_pickups", "belief"} <= set(follower)
+    assert set(follower["belief"]) == {"accuracy", "log_loss"}
+    assert {"mean", "ci95"} == set(report["team_reward"])
+    goal, wrong = follower["goal_pickups"]["mean"], follower["wrong_pickups"]["mean"]
+    assert abs(follower["net_pickups"]["mean"] - (goal - wrong)) < 1e-9
+
+
+def test_eval_compare_uses_the_same_seeds(tmp_path):
+    out = tmp_path / "cmp.json"
+    result = run_cli("eval", "--compare", "idle", "oracle", "--episodes", "3", "--set", "horizon=24", "--json", str(out))
+    assert result.returncode == 0, result.stderr
+    reports = json.loads(out.read_text())["reports"]
+    assert [r["follower"]["policy"] for r in reports] == ["idle", "oracle"]
+    assert reports[0]["agents"]["follower"]["goal_pickups"]["mean"] == 0.0
+    assert reports[1]["agents"]["follower"]["wrong_pickups"]["mean"] == 0.0
+
+
+def test_eval_reports_bad_arguments_clearly():
+    result = run_cli("eval", "--follower", "nope", "--episodes", "2")
+    assert result.returncode == 2 and "unknown policy 'nope'" in result.stderr
+    result = run_cli("eval", "--set", "wrong_penalty=-1", "--episodes", "2")
+    assert result.returncode == 2 and "wrong_penalty must be a finite non-negative magnitude" in result.stderr

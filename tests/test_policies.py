@@ -1,0 +1,156 @@
+"""Scripted agents and the Bayesian follower's inference."""
+
+import math
+
+import numpy as np
+import pytest
+
+from colorgrid import EnvConfig
+from colorgrid.policies import AgentInput, BayesConfig, make_policy
+from colorgrid.policies.bayes import move_likelihood, reward_likelihood, transition
+from colorgrid.rollout import run_episodes
+from tests.helpers import env_from_text
+
+# 6x6 grid with two blocks of each color.
+SIX = EnvConfig(height=6, width=6, block_density=0.17, switch_prob=0.0)
+
+
+def leader_walk(env, steps, follower_action=None):
+    """Drive the leader with the A* policy on a hand-built env; returns leader cells visited."""
+    policy = make_policy("astar")
+    policy.reset(env.config, 1, 0)
+    obs = env._observations()
+    cells, picked = [int(env.state.agent_cell[0, 0])], []
+    for _ in range(steps):
+        inp = AgentInput(obs["observation"], obs["goal_info"][:, 0], np.array([False]), np.zeros(1),
+                         np.full((1, 2), -1), np.full((1, 2), -1))
+        leader = int(policy.act(inp).actions[0])
+        obs, _, _, _, info = env.step(np.array([[leader, follower_action if follower_action is not None else 0]]))
+        cells.append(int(env.state.agent_cell[0, 0]))
+        picked.append(int(info["picked_color"][0, 0]))
+    return cells, picked
+
+
+def test_astar_leader_takes_a_shortest_path():
+    env = env_from_text(SIX, """
+        L.....
+        ......
+        .....r
+        ....r.
+        g.....
+        bgb.F.
+    """, goal="red")
+    _, picked = leader_walk(env, 7, follower_action=1)  # follower presses down at the bottom edge: stays
+    assert picked[:7].index(0) == 6, "the nearest red block is 3 + 4 = 7 moves away (step index 6)"
+
+
+def test_astar_leader_routes_around_wrong_blocks_when_it_can():
+    env = env_from_text(SIX, """
+        ..g...
+        L.b...
+        ..g..r
+        ..b...
+        .....r
+        ....F.
+    """, goal="red")
+    _, picked = leader_walk(env, 12, follower_action=1)
+    first_red = picked.index(0)
+    assert all(c < 0 for c in picked[:first_red]), "no wrong block before reaching red"
+    assert first_red == 7, "shortest clean path: down 3 to row 4, then right 5 (8 moves, step index 7)"
+
+
+def test_astar_leader_without_any_path_still_acts_and_terminates():
+    cfg = SIX.replace(hemispheres=True)
+    # Both red blocks lie in the follower's half: the leader has no path to any goal block.
+    env = env_from_text(cfg, """
+        L..r..
+        ......
+        g.b...
+        ...r..
+        g.b...
+        .....F
+    """, goal="red")
+    cells, picked = leader_walk(env, 40, follower_action=1)
+    assert all(c % 6 < 3 for c in cells), "the leader stays in its half"
+    assert len(set(cells)) > 1, "it keeps moving instead of freezing"
+
+
+def test_copy_follower_waits_for_a_paying_pickup_then_copies_its_color():
+    batch = run_episodes(EnvConfig(), make_policy("astar"), make_policy("copy"), 40, 300)
+    T, B = batch.goal.shape
+    matched = total = 0
+    for e in range(B):
+        paid = [t for t in range(T) if batch.picked_color[t, e, 0] >= 0 and batch.team_reward[t, e] > 0]
+        assert paid, "the A* leader pays within an episode"
+        follower_picks = [t for t in range(T) if batch.picked_color[t, e, 1] >= 0]
+        assert all(t > paid[0] for t in follower_picks), "nothing collected before the first paying pickup"
+        for t in follower_picks:
+            copied = batch.picked_color[max(s for s in paid if s < t), e, 0]
+            matched += batch.picked_color[t, e, 1] == copied
+            total += 1
+    assert total > 10 * B and matched / total > 0.95
+
+
+def test_bayes_posterior_is_a_distribution_and_tracks_the_goal():
+    batch = run_episodes(EnvConfig(), make_policy("astar"), make_policy("bayes"), 50, 1000)
+    probs, goal = batch.goal_probs[1], batch.goal
+    assert np.allclose(probs.sum(axis=2), 1.0, atol=1e-5) and (probs >= 0).all()
+    assert (probs[0] == pytest.approx(1 / 3)), "uniform prior at the start"
+    assert (probs.argmax(axis=2) == goal).mean() > 0.9
+    lags = []
+    for e in range(goal.shape[1]):
+        for t in range(1, goal.shape[0]):
+            if goal[t, e] != goal[t - 1, e]:
+                k = 0
+                while t + k < goal.shape[0] and goal[t + k, e] == goal[t, e] and probs[t + k, e].argmax() != goal[t, e]:
+                    k += 1
+                if t + k < goal.shape[0] and goal[t + k, e] == goal[t, e]:
+                    lags.append(k)
+    assert len(lags) > 50
+    assert max(lags) <= 10, "after a switch the belief moves to the new goal within 10 leader moves"
+
+
+def test_bayes_converges_on_a_stationary_goal():
+    batch = run_episodes(EnvConfig(switch_prob=0.0), make_policy("astar"), make_policy("bayes"), 40, 7)
+    final = batch.goal_probs[1][-1]
+    assert (final.argmax(axis=1) == batch.goal[-1]).all()
+    assert (final.max(axis=1) > 0.99).all()
+
+
+def test_bayes_update_matches_a_hand_computed_example():
+    beta, lapse = 1.0, 0.1
+    d_before = np.array([[2.0, 3.0, 1.0]])
+    d_after = np.array([[[1.0, 4.0, 2.0], [3.0, 2.0, 2.0], [3.0, 4.0, 0.0], [1.0, 3.0, 1.0]]])  # 4 actions
+    observed = np.array([[True, False, False, False]])
+    lik = move_likelihood(d_before, d_after, observed, beta, lapse)
+    for k in range(3):
+        weights = [math.exp(beta * (d_before[0, k] - d_after[0, a, k])) for a in range(4)]
+        expected = (1 - lapse) * weights[0] / sum(weights) + lapse * 1 / 4
+        assert lik[0, k] == pytest.approx(expected)
+    cfg = EnvConfig()
+    rl = reward_likelihood(np.array([[1, -1]]), np.array([1.0]), cfg, 1.0, 1, noise=1e-3)
+    assert rl.tolist() == [[1e-3, 1.0, 1e-3]]
+    rl = reward_likelihood(np.array([[1, 2]]), np.array([0.0]), cfg, 1.0, 1, noise=1e-3)
+    assert rl.tolist() == [[1e-3, 1.0, 1.0]], "+1 - 1 = 0 is explained by goal green or goal blue"
+    posterior = np.array([[1 / 3, 1 / 3, 1 / 3]]) * lik * rl
+    posterior /= posterior.sum()
+    after = transition(posterior, 0.03)
+    assert after[0, 1] == pytest.approx(0.97 * posterior[0, 1] + 0.03 * (1 - posterior[0, 1]) / 2)
+    assert after.sum() == pytest.approx(1.0)
+
+
+def test_bayes_config_is_validated():
+    with pytest.raises(ValueError, match=r"BayesConfig.lapse must be in \[0, 1\]"):
+        BayesConfig(lapse=2.0)
+    with pytest.raises(ValueError, match=r"BayesConfig.collect_threshold must be in \[0, 1\]"):
+        BayesConfig(collect_threshold=-0.1)
+
+
+def test_make_policy_rejects_unknown_names():
+    with pytest.raises(ValueError, match=r"unknown policy 'nope'; choose one of \['astar'"):
+        make_policy("nope")
+
+
+def test_astar_refuses_to_play_without_the_goal():
+    with pytest.raises(ValueError, match="the A\\* policy needs the goal"):
+        run_episodes(EnvConfig(), make_policy("astar"), make_policy("astar"), 2, 0)
