@@ -44,7 +44,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     followers = args.compare or [args.follower]
-    reports = [evaluate(config, args.leader, name, args.episodes, args.seed) for name in followers]
+    reports = [evaluate(config, args.leader, name, args.episodes, args.seed, record_dir=args.record)
+               for name in followers]
     print(format_reports(reports))
     if args.json:
         payload = reports[0] if len(reports) == 1 else {"reports": reports}
@@ -71,8 +72,12 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--episodes", type=int, default=100)
     ev.add_argument("--seed", type=int, default=0, help="episode i uses seed + i")
     ev.add_argument("--json", help="also write the report(s) as JSON to this path")
+    ev.add_argument("--record", metavar="DIR", help="save every episode as a replay in DIR")
     add_config_arguments(ev)
     ev.set_defaults(func=cmd_eval)
+    from colorgrid.cli_replay import add_replay_commands
+
+    add_replay_commands(sub)
     return parser
 
 
@@ -81,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (ValueError, FileNotFoundError) as err:
+    except (ValueError, FileNotFoundError, OSError) as err:
         print(f"colorgrid {args.command}: error: {err}", file=sys.stderr)
         return 2
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 
@@ -46,18 +47,41 @@ def summarize(batch: EpisodeBatch) -> dict:
     }
 
 
-def evaluate(config: EnvConfig, leader: str, follower: str, episodes: int, seed: int) -> dict:
-    """Run ``episodes`` episodes (env i seeded ``seed + i``) and summarize them."""
+def evaluate(config: EnvConfig, leader: str, follower: str, episodes: int, seed: int,
+             record_dir: str | Path | None = None) -> dict:
+    """Run ``episodes`` episodes (env i seeded ``seed + i``) and summarize them.
+
+    With ``record_dir``, every episode is also saved there as a replay.
+    """
     start, cpu = time.perf_counter(), time.process_time()
     leader_policy, follower_policy = make_policy(leader), make_policy(follower)
-    batch = run_episodes(config, leader_policy, follower_policy, episodes, seed)
+    batch = run_episodes(config, leader_policy, follower_policy, episodes, seed, record_hashes=record_dir is not None)
     report = summarize(batch)
+    if record_dir is not None:
+        report["replays"] = [str(p) for p in record_batch(batch, leader, follower, leader_policy, follower_policy,
+                                                           record_dir, source="eval")]
     report.update({
         "env_id": ENV_ID, "config": config.to_dict(), "episodes": episodes, "seed": seed,
         "leader": leader_policy.describe(), "follower": follower_policy.describe(),
         "wall_seconds": time.perf_counter() - start, "cpu_seconds": time.process_time() - cpu,
     })
     return report
+
+
+def record_batch(batch, leader: str, follower: str, leader_policy, follower_policy, out_dir, source: str,
+                 meta: dict | None = None) -> list[Path]:
+    """Save every episode of ``batch`` as ``<leader>+<follower>_seed<N>.replay.json`` in ``out_dir``."""
+    from colorgrid.replay import describe_agent, from_batch, save
+
+    agents = {
+        "leader": describe_agent(leader_policy.describe(), leader if leader.endswith(".pt") else None),
+        "follower": describe_agent(follower_policy.describe(), follower if follower.endswith(".pt") else None),
+    }
+    tag = f"{Path(leader).stem}+{Path(follower).stem}"
+    paths = []
+    for replay in from_batch(batch, agents, source, meta=meta):
+        paths.append(save(replay, Path(out_dir) / f"{tag}_seed{replay.seed}.replay.json"))
+    return paths
 
 
 def format_reports(reports: list[dict]) -> str:

@@ -1,0 +1,124 @@
+"""``colorgrid replay ...`` and ``colorgrid export``: checking, importing, releasing and exporting replays."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from colorgrid.cli_config import add_config_arguments, config_from_args
+
+
+def _replay_files(target: Path) -> list[Path]:
+    if target.is_dir():
+        files = sorted(target.glob("*.replay.json"))
+        if not files:
+            raise ValueError(f"{target} holds no *.replay.json files")
+        return files
+    if not target.exists():
+        raise FileNotFoundError(f"{target}: no such file or folder")
+    return [target]
+
+
+def cmd_verify(args: argparse.Namespace) -> int:
+    from colorgrid.replay import ReplayError, load, verify
+
+    failures = 0
+    for target in args.files:
+        for path in _replay_files(Path(target)):
+            try:
+                result = verify(load(path), path)
+                message = result.message
+                failures += not result.ok
+            except ReplayError as err:
+                message, failures = f"error: {err.problem}", failures + 1
+            print(f"{path}: {message}")
+    return 1 if failures else 0
+
+
+def cmd_info(args: argparse.Namespace) -> int:
+    from colorgrid.replay import load
+
+    replay = load(args.file)
+    print(json.dumps({"kind": replay.kind, "source": replay.source, "agents": replay.agents, "seed": replay.seed,
+                      "steps": replay.num_steps, "ended": replay.ended, "final": replay.final(),
+                      "config": replay.config.to_dict(), "meta": replay.meta}, indent=2))
+    return 0
+
+
+def cmd_import(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from colorgrid.replay import import_frames, save
+
+    config = config_from_args(args)
+    try:
+        planes, goal_info = np.load(args.trajectory), np.load(args.goal_info)
+    except (OSError, ValueError) as err:
+        raise ValueError(f"cannot read the .npy inputs: {err}") from None
+    replay = import_frames(config, planes, goal_info, meta={"imported_from": Path(args.trajectory).name})
+    out = save(replay, args.out)
+    print(f"wrote {out} ({replay.num_steps} steps, frames replay)")
+    return 0
+
+
+def cmd_release(args: argparse.Namespace) -> int:
+    from colorgrid.replay.release import build_release
+
+    index = build_release(Path(args.out), episodes=args.episodes, gifs=Path(args.gifs) if args.gifs else None)
+    print(f"wrote {len(index['replays'])} replays and {args.out}/index.json")
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from colorgrid.export import default_output, export
+    from colorgrid.replay import load
+
+    files = _replay_files(Path(args.target))
+    out = Path(args.out) if args.out else None
+    if out is not None and len(files) > 1 and out.suffix:
+        raise ValueError("--out must be a folder when exporting a folder of replays")
+    bar = tqdm(files, unit="replay", disable=len(files) == 1)
+    for path in bar:
+        target = default_output(path, args.format)
+        if out is not None:
+            target = out if len(files) == 1 and out.suffix else out / target.name
+        written = export(load(path), target, args.format, fps=args.fps, cell=args.scale,
+                         start=args.start, end=args.end, path=path)
+        if len(files) == 1:
+            print(f"wrote {written}")
+    return 0
+
+
+def add_replay_commands(sub) -> None:
+    replay = sub.add_parser("replay", help="check, inspect, import and release replays")
+    rsub = replay.add_subparsers(dest="replay_command", required=True)
+    verify = rsub.add_parser("verify", help="re-simulate replays and report the first step that differs, or ok")
+    verify.add_argument("files", nargs="+", help="replay files or folders")
+    verify.set_defaults(func=cmd_verify)
+    info = rsub.add_parser("info", help="print a replay's header and totals")
+    info.add_argument("file")
+    info.set_defaults(func=cmd_info)
+    imp = rsub.add_parser("import", help="import a frames-only trajectory (observation planes + goal one-hots)")
+    imp.add_argument("trajectory", help=".npy of shape [T+1, C+2, H, W] (or [T+1, A, C+2, H, W])")
+    imp.add_argument("goal_info", help=".npy of shape [T+1, C]: the leader's one-hot goal per frame")
+    imp.add_argument("--out", required=True, help="replay file to write (*.replay.json)")
+    add_config_arguments(imp)
+    imp.set_defaults(func=cmd_import)
+    rel = rsub.add_parser("release", help="regenerate the released replay set")
+    rel.add_argument("--out", default="replays")
+    rel.add_argument("--episodes", type=int, default=2, help="episodes per (setting, follower)")
+    rel.add_argument("--gifs", help="also export one GIF per setting into this folder (e.g. docs/images)")
+    rel.set_defaults(func=cmd_release)
+
+    exp = sub.add_parser("export", help="export replays to GIF or MP4 without a display")
+    exp.add_argument("target", help="a replay file or a folder of them")
+    exp.add_argument("--format", required=True, choices=["gif", "mp4"])
+    exp.add_argument("--out", help="output file (one replay) or folder (default: beside each replay)")
+    exp.add_argument("--fps", type=float, default=8.0)
+    exp.add_argument("--scale", type=int, default=12, help="pixels per grid cell (4..64)")
+    exp.add_argument("--start", type=int, default=0, help="first step to draw")
+    exp.add_argument("--end", type=int, default=None, help="last step to draw (default: the last)")
+    exp.set_defaults(func=cmd_export)

@@ -1,0 +1,55 @@
+"""The released replay set (``replays/``): scripted agents in the default and paper settings."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from colorgrid.cli_config import PRESETS
+from colorgrid.config import EnvConfig
+from colorgrid.evaluate import record_batch
+from colorgrid.policies import make_policy
+from colorgrid.replay import load
+from colorgrid.rollout import run_episodes
+
+SETTINGS = {
+    "default": "asymmetric, +1/-1, goal switches about 2% a step",
+    "symmetric": "the follower is told the goal",
+    "reward_4_1": "goal blocks pay +4, wrong ones cost 1",
+    "stationary": "the goal never switches",
+}
+FOLLOWERS = {
+    "copy": "copies the color of the leader's last paying pickup",
+    "oracle": "knows the true goal (upper bound)",
+    "bayes": "infers the goal with a hidden Markov model",
+}
+RELEASE_SEED = 2026
+GIF_SETTINGS = ("default", "stationary", "reward_4_1")  # the symmetric episodes look like the default ones
+
+
+def build_release(out: Path, episodes: int = 2, gifs: Path | None = None) -> dict:
+    """Record ``episodes`` episodes of the A* leader with each follower in each setting; write index.json."""
+    out.mkdir(parents=True, exist_ok=True)
+    entries = []
+    for setting, setting_text in SETTINGS.items():
+        config = EnvConfig().replace(**PRESETS[setting]) if PRESETS[setting] else EnvConfig()
+        for follower, follower_text in FOLLOWERS.items():
+            leader_policy, follower_policy = make_policy("astar"), make_policy(follower)
+            batch = run_episodes(config, leader_policy, follower_policy, episodes, RELEASE_SEED, record_hashes=True)
+            folder = out / setting
+            paths = record_batch(batch, "astar", follower, leader_policy, follower_policy, folder, "eval",
+                                 meta={"setting": setting})
+            for path in paths:
+                replay = load(path)
+                entries.append({
+                    "file": str(path.relative_to(out)), "setting": setting, "config": replay.config.to_dict(),
+                    "agents": replay.agents, "seed": replay.seed, "final": replay.final(),
+                    "description": f"A* leader with the {follower} follower ({follower_text}); {setting_text}.",
+                })
+            if gifs is not None and follower == "bayes" and setting in GIF_SETTINGS:
+                from colorgrid.export import export
+
+                export(load(paths[0]), gifs / f"{setting}_astar+bayes.gif", "gif", cell=8)
+    index = {"generated_by": f"colorgrid replay release --out {out} --episodes {episodes}", "replays": entries}
+    (out / "index.json").write_text(json.dumps(index, indent=2))
+    return index

@@ -1,0 +1,138 @@
+"""Turning replays back into states: re-simulation, verification, frames, recording."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.env import BatchEnv
+from colorgrid.replay.format import Replay, ReplayError
+from colorgrid.rollout import EpisodeBatch
+from colorgrid.state import EnvState
+
+
+def replay_states(replay: Replay, path=None) -> list[EnvState]:
+    """The ``T + 1`` states of the episode (batch-of-one ``EnvState`` each)."""
+    if replay.kind == "frames":
+        return [frame_state(replay, t) for t in range(replay.num_steps + 1)]
+    env = BatchEnv(replay.config, num_envs=1, seed=replay.seed, autoreset=False)
+    env.reset()
+    env.penalty_coef = replay.penalty_coef
+    states = [env.state.copy()]
+    for t, action in enumerate(replay.actions):
+        try:
+            env.step(np.array([action], dtype=np.int64))
+        except (ValueError, RuntimeError) as err:
+            raise ReplayError(path, f"step {t} cannot be simulated: {err}") from None
+        states.append(env.state.copy())
+    return states
+
+
+@dataclass
+class Verification:
+    ok: bool
+    message: str
+    first_bad_step: int | None = None
+
+
+def verify(replay: Replay, path=None) -> Verification:
+    """Re-simulate and compare every state hash; reports the first step that differs."""
+    if replay.kind == "frames":
+        return Verification(True, "ok (frames replay: states are stored, nothing to re-simulate)")
+    if replay.state_hashes is None:
+        return Verification(False, "no state hashes stored: cannot verify")
+    states = replay_states(replay, path)
+    for t, (state, expected) in enumerate(zip(states, replay.state_hashes)):
+        got = state.state_hash(0)
+        if got != expected:
+            what = "the initial state" if t == 0 else f"the state after step {t - 1}"
+            return Verification(False, f"state hash mismatch at step {t} ({what}): file has {expected}, "
+                                       f"re-simulation gives {got}", t)
+    final = replay.final()
+    for i, name in enumerate(AGENTS):
+        if "leader_score" in final and abs(float(states[-1].score[0, i]) - final[f"{name}_score"]) > 1e-6:
+            return Verification(False, f"{name} score differs from re-simulation", len(states) - 1)
+    return Verification(True, "ok")
+
+
+def frame_state(replay: Replay, t: int) -> EnvState:
+    """State ``t`` of a frames replay, rebuilt from the stored cells."""
+    cfg, frames = replay.config, replay.frames
+    blocks = frames["blocks"][t]
+    colors = np.array([-1 if ch == "." else int(ch) for ch in blocks], dtype=np.int64)
+    block_cells = np.concatenate([np.flatnonzero(colors == k) for k in range(cfg.num_colors)])
+    block_at = np.full(cfg.height * cfg.width, -1, dtype=np.int32)
+    # Blocks are numbered color by color, so block j has color j // blocks_per_color when counts match.
+    block_at[block_cells] = np.arange(block_cells.size)
+    goal = frames["goal"][t]
+    return EnvState(
+        seed=np.zeros(1, dtype=np.uint64), t=np.array([t]), goal=np.array([goal]),
+        agent_cell=np.array([frames["agent_cell"][t]], dtype=np.int64),
+        block_cell=block_cells[None, :], block_at=block_at.reshape(1, cfg.height, cfg.width),
+        score=np.zeros((1, cfg.num_agents)), goal_pickups=np.zeros((1, cfg.num_agents), dtype=np.int64),
+        wrong_pickups=np.zeros((1, cfg.num_agents), dtype=np.int64),
+    )
+
+
+def encode_blocks(block_color_row: np.ndarray) -> str:
+    """[H*W] colors (-1 none) -> the frames string ('.' or the color's digit per cell)."""
+    return "".join("." if c < 0 else str(int(c)) for c in block_color_row)
+
+
+def from_batch(batch: EpisodeBatch, agents: dict, source: str, penalty_coef: float = 1.0,
+               meta: dict | None = None) -> list[Replay]:
+    """One replay per episode of a recorded batch (``run_episodes(..., record_hashes=True)``)."""
+    replays = []
+    for e in range(batch.num_episodes):
+        probs = {name: batch.goal_probs[i][:, e].round(5).tolist()
+                 for i, name in enumerate(AGENTS) if batch.goal_probs[i] is not None}
+        replays.append(Replay(
+            config=batch.config, seed=int(batch.seeds[e]), source=source, agents=agents,
+            actions=batch.actions[:, e].tolist(), goal=batch.goal[:, e].tolist(),
+            block_reward=batch.block_reward[:, e].tolist(), team_reward=batch.team_reward[:, e].tolist(),
+            picked_color=batch.picked_color[:, e].tolist(), goal_switched=batch.goal_switched[:, e].tolist(),
+            goal_probs=probs,
+            state_hashes=list(batch.state_hashes[:, e]) if batch.state_hashes is not None else None,
+            penalty_coef=penalty_coef, meta=dict(meta or {}),
+        ))
+    return replays
+
+
+def import_frames(config: EnvConfig, planes: np.ndarray, goal_info: np.ndarray, meta: dict | None = None) -> Replay:
+    """A frames replay from observation arrays, such as the paper's trajectory dumps.
+
+    planes: ``[T+1, C+2, H, W]`` (or ``[T+1, A, C+2, H, W]``, the first agent's view is used),
+    0/1 per cell; goal_info: ``[T+1, C]`` one-hot goal per frame (the leader's view).
+    """
+    planes = np.asarray(planes)
+    goal_info = np.asarray(goal_info)
+    if planes.ndim == 5:
+        planes = planes[:, 0]
+    C, H, W = config.num_colors, config.height, config.width
+    if planes.ndim != 4 or planes.shape[1:] != (C + 2, H, W):
+        raise ReplayError(None, f"trajectory must have shape [T, {C + 2}, {H}, {W}] for this config, "
+                                f"got {list(planes.shape)}")
+    if goal_info.ndim == 3:
+        goal_info = goal_info[:, 0]
+    if goal_info.shape != (planes.shape[0], C):
+        raise ReplayError(None, f"goal info must have shape [{planes.shape[0]}, {C}], got {list(goal_info.shape)}")
+    if planes.shape[0] < 2:
+        raise ReplayError(None, "a trajectory needs at least 2 frames (one step)")
+    if not (goal_info.sum(axis=1) == 1).all():
+        raise ReplayError(None, "goal info rows must be one-hot (the leader's view of the goal)")
+    blocks, cells = [], []
+    for t, frame in enumerate(planes):
+        agent_counts = frame[C:].reshape(2, -1).sum(axis=1)
+        if not (agent_counts == 1).all():
+            raise ReplayError(None, f"frame {t}: each agent plane must mark exactly one cell")
+        color = np.where(frame[:C].any(axis=0), frame[:C].argmax(axis=0), -1).ravel()
+        blocks.append(encode_blocks(color))
+        cells.append(frame[C:].reshape(2, -1).argmax(axis=1).tolist())
+    goals = goal_info.argmax(axis=1).astype(int).tolist()
+    T = planes.shape[0] - 1
+    return Replay(config=config, seed=None, source="import", agents={"leader": {"policy": "unknown"},
+                  "follower": {"policy": "unknown"}}, actions=None, goal=goals[:T], block_reward=None,
+                  team_reward=None, picked_color=None, goal_switched=None,
+                  frames={"agent_cell": cells, "blocks": blocks, "goal": goals}, meta=dict(meta or {}))
