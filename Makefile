@@ -24,7 +24,7 @@ browser:
 	  $$SUDO apt-get update -qq && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; }
 
 play: $(STAMP)
-	$(VENV)/bin/colorgrid demo
+	$(VENV)/bin/colorgrid play
 
 test: $(STAMP) browser
 	$(PY) -m pytest

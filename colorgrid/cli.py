@@ -55,6 +55,25 @@ def cmd_eval(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_play(args: argparse.Namespace) -> int:
+    """Run the play server (uvicorn) until interrupted."""
+    from pathlib import Path
+
+    import uvicorn
+
+    from server.app import create_app
+    from server.settings import ServerSettings
+
+    settings = ServerSettings(host=args.host, port=args.port, follower=args.follower, preset=args.preset,
+                              tick_hz=args.tick_hz, replays_dir=Path(args.replays_dir), max_sessions=args.max_sessions,
+                              show_belief=not args.hide_belief, rejoin_grace_s=args.rejoin_grace_s,
+                              idle_timeout_s=args.idle_timeout_s, inference_deadline_ms=args.inference_deadline_ms)
+    print(f"ColorGrid play server: http://{args.host}:{args.port}/  (replays in {args.replays_dir}; Ctrl+C stops)")
+    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level=args.log_level,
+                ws_max_size=65536)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="colorgrid", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -75,6 +94,21 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--record", metavar="DIR", help="save every episode as a replay in DIR")
     add_config_arguments(ev)
     ev.set_defaults(func=cmd_eval)
+    play = sub.add_parser("play", help="run the play server: lead in the browser, a follower assists")
+    play.add_argument("--host", default="127.0.0.1")
+    play.add_argument("--port", type=int, default=8000)
+    play.add_argument("--follower", default="bayes", help="default follower (scripted name or checkpoint .pt)")
+    play.add_argument("--preset", default="default", help="default environment preset")
+    play.add_argument("--tick-hz", type=float, default=5.0, help="real-time mode: steps per second")
+    play.add_argument("--replays-dir", default="recordings", help="where every game is saved")
+    play.add_argument("--max-sessions", type=int, default=100, help="concurrent games")
+    play.add_argument("--hide-belief", action="store_true", help="never show players the follower's belief")
+    play.add_argument("--rejoin-grace-s", type=float, default=30.0, help="how long a dropped game waits for its player")
+    play.add_argument("--idle-timeout-s", type=float, default=300.0, help="close and save games idle this long")
+    play.add_argument("--inference-deadline-ms", type=float, default=100.0, help="follower budget per step")
+    play.add_argument("--log-level", default="info")
+    play.set_defaults(func=cmd_play)
+
     from colorgrid.cli_replay import add_replay_commands
 
     add_replay_commands(sub)

@@ -38,7 +38,9 @@ class Policy:
     """Base class: ``reset`` once for a batch, then ``act`` every step.
 
     Subclasses keep any memory (beliefs, LSTM state) as batched arrays and clear
-    the rows flagged by ``episode_start``.
+    the rows flagged by ``episode_start``. ``act(inp, rows)`` may be given inputs
+    for a subset of the batch: ``rows`` are their indices (all rows when None).
+    This lets one policy serve many independent games (the play server).
     """
 
     name = "policy"
@@ -50,8 +52,11 @@ class Policy:
         self.agent_index = agent_index
         self.seed = seed
 
-    def act(self, inp: AgentInput) -> PolicyOutput:
+    def act(self, inp: AgentInput, rows: np.ndarray | None = None) -> PolicyOutput:
         raise NotImplementedError
+
+    def _rows(self, rows: np.ndarray | None) -> np.ndarray:
+        return np.arange(self.num_envs) if rows is None else np.asarray(rows)
 
     def describe(self) -> dict:
         """How replays and reports name this agent."""

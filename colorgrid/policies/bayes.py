@@ -103,52 +103,59 @@ class BayesFollower(Seeker):
         super().reset(config, num_envs, agent_index, seed)
         C = config.num_colors
         self.belief = np.full((num_envs, C), 1.0 / C)
-        self.prev_blocks = None
-        self.prev_cells = None
+        self.prev_blocks = np.full((num_envs, config.height, config.width), -1, dtype=np.int8)
+        self.prev_cells = np.zeros((num_envs, config.num_agents), dtype=np.int64)
+        self.has_prev = np.zeros(num_envs, dtype=bool)
+        from colorgrid.env import move_table
 
-    def update(self, inp: AgentInput, block_color: np.ndarray, agent_cell: np.ndarray) -> None:
-        """Fold last step's evidence into the belief and advance it to the current goal."""
-        cfg, p = self.config, self.params
-        fresh = inp.episode_start | (self.prev_cells is None)
-        if self.prev_cells is not None and not np.all(fresh):
-            go = ~fresh
-            lik = self._evidence(inp, block_color, agent_cell, go)
-            post = self.belief[go] * lik
+        self.leader_table = move_table(config)[0]
+
+    def update(self, inp: AgentInput, rows: np.ndarray, block_color: np.ndarray, agent_cell: np.ndarray) -> np.ndarray:
+        """Fold last step's evidence into the belief of ``rows`` and advance it to the current goal."""
+        cfg = self.config
+        belief = self.belief[rows]
+        fresh = inp.episode_start | ~self.has_prev[rows]
+        go = ~fresh
+        if go.any():
+            lik = self._evidence(inp, rows[go], go, block_color, agent_cell)
+            post = belief[go] * lik
             post /= post.sum(axis=1, keepdims=True)
-            self.belief[go] = transition(post, cfg.switch_prob)
-        self.belief[fresh] = 1.0 / cfg.num_colors
-        self.prev_blocks, self.prev_cells = block_color.copy(), agent_cell.copy()
+            belief[go] = transition(post, cfg.switch_prob)
+        belief[fresh] = 1.0 / cfg.num_colors
+        self.belief[rows] = belief
+        self.prev_blocks[rows] = block_color
+        self.prev_cells[rows] = agent_cell
+        self.has_prev[rows] = True
+        return belief
 
-    def _evidence(self, inp: AgentInput, block_color, agent_cell, rows) -> np.ndarray:
+    def _evidence(self, inp: AgentInput, slots: np.ndarray, mask: np.ndarray, block_color, agent_cell) -> np.ndarray:
+        """[n, C] likelihood of last step's leader move and reward, for the inputs selected by ``mask``."""
         cfg, p = self.config, self.params
-        leader_before = self.prev_cells[rows, 0]
-        follower_before = self.prev_cells[rows, 1]
+        leader_before = self.prev_cells[slots, 0]
+        follower_before = self.prev_cells[slots, 1]
         table = self.leader_table[leader_before]  # [n, M] cells each leader action leads to
         table = np.where(table == follower_before[:, None], leader_before[:, None], table)
-        observed = table == agent_cell[rows, 0][:, None]
+        observed = table == agent_cell[mask, 0][:, None]
         cells = np.concatenate([leader_before[:, None], table], axis=1)
-        d = manhattan_to_nearest(cfg, self.prev_blocks[rows], cells)  # [n, 1 + M, C]
+        d = manhattan_to_nearest(cfg, self.prev_blocks[slots].astype(np.int64), cells)  # [n, 1 + M, C]
         lik = move_likelihood(d[:, 0], d[:, 1:], observed, p.rationality, p.lapse)
-        lik *= reward_likelihood(inp.prev_picked_color[rows], inp.prev_reward[rows], cfg, inp.penalty_coef,
+        lik *= reward_likelihood(inp.prev_picked_color[mask], inp.prev_reward[mask], cfg, inp.penalty_coef,
                                  self.agent_index, p.reward_noise)
         return lik
 
-    def act(self, inp: AgentInput) -> PolicyOutput:
+    def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
         cfg, p = self.config, self.params
-        if not hasattr(self, "leader_table"):
-            from colorgrid.env import move_table
-
-            self.leader_table = move_table(cfg)[0]
+        rows = self._rows(rows)
         block_color, agent_cell = decode(inp.observation, cfg)
-        self.update(inp, block_color, agent_cell)
+        belief = self.update(inp, rows, block_color, agent_cell)
         me, leader = agent_cell[:, self.agent_index], agent_cell[:, 0]
-        expected = self.belief * cfg.goal_reward - (1 - self.belief) * cfg.wrong_penalty * inp.penalty_coef
-        wanted = (self.belief >= p.collect_threshold) & (expected > 0)
+        expected = belief * cfg.goal_reward - (1 - belief) * cfg.wrong_penalty * inp.penalty_coef
+        wanted = (belief >= p.collect_threshold) & (expected > 0)
         sure = wanted.any(axis=1)
         actions = self.standby(block_color, me, leader)
         if sure.any():
             actions[sure], _ = self.seek(wanted[sure], block_color[sure], me[sure], leader[sure])
-        return PolicyOutput(actions, self.belief.astype(np.float32).copy())
+        return PolicyOutput(actions, belief.astype(np.float32))
 
     def standby(self, block_color: np.ndarray, me: np.ndarray, leader: np.ndarray) -> np.ndarray:
         """Stay near the leader without collecting: step toward it over free cells if far, else wander."""

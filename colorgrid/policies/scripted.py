@@ -18,7 +18,7 @@ class RandomPolicy(Policy):
         super().reset(config, num_envs, agent_index, seed)
         self.rng = np.random.default_rng([seed, agent_index])
 
-    def act(self, inp: AgentInput) -> PolicyOutput:
+    def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
         return PolicyOutput(self.rng.integers(0, self.config.num_actions, inp.observation.shape[0]))
 
 
@@ -68,7 +68,7 @@ class AStarLeader(Seeker):
 
     name = "astar"
 
-    def act(self, inp: AgentInput) -> PolicyOutput:
+    def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
         block_color, me, other = self.positions(inp)
         wanted = inp.goal_info > 0.5
         if not wanted.any(axis=1).all():
@@ -83,7 +83,7 @@ class OracleFollower(Seeker):
     name = "oracle"
     has_belief = True
 
-    def act(self, inp: AgentInput) -> PolicyOutput:
+    def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
         if inp.true_goal is None:
             raise ValueError("the oracle follower needs the true goal (AgentInput.true_goal)")
         block_color, me, other = self.positions(inp)
@@ -97,7 +97,7 @@ class IdleFollower(Seeker):
 
     name = "idle"
 
-    def act(self, inp: AgentInput) -> PolicyOutput:
+    def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
         block_color, me, other = self.positions(inp)
         return PolicyOutput(self.mover.wander(block_color, me, other, self.rng))
 
@@ -118,15 +118,18 @@ class CopyFollower(Seeker):
         super().reset(config, num_envs, agent_index, seed)
         self.target = np.full(num_envs, -1, dtype=np.int64)
 
-    def act(self, inp: AgentInput) -> PolicyOutput:
-        self.target[inp.episode_start] = -1
+    def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
+        rows = self._rows(rows)
+        target = self.target[rows]
+        target[inp.episode_start] = -1
         leader_color = inp.prev_picked_color[:, 0]
         paid = (leader_color >= 0) & (inp.prev_reward > 0) & ~inp.episode_start
-        self.target[paid] = leader_color[paid]
+        target[paid] = leader_color[paid]
+        self.target[rows] = target
         block_color, me, other = self.positions(inp)
         actions = self.mover.wander(block_color, me, other, self.rng)
-        active = self.target >= 0
+        active = target >= 0
         if active.any():
-            wanted = np.eye(self.config.num_colors, dtype=bool)[self.target[active]]
+            wanted = np.eye(self.config.num_colors, dtype=bool)[target[active]]
             actions[active], _ = self.seek(wanted, block_color[active], me[active], other[active])
         return PolicyOutput(actions)

@@ -1,0 +1,64 @@
+"""Follower pools: one policy instance serves every live game of the same kind, in one batched call."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from colorgrid.config import EnvConfig
+from colorgrid.policies import IdleFollower, make_policy
+from colorgrid.policies.base import AgentInput
+
+
+class FollowerPool:
+    """A follower policy with one row ("slot") per concurrent game of one config.
+
+    ``act`` runs the policy for any subset of slots in one call. ``fallback`` is the
+    documented move used when inference misses its deadline: a step to a free
+    neighbouring cell that collects nothing (the ``idle`` follower).
+    """
+
+    def __init__(self, name: str, config: EnvConfig, capacity: int, seed: int = 0):
+        self.name = name
+        self.config = config
+        self.policy = make_policy(name)
+        self.policy.reset(config, capacity, agent_index=1, seed=seed)
+        self.idle = IdleFollower()
+        self.idle.reset(config, capacity, agent_index=1, seed=seed + 1)
+        self.free = list(range(capacity - 1, -1, -1))
+        self.busy = False  # an inference call is still running (it may outlive its deadline)
+
+    def acquire(self) -> int:
+        if not self.free:
+            raise RuntimeError(f"follower pool {self.name!r} is full")
+        return self.free.pop()
+
+    def release(self, slot: int) -> None:
+        self.free.append(slot)
+
+    def act(self, inputs: list[AgentInput], slots: list[int]) -> tuple[np.ndarray, np.ndarray | None]:
+        """Actions ``[n]`` and beliefs ``[n, C]`` (or None) for the games in ``slots``."""
+        batch = stack_inputs(inputs)
+        self.busy = True
+        try:
+            out = self.policy.act(batch, rows=np.asarray(slots))
+        finally:
+            self.busy = False
+        return out.actions, out.goal_probs
+
+    def fallback(self, inputs: list[AgentInput], slots: list[int]) -> np.ndarray:
+        return self.idle.act(stack_inputs(inputs), rows=np.asarray(slots)).actions
+
+
+def stack_inputs(inputs: list[AgentInput]) -> AgentInput:
+    """Concatenate batch-of-one (or larger) inputs along the batch axis."""
+    first = inputs[0]
+    return AgentInput(
+        observation=np.concatenate([i.observation for i in inputs]),
+        goal_info=np.concatenate([i.goal_info for i in inputs]),
+        episode_start=np.concatenate([i.episode_start for i in inputs]),
+        prev_reward=np.concatenate([i.prev_reward for i in inputs]),
+        prev_picked_color=np.concatenate([i.prev_picked_color for i in inputs]),
+        prev_actions=np.concatenate([i.prev_actions for i in inputs]),
+        penalty_coef=first.penalty_coef,
+        true_goal=np.concatenate([i.true_goal for i in inputs]),
+    )

@@ -1,0 +1,175 @@
+"""One game: a person leads, a follower assists; the server owns the state and records everything."""
+
+from __future__ import annotations
+
+import secrets
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.env import BatchEnv
+from colorgrid.policies.base import AgentInput
+from colorgrid.replay import Replay
+from server.protocol import KEY_ACTIONS
+
+STAY = 4
+
+
+def now_ms() -> float:
+    return time.time() * 1000.0
+
+
+@dataclass
+class Game:
+    """State of one live game. ``mode`` is ``"turn"`` or ``"realtime"``."""
+
+    config: EnvConfig
+    mode: str
+    follower: str
+    preset: str
+    seed: int
+    show_belief: bool
+    slot: int
+    game_id: str = field(default_factory=lambda: secrets.token_hex(6))
+    token: str = field(default_factory=lambda: secrets.token_urlsafe(18))
+    created: float = field(default_factory=time.time)
+    pool: object = field(default=None, repr=False)  # the FollowerPool serving this game
+
+    def __post_init__(self) -> None:
+        self.env = BatchEnv(self.config, num_envs=1, seed=self.seed, autoreset=False)
+        self.obs, _ = self.env.reset()
+        A = self.config.num_agents
+        self.prev_reward = np.zeros(1, dtype=np.float32)
+        self.prev_picked = np.full((1, A), -1, dtype=np.int64)
+        self.prev_actions = np.full((1, A), -1, dtype=np.int64)
+        self.start = True
+        self.pending: dict | None = None  # the latest key not yet applied (its key-log entry)
+        self.key_log: list[dict] = []
+        self.actions: list = []
+        self.goals: list = []
+        self.block_reward: list = []
+        self.team_reward: list = []
+        self.picked: list = []
+        self.switched: list = []
+        self.beliefs: list = []
+        self.hashes = [self.env.state.state_hash(0)]
+        self.deadline_misses: list[int] = []
+        self.last_key_at = time.monotonic()
+        self.disconnected_at: float | None = None
+        self.finished = False
+        self.replay_id: str | None = None
+        self.last_events: list[dict] = []
+
+    # ------------------------------------------------------------ keys
+    def press(self, key: str, seq: int, t_client: float) -> str | None:
+        """Register a key press; returns an error text for keys that are not moves.
+
+        The latest key wins: one pressed before the previous one was applied marks
+        that one ``superseded`` in the key log (nothing is dropped silently).
+        """
+        entry = {"seq": seq, "key": key, "t_client": t_client, "t_server": now_ms(), "applied_step": None}
+        action = KEY_ACTIONS.get(key)
+        if action is None:
+            entry["status"] = "ignored"
+            self.key_log.append(entry)
+            return f"key {key!r} is not a move; use the arrow keys or WASD"
+        entry["action"] = action
+        if self.pending is not None:
+            self.pending["status"] = "superseded"
+        entry["status"] = "pending"
+        self.pending = entry
+        self.key_log.append(entry)
+        self.last_key_at = time.monotonic()
+        return None
+
+    def ready(self) -> bool:
+        """Whether the world should step now: always in real time, on a pending key when turn-based."""
+        return not self.finished and (self.mode == "realtime" or self.pending is not None)
+
+    def leader_action(self) -> int:
+        if self.pending is None:
+            return STAY  # real time with no key pending: the leader stays
+        return self.pending["action"]
+
+    # ------------------------------------------------------------ steps
+    def follower_input(self) -> AgentInput:
+        return AgentInput(
+            observation=self.obs["observation"].copy(), goal_info=self.obs["goal_info"][:, 1].copy(),
+            episode_start=np.array([self.start]), prev_reward=self.prev_reward.copy(),
+            prev_picked_color=self.prev_picked.copy(), prev_actions=self.prev_actions.copy(),
+            penalty_coef=self.env.penalty_coef, true_goal=self.env.state.goal.copy(),
+        )
+
+    def apply(self, follower_action: int, belief: np.ndarray | None, missed_deadline: bool) -> None:
+        """Step the world with the pending key (or stay) and the follower's action."""
+        t = int(self.env.state.t[0])
+        leader = self.leader_action()
+        if self.pending is not None:
+            self.pending["status"], self.pending["applied_step"] = "applied", t
+            self.pending = None
+        self.goals.append(int(self.env.state.goal[0]))
+        joint = np.array([[leader, int(follower_action)]], dtype=np.int64)
+        self.obs, _, _, truncs, info = self.env.step(joint)
+        self.actions.append([leader, int(follower_action)])
+        self.block_reward.append([float(x) for x in info["block_reward"][0]])
+        self.team_reward.append(float(info["team_reward"][0]))
+        self.picked.append([int(x) for x in info["picked_color"][0]])
+        self.switched.append(bool(info["goal_switched"][0]))
+        if belief is not None:
+            self.beliefs.append([round(float(p), 5) for p in belief])
+        self.hashes.append(self.env.state.state_hash(0))
+        if missed_deadline:
+            self.deadline_misses.append(t)
+        reward_seen = info["team_reward"] if self.config.reward_mode == "shared" else info["block_reward"][:, 1]
+        self.prev_reward = reward_seen.astype(np.float32)
+        self.prev_picked, self.prev_actions, self.start = info["picked_color"].copy(), joint, False
+        self.last_events = [
+            {"agent": AGENTS[i], "color": int(c), "goal": bool(info["goal_pickup"][0, i])}
+            for i, c in enumerate(info["picked_color"][0]) if c >= 0
+        ]
+        if info["goal_switched"][0]:
+            self.last_events.append({"switch": int(info["goal_color"][0])})
+        if truncs.all():
+            self.finished = True
+
+    # ------------------------------------------------------------ views
+    def welcome(self, tick_hz: float) -> dict:
+        cfg = self.config
+        return {
+            "type": "welcome", "game_id": self.game_id, "token": self.token, "mode": self.mode,
+            "follower": self.follower, "preset": self.preset, "tick_hz": tick_hz if self.mode == "realtime" else None,
+            "height": cfg.height, "width": cfg.width, "colors": list(cfg.color_names), "horizon": cfg.horizon,
+            "show_belief": self.show_belief, "keys": sorted(KEY_ACTIONS),
+        }
+
+    def state_message(self) -> dict:
+        s, cfg = self.env.state, self.config
+        colors = s.block_colors(cfg)[0].ravel()
+        last_seq = max((e["seq"] for e in self.key_log if e["status"] == "applied"), default=None)
+        return {
+            "type": "state", "step": int(s.t[0]), "horizon": cfg.horizon,
+            "leader": int(s.agent_cell[0, 0]), "follower": int(s.agent_cell[0, 1]),
+            "blocks": "".join("." if c < 0 else str(int(c)) for c in colors),
+            "goal": int(s.goal[0]),
+            "scores": {"team": float(s.score[0].sum()), "leader": float(s.score[0, 0]),
+                       "follower": float(s.score[0, 1])},
+            "belief": self.beliefs[-1] if (self.show_belief and self.beliefs) else None,
+            "events": self.last_events, "last_applied_seq": last_seq,
+        }
+
+    def to_replay(self, ended: str, follower_description: dict) -> Replay:
+        for entry in self.key_log:
+            if entry["status"] == "pending":
+                entry["status"] = "unapplied"  # pressed after the last step the game made
+        return Replay(
+            config=self.config, seed=self.seed, source="play",
+            agents={"leader": {"policy": "human"}, "follower": follower_description},
+            actions=self.actions, goal=self.goals, block_reward=self.block_reward, team_reward=self.team_reward,
+            picked_color=self.picked, goal_switched=self.switched,
+            goal_probs={"follower": self.beliefs} if len(self.beliefs) == len(self.actions) and self.beliefs else {},
+            state_hashes=self.hashes, ended=ended, key_events=self.key_log,
+            meta={"game_id": self.game_id, "mode": self.mode, "preset": self.preset,
+                  "deadline_misses": self.deadline_misses},
+        )

@@ -1,0 +1,228 @@
+"""The game hub: every live game, the real-time tick, batched follower inference, saving."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Awaitable, Callable
+
+import numpy as np
+
+from colorgrid.cli_config import PRESETS
+from colorgrid.config import EnvConfig
+from colorgrid.replay import save
+from colorgrid.replay.format import describe_agent
+from server.followers import FollowerPool
+from server.game import Game
+from server.settings import ServerSettings
+
+log = logging.getLogger("colorgrid.server")
+Sender = Callable[[dict], Awaitable[None]]
+
+
+class ServerFull(Exception):
+    pass
+
+
+class GameHub:
+    """Owns all games. Real-time games advance together on one clock (``tick_hz``), with one
+    batched follower call per follower pool per tick; turn-based games advance on a key."""
+
+    def __init__(self, settings: ServerSettings):
+        self.settings = settings
+        self.games: dict[str, Game] = {}
+        self.senders: dict[str, Sender | None] = {}
+        self.pools: dict[tuple, FollowerPool] = {}
+        self.executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="follower")
+        self.lock = asyncio.Lock()  # one step at a time: ticks and turn-based keys never interleave
+        self.stats = {"ticks": 0, "late_ticks": 0, "max_lateness_ms": 0.0, "deadline_misses": 0, "games_saved": 0}
+        self.lateness_ms: list[float] = []
+        self._tasks: list[asyncio.Task] = []
+        self._seed_counter = int(time.time())
+
+    # ------------------------------------------------------------ lifecycle
+    def start(self) -> None:
+        Path(self.settings.replays_dir).mkdir(parents=True, exist_ok=True)
+        self._tasks = [asyncio.create_task(self._tick_loop()), asyncio.create_task(self._sweep_loop())]
+
+    async def stop(self) -> None:
+        for task in self._tasks:
+            task.cancel()
+        for game in list(self.games.values()):
+            await self.finish(game, "server_shutdown")
+        self.executor.shutdown(wait=False, cancel_futures=True)
+
+    # ------------------------------------------------------------ sessions
+    def make_config(self, preset: str, mode: str, horizon: int | None) -> EnvConfig:
+        if preset not in PRESETS:
+            raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
+        changes = dict(PRESETS[preset])
+        if mode == "realtime":
+            changes["allow_stay"] = True  # the leader stays when no key is pending
+        if horizon is not None:
+            changes["horizon"] = horizon
+        return EnvConfig().replace(**changes) if changes else EnvConfig()
+
+    def pool_for(self, follower: str, config: EnvConfig) -> FollowerPool:
+        key = (follower, tuple(sorted(config.to_dict().items(), key=lambda kv: kv[0]).__repr__()))
+        if key not in self.pools:
+            self.pools[key] = FollowerPool(follower, config, self.settings.max_sessions)
+        return self.pools[key]
+
+    async def new_game(self, follower: str | None, preset: str | None, mode: str, horizon: int | None,
+                       show_belief: bool, sender: Sender) -> Game:
+        follower = follower or self.settings.follower
+        if follower not in self.settings.followers:
+            raise ValueError(f"unknown follower {follower!r}; choose one of {list(self.settings.followers)}")
+        if len(self.games) >= self.settings.max_sessions:
+            raise ServerFull(f"server full: {len(self.games)} games are running (limit {self.settings.max_sessions});"
+                             " try again in a minute")
+        preset = preset or self.settings.preset
+        config = self.make_config(preset, mode, horizon)
+        pool = self.pool_for(follower, config)
+        self._seed_counter += 1
+        game = Game(config=config, mode=mode, follower=follower, preset=preset, seed=self._seed_counter,
+                    show_belief=show_belief and self.settings.show_belief, slot=pool.acquire(), pool=pool)
+        self.games[game.game_id] = game
+        self.senders[game.game_id] = sender
+        await sender(game.welcome(self.settings.tick_hz))
+        await sender(game.state_message())
+        return game
+
+    async def rejoin(self, game_id: str, token: str, sender: Sender) -> Game:
+        game = self.games.get(game_id)
+        if game is None or not secrets_equal(game.token, token):
+            raise ValueError("no game with that id and token is waiting (it may have ended or the grace period passed)")
+        game.disconnected_at = None
+        game.last_key_at = time.monotonic()
+        self.senders[game_id] = sender
+        await sender(game.welcome(self.settings.tick_hz))
+        await sender(game.state_message())
+        return game
+
+    def disconnect(self, game: Game) -> None:
+        if game.game_id in self.games:
+            self.senders[game.game_id] = None
+            game.disconnected_at = time.monotonic()
+
+    async def key(self, game: Game, key: str, seq: int, t_client: float) -> str | None:
+        problem = game.press(key, seq, t_client)
+        if problem is None and game.mode == "turn":
+            await self.step_games([game])
+        return problem
+
+    # ------------------------------------------------------------ stepping
+    async def step_games(self, games: list[Game]) -> None:
+        """Advance ``games`` one step: one batched follower call per pool, then the env steps."""
+        async with self.lock:
+            games = [g for g in games if g.ready() and g.game_id in self.games]
+            by_pool: dict[int, list[Game]] = {}
+            for g in games:
+                by_pool.setdefault(id(g.pool), []).append(g)
+            for group in by_pool.values():
+                pool = group[0].pool
+                inputs = [g.follower_input() for g in group]
+                slots = [g.slot for g in group]
+                actions, beliefs, missed = await self._infer(pool, inputs, slots)
+                for i, g in enumerate(group):
+                    belief = beliefs[i] if beliefs is not None else (np.array(g.beliefs[-1]) if g.beliefs else None)
+                    g.apply(int(actions[i]), belief, missed)
+            for g in games:
+                await self._send(g, g.state_message())
+                if g.finished:
+                    await self.finish(g, "complete")
+
+    async def _infer(self, pool: FollowerPool, inputs, slots):
+        """Run the pool within the deadline; on a miss, fall back to idle moves and say so."""
+        deadline = self.settings.inference_deadline_ms / 1000.0
+        if not pool.busy:
+            loop = asyncio.get_running_loop()
+            future = loop.run_in_executor(self.executor, pool.act, inputs, slots)
+            try:
+                actions, beliefs = await asyncio.wait_for(asyncio.shield(future), deadline)
+                return actions, beliefs, False
+            except asyncio.TimeoutError:
+                pass
+        self.stats["deadline_misses"] += len(slots)
+        log.warning("follower %s missed its %.0f ms deadline for %d game(s)", pool.name, deadline * 1000, len(slots))
+        return pool.fallback(inputs, slots), None, True
+
+    async def _tick_loop(self) -> None:
+        period = 1.0 / self.settings.tick_hz
+        next_tick = time.perf_counter() + period
+        while True:
+            await asyncio.sleep(max(0.0, next_tick - time.perf_counter()))
+            lateness = (time.perf_counter() - next_tick) * 1000.0
+            self._record_lateness(lateness)
+            live = [g for g in self.games.values() if g.mode == "realtime" and g.disconnected_at is None]
+            if live:
+                try:
+                    await self.step_games(live)
+                except Exception:  # a bug in one tick must not stop every game
+                    log.exception("tick failed")
+            next_tick += period
+            if time.perf_counter() > next_tick + period:  # fell far behind: skip, do not burst
+                next_tick = time.perf_counter() + period
+
+    def _record_lateness(self, ms: float) -> None:
+        self.stats["ticks"] += 1
+        self.stats["late_ticks"] += ms > 20
+        self.stats["max_lateness_ms"] = max(self.stats["max_lateness_ms"], ms)
+        self.lateness_ms.append(ms)
+        del self.lateness_ms[:-5000]
+
+    async def _sweep_loop(self) -> None:
+        while True:
+            await asyncio.sleep(0.5)
+            now = time.monotonic()
+            for game in list(self.games.values()):
+                if game.disconnected_at is not None and now - game.disconnected_at > self.settings.rejoin_grace_s:
+                    await self.finish(game, "disconnected")
+                elif now - game.last_key_at > self.settings.idle_timeout_s:
+                    await self.finish(game, "idle")
+
+    # ------------------------------------------------------------ ending
+    async def finish(self, game: Game, reason: str) -> None:
+        """Save the game's replay (atomically) and tell the player; idempotent."""
+        if self.games.pop(game.game_id, None) is None:
+            return
+        game.finished = True
+        game.pool.release(game.slot)
+        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime(game.created))
+        replay_id = f"play-{stamp}-{game.game_id}"
+        if game.actions:
+            replay = game.to_replay("complete" if reason == "complete" else reason,
+                                    describe_agent(game.pool.policy.describe(),
+                                                   game.follower if game.follower.endswith(".pt") else None))
+            save(replay, Path(self.settings.replays_dir) / f"{replay_id}.replay.json")
+            game.replay_id = replay_id
+            self.stats["games_saved"] += 1
+        sender = self.senders.pop(game.game_id, None)
+        if sender is not None:
+            s = game.env.state
+            await self._send_to(sender, {
+                "type": "game_over", "reason": reason, "replay_id": game.replay_id, "steps": int(s.t[0]),
+                "scores": {"team": float(s.score[0].sum()), "leader": float(s.score[0, 0]),
+                           "follower": float(s.score[0, 1])},
+            })
+
+    async def _send(self, game: Game, message: dict) -> None:
+        sender = self.senders.get(game.game_id)
+        if sender is not None:
+            await self._send_to(sender, message)
+
+    @staticmethod
+    async def _send_to(sender: Sender, message: dict) -> None:
+        try:
+            await sender(message)
+        except Exception:  # a closed socket: the disconnect handler takes care of the game
+            pass
+
+
+def secrets_equal(a: str, b: str) -> bool:
+    import hmac
+
+    return hmac.compare_digest(a.encode(), b.encode())

@@ -1,0 +1,70 @@
+"""The play protocol: JSON messages over the WebSocket ``/ws/play``, validated with pydantic.
+
+Every message is an object with a ``type``. See ``docs/SERVER_PROTOCOL.md``.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal, Union
+
+from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
+
+KEY_ACTIONS = {
+    "ArrowUp": 0, "w": 0, "W": 0,
+    "ArrowDown": 1, "s": 1, "S": 1,
+    "ArrowLeft": 2, "a": 2, "A": 2,
+    "ArrowRight": 3, "d": 3, "D": 3,
+}
+"""Keys the leader may press and the action each one means (up, down, left, right)."""
+
+
+class _Message(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class NewGame(_Message):
+    """Start a game (the server answers ``welcome`` then ``state``)."""
+
+    type: Literal["new_game"]
+    follower: str | None = None
+    preset: str | None = None
+    mode: Literal["turn", "realtime"] = "turn"
+    horizon: int | None = Field(default=None, ge=1, le=1000)
+    show_belief: bool = True
+
+
+class Rejoin(_Message):
+    """Take a disconnected game back within the grace period."""
+
+    type: Literal["rejoin"]
+    game_id: str = Field(max_length=64)
+    token: str = Field(max_length=128)
+
+
+class Key(_Message):
+    """A key press; ``seq`` numbers the page's keys, ``t_client`` is its timestamp in ms."""
+
+    type: Literal["key"]
+    key: str = Field(max_length=32)
+    seq: int = Field(ge=0)
+    t_client: float = 0.0
+
+
+class Ping(_Message):
+    type: Literal["ping"]
+
+
+class Quit(_Message):
+    """End the game now; it is saved."""
+
+    type: Literal["quit"]
+
+
+ClientMessage = Annotated[Union[NewGame, Rejoin, Key, Ping, Quit], Field(discriminator="type")]
+CLIENT_TYPES = ("new_game", "rejoin", "key", "ping", "quit")
+client_message = TypeAdapter(ClientMessage)
+
+
+def error(code: str, message: str) -> dict:
+    """An ``error`` message; the game goes on."""
+    return {"type": "error", "code": code, "message": message}

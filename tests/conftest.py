@@ -1,0 +1,73 @@
+"""Fixtures: a real play server (uvicorn, started by the ``colorgrid play`` command) on a free loopback port."""
+
+import json
+import os
+import socket
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class RunningServer:
+    def __init__(self, port: int, replays_dir: Path, process: subprocess.Popen, log_path: Path):
+        self.port, self.replays_dir, self.process, self.log_path = port, replays_dir, process, log_path
+        self.url = f"http://127.0.0.1:{port}"
+        self.ws_url = f"ws://127.0.0.1:{port}/ws/play"
+
+    def get(self, path: str):
+        with urllib.request.urlopen(self.url + path, timeout=30) as response:
+            body = response.read()
+            kind = response.headers.get("content-type", "")
+            return (json.loads(body) if "json" in kind else body), response.status, kind
+
+
+def start_server(tmp: Path, *flags: str) -> RunningServer:
+    port = free_port()
+    replays_dir = tmp / "recordings"
+    log_path = tmp / "server.log"
+    log = open(log_path, "w")
+    process = subprocess.Popen(
+        [sys.executable, "-m", "colorgrid.cli", "play", "--port", str(port), "--replays-dir", str(replays_dir),
+         "--log-level", "warning", *flags],
+        cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )
+    server = RunningServer(port, replays_dir, process, log_path)
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        if process.poll() is not None:
+            raise RuntimeError(f"server exited: {log_path.read_text()}")
+        try:
+            server.get("/api/health")
+            return server
+        except OSError:
+            time.sleep(0.2)
+    process.kill()
+    raise RuntimeError("server did not start in 60 s")
+
+
+def stop_server(server: RunningServer) -> None:
+    server.process.terminate()
+    try:
+        server.process.wait(timeout=20)
+    except subprocess.TimeoutExpired:
+        server.process.kill()
+
+
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    srv = start_server(tmp_path_factory.mktemp("server"), "--max-sessions", "4", "--rejoin-grace-s", "1.5",
+                       "--tick-hz", "20")
+    yield srv
+    stop_server(srv)

@@ -1,0 +1,218 @@
+"""The play server through a real uvicorn on loopback: whole games, protocol errors, rejoin, limits, replays."""
+
+import json
+import time
+
+import pytest
+from websockets.sync.client import connect
+
+from colorgrid.replay import load, verify
+
+MOVES = ["ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight"]
+
+
+class Client:
+    def __init__(self, server):
+        self.ws = connect(server.ws_url, open_timeout=20, max_size=2**22)
+        self.seq = 0
+
+    def send(self, message):
+        self.ws.send(message if isinstance(message, str) else json.dumps(message))
+
+    def recv(self, *types, timeout=20.0):
+        """The next message of one of ``types`` (others are skipped)."""
+        end = time.monotonic() + timeout
+        while True:
+            msg = json.loads(self.ws.recv(timeout=max(0.01, end - time.monotonic())))
+            if not types or msg["type"] in types:
+                return msg
+
+    def key(self, key):
+        self.send({"type": "key", "key": key, "seq": self.seq, "t_client": time.time() * 1000})
+        self.seq += 1
+
+    def new_game(self, **fields):
+        self.send({"type": "new_game", **fields})
+        welcome = self.recv("welcome", "full", "error")
+        if welcome["type"] != "welcome":
+            return welcome, None
+        return welcome, self.recv("state")
+
+    def close(self):
+        self.ws.close()
+
+
+def wait_for_no_games(server, timeout=20):
+    end = time.monotonic() + timeout
+    while server.get("/api/health")[0]["games"] and time.monotonic() < end:
+        time.sleep(0.2)
+    assert server.get("/api/health")[0]["games"] == 0
+
+
+def test_health_options_and_openapi(server):
+    health, status, _ = server.get("/api/health")
+    assert status == 200 and health["status"] == "ok" and health["max_sessions"] == 4
+    options = server.get("/api/options")[0]
+    assert options["default_follower"] == "bayes" and "turn" in options["modes"]
+    docs, status, kind = server.get("/docs")
+    assert status == 200 and "html" in kind
+    assert "/ws/play" not in server.get("/openapi.json")[0]["paths"]  # websockets are documented in docs/
+
+
+def test_turn_based_game_end_to_end_and_its_replay(server):
+    client = Client(server)
+    welcome, state = client.new_game(mode="turn", horizon=16, follower="bayes")
+    assert welcome["mode"] == "turn" and welcome["horizon"] == 16 and state["step"] == 0
+    keys, seen = [], [state]
+    for t in range(16):
+        key = MOVES[t % 4]
+        keys.append(key)
+        client.key(key)
+        msg = client.recv("state")
+        assert msg["step"] == t + 1 and msg["last_applied_seq"] == t
+        seen.append(msg)
+    over = client.recv("game_over")
+    assert over["reason"] == "complete" and over["steps"] == 16
+    assert over["scores"] == seen[-1]["scores"]
+    assert seen[-1]["belief"] is not None and abs(sum(seen[-1]["belief"]) - 1) < 1e-3
+    path = server.replays_dir / f"{over['replay_id']}.replay.json"
+    replay = load(path)
+    assert verify(replay).ok and replay.source == "play" and replay.ended == "complete"
+    assert replay.agents["leader"]["policy"] == "human" and replay.agents["follower"]["policy"] == "bayes"
+    assert [a[0] for a in replay.actions] == [MOVES.index(k) for k in keys]
+    assert replay.final()["team_score"] == seen[-1]["scores"]["team"]
+    assert [e["applied_step"] for e in replay.key_events] == list(range(16))
+    assert all(e["status"] == "applied" and e["t_server"] >= e["t_client"] - 60_000 for e in replay.key_events)
+    assert replay.goal_probs["follower"][-1] == pytest.approx(seen[-1]["belief"], abs=1e-4)
+    client.close()
+
+
+def test_realtime_game_applies_the_latest_key_once_per_tick(server):
+    client = Client(server)
+    welcome, state = client.new_game(mode="realtime", horizon=40, follower="copy")
+    assert welcome["tick_hz"] == 20
+    client.recv("state")  # right after a tick: three keys now land before the next one
+    for key in ("ArrowUp", "ArrowLeft", "ArrowDown"):
+        client.key(key)
+    steps = [client.recv("state")["step"] for _ in range(3)]
+    assert steps == sorted(steps)
+    over = client.recv("game_over", timeout=30)
+    replay = load(server.replays_dir / f"{over['replay_id']}.replay.json")
+    assert verify(replay).ok and replay.num_steps == 40 and replay.config.allow_stay
+    log = replay.key_events
+    applied = [e for e in log if e["status"] == "applied"]
+    superseded = [e for e in log if e["status"] == "superseded"]
+    assert len(log) == 3 and len(applied) >= 1 and len(applied) + len(superseded) == 3
+    assert applied[-1]["key"] == "ArrowDown", "the latest key wins"
+    moves = [t for t, a in enumerate(replay.actions) if a[0] != 4]
+    assert moves == [e["applied_step"] for e in applied], "each applied key moved exactly once; otherwise stay"
+    client.close()
+
+
+def test_bad_messages_get_errors_and_the_game_goes_on(server):
+    client = Client(server)
+    client.new_game(mode="turn", horizon=50)
+    client.send("{not json")
+    assert client.recv("error")["code"] == "bad_json"
+    client.send({"type": "teleport"})
+    err = client.recv("error")
+    assert err["code"] == "unknown_type" and "new_game" in err["message"]
+    client.send({"type": "key", "key": "ArrowUp", "seq": -1})
+    assert client.recv("error")["code"] == "invalid_message"
+    client.send({"type": "key", "key": "x", "seq": 1})
+    err = client.recv("error")
+    assert err["code"] == "bad_key" and "arrow keys or WASD" in err["message"]
+    client.send({"type": "key", "key": "ArrowUp", "seq": 2, "pad": "x" * 5000})
+    err = client.recv("error")
+    assert err["code"] == "too_large" and "limit is 2048" in err["message"]
+    client.send({"type": "new_game"})
+    assert "already has a live game" in client.recv("error")["message"]
+    client.key("ArrowDown")
+    assert client.recv("state")["step"] == 1, "the game goes on after every error"
+    client.send({"type": "quit"})
+    over = client.recv("game_over")
+    assert over["reason"] == "quit"
+    assert load(server.replays_dir / f"{over['replay_id']}.replay.json").ended == "quit"
+    client.close()
+
+
+def test_a_flood_is_refused_without_harming_another_game(server):
+    calm, flood = Client(server), Client(server)
+    calm.new_game(mode="turn", horizon=50)
+    flood.new_game(mode="turn", horizon=50)
+    for _ in range(150):
+        flood.send({"type": "ping"})
+    assert flood.recv("error")["code"] == "rate_limited"
+    for t in range(5):
+        calm.key("ArrowUp" if t % 2 else "ArrowDown")
+        assert calm.recv("state")["step"] == t + 1
+    for c in (calm, flood):
+        c.send({"type": "quit"})
+        c.close()
+
+
+def test_disconnect_then_rejoin_with_the_token(server):
+    client = Client(server)
+    welcome, _ = client.new_game(mode="turn", horizon=30)
+    client.key("ArrowUp")
+    client.recv("state")
+    client.close()
+    time.sleep(0.3)
+    other = Client(server)
+    other.send({"type": "rejoin", "game_id": welcome["game_id"], "token": "wrong"})
+    assert "no game with that id and token" in other.recv("error")["message"]
+    other.send({"type": "rejoin", "game_id": welcome["game_id"], "token": welcome["token"]})
+    assert other.recv("welcome")["game_id"] == welcome["game_id"]
+    assert other.recv("state")["step"] == 1
+    other.key("ArrowDown")
+    assert other.recv("state")["step"] == 2
+    other.send({"type": "quit"})
+    other.close()
+
+
+def test_a_game_left_disconnected_is_saved_as_such(server):
+    client = Client(server)
+    welcome, _ = client.new_game(mode="turn", horizon=30)
+    for key in ("ArrowUp", "ArrowLeft"):
+        client.key(key)
+        client.recv("state")
+    client.close()
+    path = None
+    end = time.monotonic() + 15
+    while time.monotonic() < end and path is None:
+        matches = list(server.replays_dir.glob(f"*{welcome['game_id']}.replay.json"))
+        path = matches[0] if matches else None
+        time.sleep(0.2)
+    assert path is not None, "saved after the 1.5 s grace period"
+    replay = load(path)
+    assert replay.ended == "disconnected" and replay.num_steps == 2 and verify(replay).ok
+
+
+def test_session_limit(server):
+    wait_for_no_games(server)
+    clients = [Client(server) for _ in range(5)]
+    answers = [c.new_game(mode="turn", horizon=10)[0] for c in clients]
+    assert [a["type"] for a in answers] == ["welcome"] * 4 + ["full"]
+    assert "server full: 4 games are running (limit 4)" in answers[-1]["message"]
+    for c in clients[:4]:
+        c.send({"type": "quit"})
+        c.recv("game_over")
+        c.close()
+    clients[4].close()
+
+
+def test_replays_api_lists_serves_and_exports_by_id_only(server):
+    listing = server.get("/api/replays?source=play&limit=500")[0]
+    assert listing["total"] >= 3 and all(item["source"] == "play" for item in listing["items"])
+    item = listing["items"][0]
+    doc = server.get(f"/api/replays/{item['id']}")[0]
+    assert doc["format"] == "colorgrid-replay" and doc["source"] == "play"
+    body, status, kind = server.get(f"/api/replays/{item['id']}/export?format=gif")
+    assert status == 200 and kind == "image/gif" and body[:6] in (b"GIF89a", b"GIF87a")
+    released = server.get("/api/replays?collection=released&sort=team_score&limit=500")[0]
+    scores = [i["final"]["team_score"] for i in released["items"]]
+    assert len(scores) == 24 and scores == sorted(scores, reverse=True)
+    for bad in ("..%2F..%2Fsecret", "%2Fetc%2Fpasswd", "nope"):
+        with pytest.raises(Exception) as err:
+            server.get(f"/api/replays/{bad}")
+        assert "404" in str(err.value)

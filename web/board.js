@@ -1,0 +1,63 @@
+// Draws a ColorGrid board on a canvas, by the same rules as colorgrid/render.py:
+// floor, colored blocks, the leader (dark, "L") and follower (light, "F"), a frame in the goal color.
+export const PALETTE = ["#dc322f", "#2ea043", "#266edc", "#f5911e", "#8c46be", "#1ebec8", "#8c5a32", "#eb6eb4"];
+const FLOOR = "#ececE8", GRID = "#d2d2cc";
+
+export function drawBoard(canvas, board) {
+  const { height, width, blocks, leader, follower, goal } = board;
+  const border = 4;
+  const cell = Math.floor(Math.min((canvas.width - 2 * border) / width, (canvas.height - 2 * border) / height));
+  const ctx = canvas.getContext("2d");
+  ctx.fillStyle = goal == null ? "#999" : PALETTE[goal];
+  ctx.fillRect(0, 0, canvas.width, canvas.height);
+  ctx.fillStyle = FLOOR;
+  ctx.fillRect(border, border, cell * width, cell * height);
+  ctx.strokeStyle = GRID;
+  ctx.lineWidth = 1;
+  ctx.beginPath();
+  for (let r = 0; r <= height; r++) { ctx.moveTo(border, border + r * cell + 0.5); ctx.lineTo(border + width * cell, border + r * cell + 0.5); }
+  for (let c = 0; c <= width; c++) { ctx.moveTo(border + c * cell + 0.5, border); ctx.lineTo(border + c * cell + 0.5, border + height * cell); }
+  ctx.stroke();
+  const margin = Math.max(1, Math.floor(cell / 8));
+  for (let i = 0; i < blocks.length; i++) {
+    const ch = blocks[i];
+    if (ch === ".") continue;
+    const r = Math.floor(i / width), c = i % width;
+    ctx.fillStyle = PALETTE[Number(ch)];
+    ctx.fillRect(border + c * cell + margin, border + r * cell + margin, cell - 2 * margin, cell - 2 * margin);
+  }
+  drawAgent(ctx, border, cell, width, leader, "#191919", "#ffffff", "L");
+  drawAgent(ctx, border, cell, width, follower, "#ffffff", "#191919", "F");
+  return cell;
+}
+
+function drawAgent(ctx, border, cell, width, index, body, ink, letter) {
+  const r = Math.floor(index / width), c = index % width;
+  const x = border + c * cell + cell / 2, y = border + r * cell + cell / 2;
+  ctx.beginPath();
+  ctx.arc(x, y, cell / 2 - 0.5, 0, 2 * Math.PI);
+  ctx.fillStyle = body;
+  ctx.fill();
+  ctx.strokeStyle = "#000";
+  ctx.stroke();
+  ctx.fillStyle = ink;
+  ctx.font = `bold ${Math.max(8, cell - 6)}px sans-serif`;
+  ctx.textAlign = "center";
+  ctx.textBaseline = "middle";
+  ctx.fillText(letter, x, y + 1);
+}
+
+export function drawBelief(container, probs, colors) {
+  // One labelled bar per color; `probs` null hides them.
+  container.replaceChildren();
+  if (!probs) return;
+  probs.forEach((p, k) => {
+    const row = document.createElement("div");
+    row.className = "belief-row";
+    row.dataset.color = colors[k];
+    row.innerHTML = `<span class="belief-name">${colors[k]}</span>
+      <span class="belief-track"><span class="belief-fill" style="width:${(100 * p).toFixed(1)}%;background:${PALETTE[k]}"></span></span>
+      <span class="belief-value">${p.toFixed(2)}</span>`;
+    container.appendChild(row);
+  });
+}

@@ -1,0 +1,41 @@
+// The replay list: filters, sorting and pages over /api/replays.
+const $ = (id) => document.getElementById(id);
+const PAGE = 25;
+let offset = 0;
+
+async function load() {
+  const params = new URLSearchParams({ sort: $("sort").value, offset, limit: PAGE });
+  if ($("source").value) params.set("source", $("source").value);
+  if ($("follower").value) params.set("follower", $("follower").value);
+  const data = await (await fetch(`/api/replays?${params}`)).json();
+  const highlight = new URLSearchParams(location.search).get("id");
+  $("list").tBodies[0].replaceChildren(...data.items.map((item) => row(item, item.id === highlight)));
+  $("page").textContent = `${data.total ? offset + 1 : 0}-${Math.min(offset + PAGE, data.total)} of ${data.total}`;
+  $("prev").disabled = offset === 0;
+  $("next").disabled = offset + PAGE >= data.total;
+}
+
+function row(item, highlight) {
+  const tr = document.createElement("tr");
+  tr.dataset.id = item.id;
+  if (highlight) tr.className = "highlight";
+  const cells = item.error
+    ? [item.id, "-", "-", "-", "-", "-", `invalid: ${item.error}`]
+    : [item.id, item.source, item.leader, item.follower, item.steps, item.final.team_score, item.ended];
+  for (const value of cells) {
+    const td = document.createElement("td");
+    td.textContent = value;
+    tr.appendChild(td);
+  }
+  const files = document.createElement("td");
+  const id = encodeURIComponent(item.id);
+  files.innerHTML = `<a href="/api/replays/${id}">json</a> <a href="/api/replays/${id}/export?format=gif">gif</a> <a href="/api/replays/${id}/export?format=mp4">mp4</a>`;
+  tr.appendChild(files);
+  return tr;
+}
+
+for (const id of ["source", "sort"]) $(id).addEventListener("change", () => { offset = 0; load(); });
+$("follower").addEventListener("input", () => { offset = 0; load(); });
+$("prev").addEventListener("click", () => { offset = Math.max(0, offset - PAGE); load(); });
+$("next").addEventListener("click", () => { offset += PAGE; load(); });
+load();
