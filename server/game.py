@@ -147,11 +147,12 @@ class Game:
     def state_message(self) -> dict:
         s, cfg = self.env.state, self.config
         colors = s.block_colors(cfg)[0].ravel()
+        blocks = np.where(colors < 0, ord("."), colors + ord("0")).astype(np.uint8).tobytes().decode("ascii")
         last_seq = max((e["seq"] for e in self.key_log if e["status"] == "applied"), default=None)
         return {
             "type": "state", "step": int(s.t[0]), "horizon": cfg.horizon,
             "leader": int(s.agent_cell[0, 0]), "follower": int(s.agent_cell[0, 1]),
-            "blocks": "".join("." if c < 0 else str(int(c)) for c in colors),
+            "blocks": blocks,
             "goal": int(s.goal[0]),
             "scores": {"team": float(s.score[0].sum()), "leader": float(s.score[0, 0]),
                        "follower": float(s.score[0, 1])},

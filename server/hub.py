@@ -37,6 +37,7 @@ class GameHub:
         self.senders: dict[str, Sender | None] = {}
         self.pools: dict[tuple, FollowerPool] = {}
         self.executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="follower")
+        self.saver = ThreadPoolExecutor(max_workers=1, thread_name_prefix="replay-saver")
         self.lock = asyncio.Lock()  # one step at a time: ticks and turn-based keys never interleave
         self.stats = {"ticks": 0, "late_ticks": 0, "max_lateness_ms": 0.0, "deadline_misses": 0, "games_saved": 0}
         self.lateness_ms: list[float] = []
@@ -54,6 +55,7 @@ class GameHub:
         for game in list(self.games.values()):
             await self.finish(game, "server_shutdown")
         self.executor.shutdown(wait=False, cancel_futures=True)
+        self.saver.shutdown(wait=True)
 
     # ------------------------------------------------------------ sessions
     def make_config(self, preset: str, mode: str, horizon: int | None) -> EnvConfig:
@@ -197,7 +199,9 @@ class GameHub:
             replay = game.to_replay("complete" if reason == "complete" else reason,
                                     describe_agent(game.pool.policy.describe(),
                                                    game.follower if game.follower.endswith(".pt") else None))
-            save(replay, Path(self.settings.replays_dir) / f"{replay_id}.replay.json")
+            # Written (atomically, fsynced) on a worker thread so saving never stalls the tick.
+            path = Path(self.settings.replays_dir) / f"{replay_id}.replay.json"
+            await asyncio.get_running_loop().run_in_executor(self.saver, save, replay, path)
             game.replay_id = replay_id
             self.stats["games_saved"] += 1
         sender = self.senders.pop(game.game_id, None)

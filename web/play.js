@@ -69,7 +69,11 @@ function onMessage(msg) {
 const fmt = (x) => (x > 0 ? "+" : "") + x;
 
 function render(state) {
-  drawBoard($("board"), { height: game.height, width: game.width, ...state });
+  const canvas = $("board");
+  drawBoard(canvas, { height: game.height, width: game.width, ...state });
+  canvas.dataset.leader = state.leader;  // agents' cells, for assistive tools and tests
+  canvas.dataset.follower = state.follower;
+  canvas.dataset.step = state.step;
   $("step").textContent = `${state.step} / ${state.horizon}`;
   $("left").textContent = `${state.horizon - state.step} steps left`;
   $("score-team").textContent = fmt(state.scores.team);

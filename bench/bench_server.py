@@ -1,0 +1,134 @@
+"""Load on the play server: N concurrent scripted players in real time over WebSockets on loopback.
+
+Usage: python bench/bench_server.py [--players 100] [--seconds 20] [--tick-hz 5] [--follower bayes]
+
+Starts ``colorgrid play`` on a free loopback port, connects N players (real-time games
+that last the whole run), each pressing a random move key about 3 times a second, then
+quits them all. Prints tick lateness p50/p99 (server side), key-to-applied latency
+(client side: key sent -> first state that reports it applied), follower deadline
+misses, the server's CPU use, and whether every game was saved. Bounded: N connections,
+``--seconds`` of play, loopback only.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import random
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import urllib.request
+from pathlib import Path
+
+from websockets.asyncio.client import connect
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from common import machine  # noqa: E402
+
+KEYS = ["ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight"]
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+async def player(url: str, seconds: float, latencies: list, results: list, rng: random.Random) -> None:
+    async with connect(url, max_size=2**22) as ws:
+        await ws.send(json.dumps({"type": "new_game", "mode": "realtime", "horizon": 1000}))
+        sent: dict[int, float] = {}
+        seq = 0
+        end = time.monotonic() + seconds
+
+        async def press():
+            nonlocal seq
+            while time.monotonic() < end:
+                await asyncio.sleep(rng.uniform(0.2, 0.45))
+                sent[seq] = time.perf_counter()
+                await ws.send(json.dumps({"type": "key", "key": rng.choice(KEYS), "seq": seq}))
+                seq += 1
+            await ws.send(json.dumps({"type": "quit"}))
+
+        presser = asyncio.create_task(press())
+        last_seen = -1
+        async for raw in ws:
+            msg = json.loads(raw)
+            if msg["type"] == "state" and msg["last_applied_seq"] is not None:
+                now = time.perf_counter()
+                for s in range(last_seen + 1, msg["last_applied_seq"] + 1):
+                    if s in sent:  # superseded keys are never applied; only the applied one counts
+                        pass
+                if msg["last_applied_seq"] > last_seen and msg["last_applied_seq"] in sent:
+                    latencies.append((now - sent[msg["last_applied_seq"]]) * 1000)
+                last_seen = max(last_seen, msg["last_applied_seq"])
+            elif msg["type"] == "game_over":
+                results.append(msg)
+                break
+            elif msg["type"] in ("full", "error"):
+                results.append(msg)
+        await presser
+
+
+async def run(args) -> None:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    tmp = Path(tempfile.mkdtemp(prefix="colorgrid-load-"))
+    server = subprocess.Popen([sys.executable, "-m", "colorgrid.cli", "play", "--port", str(port), "--replays-dir",
+                               str(tmp), "--tick-hz", str(args.tick_hz), "--follower", args.follower,
+                               "--max-sessions", str(args.players), "--log-level", "warning"],
+                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    base = f"http://127.0.0.1:{port}"
+    try:
+        for _ in range(300):
+            try:
+                urllib.request.urlopen(base + "/api/health", timeout=2)
+                break
+            except OSError:
+                await asyncio.sleep(0.2)
+        cpu0, wall0 = cpu_seconds(server.pid), time.perf_counter()
+        latencies: list[float] = []
+        results: list[dict] = []
+        rng = random.Random(0)
+        await asyncio.gather(*(player(f"ws://127.0.0.1:{port}/ws/play", args.seconds, latencies, results,
+                                      random.Random(rng.random())) for _ in range(args.players)))
+        cpu, wall = cpu_seconds(server.pid) - cpu0, time.perf_counter() - wall0
+        health = json.loads(urllib.request.urlopen(base + "/api/health", timeout=5).read())
+        saved = len(list(tmp.glob("*.replay.json")))
+        ended = sum(1 for r in results if r["type"] == "game_over")
+        print(f"machine: {machine()}")
+        print(f"{args.players} real-time games at {args.tick_hz} Hz, follower {args.follower}, {args.seconds:.0f} s")
+        print(f"tick lateness: p50 {health['tick_lateness_p50_ms']:.2f} ms, p99 {health['tick_lateness_p99_ms']:.2f} ms, "
+              f"max {health['max_lateness_ms']:.1f} ms over {health['ticks']} ticks")
+        if latencies:
+            q = statistics.quantiles(latencies, n=100)
+            print(f"key to applied: p50 {q[49]:.0f} ms, p99 {q[98]:.0f} ms over {len(latencies)} keys "
+                  f"(a key waits for the next tick: up to {1000 / args.tick_hz:.0f} ms by design)")
+        print(f"follower deadline misses: {health['deadline_misses']}")
+        print(f"server CPU: {cpu:.1f} s over {wall:.1f} s wall ({100 * cpu / wall:.0f}% of one core)")
+        print(f"games ended {ended}/{args.players}, replays saved {saved}/{args.players}")
+    finally:
+        server.terminate()
+        server.wait(timeout=30)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--players", type=int, default=100)
+    parser.add_argument("--seconds", type=float, default=20.0)
+    parser.add_argument("--tick-hz", type=float, default=5.0)
+    parser.add_argument("--follower", default="bayes")
+    args = parser.parse_args()
+    if not 1 <= args.players <= 500 or not 1 <= args.seconds <= 300:
+        raise SystemExit("--players must be in 1..500 and --seconds in 1..300 (a bounded load)")
+    asyncio.run(run(args))
+
+
+if __name__ == "__main__":
+    main()
