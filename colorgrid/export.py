@@ -7,7 +7,6 @@ imageio (Pillow), MP4s by imageio-ffmpeg, which carries its own ffmpeg binary.
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -16,7 +15,7 @@ from PIL import Image, ImageDraw
 from colorgrid.config import AGENTS
 from colorgrid.render import HEADER_HEIGHT, PALETTE, _font, render_rgb
 from colorgrid.replay import Replay, ReplayError, replay_states
-from colorgrid.replay.format import FILE_MODE
+from colorgrid.files import atomic_path
 
 FORMATS = ("gif", "mp4")
 PANEL_WIDTH = 230
@@ -125,13 +124,7 @@ def export(replay: Replay, out: str | os.PathLike, fmt: str, fps: float = 8.0, c
     if not 4 <= cell <= 64:
         raise ValueError(f"--scale (pixels per cell) must be in [4, 64], got {cell}")
     out = Path(out)
-    try:
-        out.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix="." + out.stem + ".", suffix="." + fmt, dir=out.parent)
-        os.close(fd)
-    except OSError as err:
-        raise ValueError(f"cannot write to {out}: {err.strerror}") from None
-    try:
+    with atomic_path(out) as tmp:
         frames = episode_frames(replay, cell, start, end, path)
         if fmt == "gif":
             images = gif_frames(list(frames))
@@ -144,11 +137,6 @@ def export(replay: Replay, out: str | os.PathLike, fmt: str, fps: float = 8.0, c
                                     pixelformat="yuv420p", macro_block_size=2, quality=7) as writer:
                 for f in frames:
                     writer.append_data(f)
-        os.chmod(tmp, FILE_MODE)
-        os.replace(tmp, out)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
     return out
 
 

@@ -13,7 +13,8 @@ MOVES = ["ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight"]
 
 class Client:
     def __init__(self, server):
-        self.ws = connect(server.ws_url, open_timeout=20, max_size=2**22)
+        self._connection = connect(server.ws_url, open_timeout=20, max_size=2**22)
+        self.ws = self._connection.__enter__()
         self.seq = 0
 
     def send(self, message):
@@ -39,7 +40,7 @@ class Client:
         return welcome, self.recv("state")
 
     def close(self):
-        self.ws.close()
+        self._connection.__exit__(None, None, None)
 
 
 def wait_for_no_games(server, timeout=20):

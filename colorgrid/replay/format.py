@@ -11,13 +11,13 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 from dataclasses import asdict, dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 from colorgrid.config import AGENTS, ENV_ID, EnvConfig
+from colorgrid.files import atomic_path
 
 FORMAT_NAME = "colorgrid-replay"
 FORMAT_VERSION = 1
@@ -168,33 +168,15 @@ def checksum(body: dict) -> str:
     return "sha256:" + hashlib.sha256(canonical.encode()).hexdigest()
 
 
-def _current_umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-FILE_MODE = 0o666 & ~_current_umask()
-"""Mode for written files: what ``open()`` would give (``mkstemp`` alone makes them private)."""
-
-
 def save(replay: Replay, path: str | os.PathLike) -> Path:
-    """Write atomically: a temporary file in the same folder, flushed, then renamed into place."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
+    """Write atomically: a temporary file in the same folder, flushed and fsynced, then renamed into place."""
     data = json.dumps(replay.to_document(), separators=(",", ":"), allow_nan=False).encode()
-    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
+    with atomic_path(path) as tmp:
+        with open(tmp, "wb") as f:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
-        os.chmod(tmp, FILE_MODE)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return path
+    return Path(path)
 
 
 def load(path: str | os.PathLike) -> Replay:
