@@ -217,3 +217,26 @@ def test_replays_api_lists_serves_and_exports_by_id_only(server):
         with pytest.raises(Exception) as err:
             server.get(f"/api/replays/{bad}")
         assert "404" in str(err.value)
+
+
+def test_a_follower_that_misses_its_deadline_falls_back_and_the_miss_is_recorded(tmp_path):
+    from tests.conftest import start_server, stop_server
+
+    slow = start_server(tmp_path, "--inference-deadline-ms", "0.001", "--follower", "bayes")
+    try:
+        client = Client(slow)
+        client.new_game(mode="turn", horizon=5)
+        for t in range(5):
+            client.key(MOVES[t % 4])
+            assert client.recv("state")["step"] == t + 1, "the game goes on"
+        over = client.recv("game_over")
+        replay = load(slow.replays_dir / f"{over['replay_id']}.replay.json")
+        misses = replay.meta["deadline_misses"]
+        # A 1 us budget: nearly every call misses (a fast thread may still beat it once).
+        assert len(misses) >= 3 and set(misses) <= set(range(5)) and verify(replay).ok
+        assert replay.final()["follower_wrong_pickups"] == replay.final()["follower_goal_pickups"] == 0, \
+            "the fallback (idle) move never collects"
+        assert slow.get("/api/health")[0]["deadline_misses"] == len(misses)
+        client.close()
+    finally:
+        stop_server(slow)

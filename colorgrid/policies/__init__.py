@@ -22,9 +22,8 @@ def make_policy(name: str) -> Policy:
     if name in SCRIPTED:
         return SCRIPTED[name]()
     if name.endswith(".pt"):
-        from colorgrid.policies.learned import load_policy
-
-        return load_policy(name)
+        raise ValueError(f"cannot load {name!r}: trained checkpoints need the trainer (train/), which this "
+                         f"version does not include yet; choose one of {sorted(SCRIPTED)}")
     raise ValueError(f"unknown policy {name!r}; choose one of {sorted(SCRIPTED)} or a checkpoint path ending in .pt")
 
 
