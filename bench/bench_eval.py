@@ -15,25 +15,9 @@ from common import machine, timed  # noqa: E402
 import numpy as np  # noqa: E402
 
 from colorgrid import EnvConfig  # noqa: E402
-from colorgrid.evaluate import evaluate  # noqa: E402
+from colorgrid.evaluate import evaluate, switch_lags  # noqa: E402
 from colorgrid.policies import make_policy  # noqa: E402
 from colorgrid.rollout import run_episodes  # noqa: E402
-
-
-def switch_lags(follower: str, episodes: int, seed: int) -> np.ndarray:
-    """Leader moves until the follower's belief argmax reaches the new goal after each switch."""
-    batch = run_episodes(EnvConfig(), make_policy("astar"), make_policy(follower), episodes, seed)
-    probs, goal = batch.goal_probs[1], batch.goal
-    lags = []
-    for e in range(goal.shape[1]):
-        for t in range(1, goal.shape[0]):
-            if goal[t, e] != goal[t - 1, e]:
-                k = 0
-                while t + k < goal.shape[0] and goal[t + k, e] == goal[t, e] and probs[t + k, e].argmax() != goal[t, e]:
-                    k += 1
-                if t + k < goal.shape[0] and goal[t + k, e] == goal[t, e]:
-                    lags.append(k)
-    return np.array(lags)
 
 
 def main() -> None:
@@ -48,7 +32,8 @@ def main() -> None:
         wall, cpu = timed(lambda: evaluate(EnvConfig(), args.leader, follower, args.episodes, 0), args.repeats)
         print(f"{args.leader} + {follower}: {args.episodes} episodes in {wall:.2f} s wall, {cpu:.2f} s CPU (median)")
     if "bayes" in args.follower:
-        lags = switch_lags("bayes", 100, 1000)
+        batch = run_episodes(EnvConfig(), make_policy("astar"), make_policy("bayes"), 100, 1000)
+        lags = switch_lags(batch.goal_probs[1], batch.goal)
         print(f"bayes switch tracking (seeds 1000..1099): {lags.size} switches, median {np.median(lags):.0f}, "
               f"max {lags.max()} leader moves to the new goal")
 

@@ -47,6 +47,27 @@ def summarize(batch: EpisodeBatch) -> dict:
     }
 
 
+def switch_lags(goal_probs: np.ndarray, goal: np.ndarray) -> np.ndarray:
+    """Steps from each goal switch until the belief's argmax names the new goal.
+
+    goal_probs: [T, B, C] beliefs when acting; goal: [T, B] true goal at those steps.
+    Switches followed by another switch (or the episode end) before the belief
+    catches up are left out.
+    """
+    T, B = goal.shape
+    lags = []
+    for e in range(B):
+        for t in range(1, T):
+            if goal[t, e] == goal[t - 1, e]:
+                continue
+            k = 0
+            while t + k < T and goal[t + k, e] == goal[t, e] and goal_probs[t + k, e].argmax() != goal[t, e]:
+                k += 1
+            if t + k < T and goal[t + k, e] == goal[t, e]:
+                lags.append(k)
+    return np.array(lags, dtype=np.int64)
+
+
 def evaluate(config: EnvConfig, leader: str, follower: str, episodes: int, seed: int,
              record_dir: str | Path | None = None) -> dict:
     """Run ``episodes`` episodes (env i seeded ``seed + i``) and summarize them.

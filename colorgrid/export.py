@@ -13,8 +13,8 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from colorgrid.config import AGENTS
-from colorgrid.render import HEADER_HEIGHT, PALETTE, _font, render_rgb
-from colorgrid.replay import Replay, ReplayError, replay_states
+from colorgrid.render import PALETTE, _font, render_rgb
+from colorgrid.replay import Replay, replay_states
 from colorgrid.files import atomic_path
 
 FORMATS = ("gif", "mp4")
@@ -158,4 +158,4 @@ def default_output(replay_path: Path, fmt: str) -> Path:
     return replay_path.with_name(f"{stem}.{fmt}")
 
 
-__all__ = ["FORMATS", "ReplayError", "draw_panel", "episode_frames", "export", "default_output"]
+__all__ = ["FORMATS", "draw_panel", "episode_frames", "export", "default_output"]

@@ -69,7 +69,7 @@ class GameHub:
         return EnvConfig().replace(**changes) if changes else EnvConfig()
 
     def pool_for(self, follower: str, config: EnvConfig) -> FollowerPool:
-        key = (follower, tuple(sorted(config.to_dict().items(), key=lambda kv: kv[0]).__repr__()))
+        key = (follower, config)
         if key not in self.pools:
             self.pools[key] = FollowerPool(follower, config, self.settings.max_sessions)
         return self.pools[key]

@@ -8,6 +8,7 @@ import pytest
 from colorgrid import EnvConfig
 from colorgrid.policies import AgentInput, BayesConfig, make_policy
 from colorgrid.policies.bayes import move_likelihood, reward_likelihood, transition
+from colorgrid.evaluate import switch_lags
 from colorgrid.rollout import run_episodes
 from tests.helpers import env_from_text
 
@@ -97,15 +98,7 @@ def test_bayes_posterior_is_a_distribution_and_tracks_the_goal():
     assert np.allclose(probs.sum(axis=2), 1.0, atol=1e-5) and (probs >= 0).all()
     assert (probs[0] == pytest.approx(1 / 3)), "uniform prior at the start"
     assert (probs.argmax(axis=2) == goal).mean() > 0.9
-    lags = []
-    for e in range(goal.shape[1]):
-        for t in range(1, goal.shape[0]):
-            if goal[t, e] != goal[t - 1, e]:
-                k = 0
-                while t + k < goal.shape[0] and goal[t + k, e] == goal[t, e] and probs[t + k, e].argmax() != goal[t, e]:
-                    k += 1
-                if t + k < goal.shape[0] and goal[t + k, e] == goal[t, e]:
-                    lags.append(k)
+    lags = switch_lags(probs, goal)
     assert len(lags) > 50
     assert max(lags) <= 10, "after a switch the belief moves to the new goal within 10 leader moves"
 

@@ -70,7 +70,7 @@ def reward_likelihood(picked: np.ndarray, reward: np.ndarray, config: EnvConfig,
     picked: [B, A] colors collected last step (-1 none); reward: [B] this agent's unshaped reward.
     In shared mode the reward covers both agents' pickups; in individual mode only its own.
     """
-    B, C = picked.shape[0], config.num_colors
+    C = config.num_colors
     counted = picked if config.reward_mode == "shared" else picked[:, agent_index:agent_index + 1]
     goal = np.arange(C)[None, None, :]
     value = np.where(counted[:, :, None] == goal, config.goal_reward, -config.wrong_penalty * penalty_coef)

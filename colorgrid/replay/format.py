@@ -11,7 +11,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -203,4 +203,4 @@ def describe_agent(policy_description: dict, checkpoint: str | None = None) -> d
     return out
 
 
-__all__ = ["FORMAT_VERSION", "Replay", "ReplayError", "SUFFIX", "asdict", "describe_agent", "load", "save"]
+__all__ = ["FORMAT_VERSION", "Replay", "ReplayError", "SUFFIX", "describe_agent", "load", "save"]
