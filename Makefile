@@ -8,11 +8,12 @@ STAMP := $(VENV)/.installed
 
 setup: $(STAMP)
 
-# Re-run when the package metadata changes. (When the trainer lands, pin the CPU build of
-# torch here first, "torch==2.13.0", so that nothing pulls the CUDA build.)
+# Re-run when the package metadata changes. torch is pinned to the CPU build first
+# ("torch==2.13.0"), so that the package's "torch>=2.2" is already met and nothing pulls CUDA.
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q "torch==2.13.0"
 	$(PY) -m pip install -q -e ".[dev]"
 	touch $(STAMP)
 

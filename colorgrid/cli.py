@@ -112,6 +112,12 @@ def build_parser() -> argparse.ArgumentParser:
     from colorgrid.cli_replay import add_replay_commands
 
     add_replay_commands(sub)
+    try:
+        from train.cli import add_train_commands
+    except ImportError:  # the trainer is not installed (e.g. a bare numpy install without train/)
+        pass
+    else:
+        add_train_commands(sub)
     return parser
 
 

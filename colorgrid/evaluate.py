@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from colorgrid.config import AGENTS, ENV_ID, EnvConfig
-from colorgrid.policies import make_policy
+from colorgrid.policies import Policy, make_policy
 from colorgrid.rollout import EpisodeBatch, run_episodes
 
 
@@ -68,14 +68,16 @@ def switch_lags(goal_probs: np.ndarray, goal: np.ndarray) -> np.ndarray:
     return np.array(lags, dtype=np.int64)
 
 
-def evaluate(config: EnvConfig, leader: str, follower: str, episodes: int, seed: int,
+def evaluate(config: EnvConfig, leader: str | Policy, follower: str | Policy, episodes: int, seed: int,
              record_dir: str | Path | None = None) -> dict:
     """Run ``episodes`` episodes (env i seeded ``seed + i``) and summarize them.
 
-    With ``record_dir``, every episode is also saved there as a replay.
+    ``leader`` and ``follower`` are policy names (scripted or ``.pt`` checkpoints) or
+    ``Policy`` objects. With ``record_dir``, every episode is also saved there as a replay.
     """
     start, cpu = time.perf_counter(), time.process_time()
-    leader_policy, follower_policy = make_policy(leader), make_policy(follower)
+    leader_policy, follower_policy = _policy(leader, "leader"), _policy(follower, "follower")
+    leader, follower = _name(leader), _name(follower)
     batch = run_episodes(config, leader_policy, follower_policy, episodes, seed, record_hashes=record_dir is not None)
     report = summarize(batch)
     if record_dir is not None:
@@ -87,6 +89,14 @@ def evaluate(config: EnvConfig, leader: str, follower: str, episodes: int, seed:
         "wall_seconds": time.perf_counter() - start, "cpu_seconds": time.process_time() - cpu,
     })
     return report
+
+
+def _policy(p: str | Policy, role: str) -> Policy:
+    return p if isinstance(p, Policy) else make_policy(p, role=role)
+
+
+def _name(p: str | Policy) -> str:
+    return p if isinstance(p, str) else getattr(p, "source", None) or p.name
 
 
 def record_batch(batch, leader: str, follower: str, leader_policy, follower_policy, out_dir, source: str,

@@ -20,7 +20,7 @@ class FollowerPool:
     def __init__(self, name: str, config: EnvConfig, capacity: int, seed: int = 0):
         self.name = name
         self.config = config
-        self.policy = make_policy(name)
+        self.policy = make_policy(name, role="follower")
         self.policy.reset(config, capacity, agent_index=1, seed=seed)
         self.idle = IdleFollower()
         self.idle.reset(config, capacity, agent_index=1, seed=seed + 1)

@@ -17,13 +17,17 @@ SCRIPTED = {
 """Scripted policies by name. ``astar`` needs the goal (the leader); ``idle`` never collects."""
 
 
-def make_policy(name: str) -> Policy:
-    """A policy by name: a scripted one from ``SCRIPTED`` or a checkpoint file (``*.pt``)."""
+def make_policy(name: str, role: str | None = None) -> Policy:
+    """A policy by name: a scripted one from ``SCRIPTED`` or a trained checkpoint file (``*.pt``).
+
+    For a checkpoint holding both agents, ``role`` (``"leader"``/``"follower"``) says which to load.
+    """
     if name in SCRIPTED:
         return SCRIPTED[name]()
     if name.endswith(".pt"):
-        raise ValueError(f"cannot load {name!r}: trained checkpoints need the trainer (train/), which this "
-                         f"version does not include yet; choose one of {sorted(SCRIPTED)}")
+        from train.policy import load_policy  # torch is imported only when a checkpoint is asked for
+
+        return load_policy(name, role=role)
     raise ValueError(f"unknown policy {name!r}; choose one of {sorted(SCRIPTED)} or a checkpoint path ending in .pt")
 
 

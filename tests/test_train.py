@@ -1,0 +1,224 @@
+"""The IPPO trainer: golden values for GAE and the losses, architecture, recurrence, resume, presets, partners."""
+
+import json
+import math
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+import torch
+
+from colorgrid import EnvConfig
+from colorgrid.policies import make_policy
+from colorgrid.rollout import run_episodes
+from train.checkpoint import export_agent, load_checkpoint
+from train.config import (NetConfig, PPOConfig, TrainConfig, TrainConfigError, from_dict, load_preset, merge,
+                          parse_override, preset_names)
+from train.nets import ActorCritic, count_parameters, egocentric
+from train.policy import load_policy
+from train.ppo import LossWeights, compute_gae, ppo_loss
+from train.trainer import Trainer
+
+TINY = {"ppo": {"num_envs": 4, "num_steps": 16, "num_minibatches": 2, "update_epochs": 2},
+        "eval_every": 0, "save_every": 2, "env": {"horizon": 12}}
+
+
+def tiny(**changes) -> TrainConfig:
+    return from_dict(merge(TINY, changes))
+
+
+def weights(model) -> dict:
+    return {k: v.detach().clone() for k, v in model.state_dict().items()}
+
+
+# ---------------------------------------------------------------- pure functions
+def test_gae_golden_values_with_an_episode_boundary():
+    rewards = torch.tensor([[1.0], [0.0], [2.0]])
+    values = torch.tensor([[0.5], [0.4], [0.3]])
+    next_values = torch.tensor([[0.4], [0.9], [0.2]])  # t=1 ended an episode: V(final obs) = 0.9
+    dones = torch.tensor([[False], [True], [False]])
+    adv, ret = compute_gae(rewards, values, next_values, dones, gamma=0.9, lam=0.8)
+    # delta2 = 2 + .9*.2 - .3 = 1.88; delta1 = .9*.9 - .4 = .41 (trace cut); delta0 = 1 + .9*.4 - .5 = .86
+    assert adv[:, 0].tolist() == pytest.approx([0.86 + 0.9 * 0.8 * 0.41, 0.41, 1.88])
+    assert ret[:, 0].tolist() == pytest.approx([1.6552, 0.81, 2.18])
+
+
+def test_ppo_loss_golden_values():
+    logits = torch.zeros(2, 2)  # new policy: 0.5 / 0.5
+    actions = torch.tensor([0, 1])
+    old_logp = torch.log(torch.tensor([0.25, 0.5]))  # ratios 2 and 1
+    w = LossWeights(clip_coef=0.2, clip_vloss=True, ent_coef=0.01, vf_coef=0.5, aux_coef=0.2, norm_adv=False)
+    total, s = ppo_loss(logits, torch.tensor([1.0, 0.0]), torch.zeros(2, 3), actions, old_logp,
+                        old_values=torch.tensor([0.5, 0.0]), advantages=torch.tensor([1.0, -1.0]),
+                        returns=torch.tensor([2.0, 1.0]), goal=torch.tensor([0, 2]), w=w)
+    assert float(s["policy_loss"]) == pytest.approx(-0.1)  # mean(max(-2, -1.2), max(1, 1))
+    assert float(s["value_loss"]) == pytest.approx(0.6725)  # 0.5 * mean(max(1, 1.69), max(1, 1))
+    assert float(s["entropy"]) == pytest.approx(math.log(2))
+    assert float(s["aux_loss"]) == pytest.approx(math.log(3))
+    assert float(s["approx_kl"]) == pytest.approx((1 - math.log(2)) / 2)
+    assert float(s["clip_frac"]) == pytest.approx(0.5)
+    assert float(total) == pytest.approx(-0.1 - 0.01 * math.log(2) + 0.5 * 0.6725 + 0.2 * math.log(3))
+
+
+def test_paper_architecture_parameter_count():
+    model = ActorCritic(NetConfig(arch="paper"), EnvConfig(), 0)
+    assert count_parameters(model) == 8_484_360
+
+
+def test_egocentric_window_centres_the_agent_and_marks_walls():
+    obs = torch.zeros(1, 5, 8, 8, dtype=torch.uint8)
+    obs[0, 0, 0, 1] = 1  # a red block at (0, 1)
+    win = egocentric(obs, torch.tensor([[0, 0]]), radius=3)  # agent in the top-left corner
+    assert win.shape == (1, 6, 7, 7)
+    assert win[0, 0, 3, 4] == 1  # one column right of the centre
+    assert win[0, 5, :3].sum() == 0 and win[0, 5, :, :3].sum() == 0  # off-grid rows and columns
+    assert win[0, 5, 3:, 3:].all()
+
+
+# ----------------------------------------------------------------- recurrence
+def test_lstm_log_probs_recomputed_at_update_match_the_rollout():
+    config = tiny(leader={"policy": "astar"},
+                  follower={"net": {"lstm": True, "extra_inputs": True, "belief_input": True}},
+                  ppo={"num_steps": 30})  # horizon 12: episodes start inside the rollout
+    trainer = Trainer(config, "unused", progress=False, tensorboard=False)
+    trainer.collect_rollout()
+    trainer.collect_rollout()  # the second rollout starts mid-episode, from a carried state
+    learner = trainer.learners[1]
+    b = learner.stacked()
+    assert b["starts"].any() and not b["starts"][0].all()
+    with torch.no_grad():
+        logits, values, _, _ = learner.model(b["view"], b["goal"], b["extras"], b["starts"], learner.initial_state)
+    logp = torch.log_softmax(logits, dim=2).gather(2, b["actions"][..., None])[..., 0]
+    torch.testing.assert_close(logp, b["logp"], atol=1e-5, rtol=0)
+    torch.testing.assert_close(values, b["values"], atol=1e-5, rtol=0)
+    # without the recurrent state carried in, the recomputation would differ
+    with torch.no_grad():
+        _, cold, _, _ = learner.model(b["view"], b["goal"], b["extras"], b["starts"], learner.model.initial_state(4))
+    assert not torch.allclose(cold[0], values[0], atol=1e-4)
+
+
+# --------------------------------------------------------------------- runs
+def test_resume_continues_exactly_like_an_uninterrupted_run(tmp_path):
+    changes = dict(leader={"policy": "astar"}, follower={"net": {"lstm": True, "extra_inputs": True}},
+                   schedule={"penalty_start": 0, "penalty_end": 200}, total_steps=4 * 64)
+    straight = Trainer(tiny(**changes), tmp_path / "a", progress=False, tensorboard=False)
+    straight.train()
+    first = Trainer(tiny(**{**changes, "total_steps": 2 * 64}), tmp_path / "b", progress=False, tensorboard=False)
+    first.train()
+    resumed = Trainer(tiny(**changes), tmp_path / "b", progress=False, tensorboard=False)
+    resumed.restore(tmp_path / "b" / "checkpoints" / "latest.pt")
+    assert resumed.step == 128
+    resumed.train()
+    for key, value in weights(straight.learners[1].model).items():
+        assert torch.equal(value, resumed.learners[1].model.state_dict()[key]), key
+    rows = lambda d: [json.loads(x) for x in (d / "metrics.jsonl").read_text().splitlines()]  # noqa: E731
+    drop = lambda r: {k: v for k, v in r.items() if "sps" not in k}  # noqa: E731
+    assert [drop(r) for r in rows(tmp_path / "a")] == [drop(r) for r in rows(tmp_path / "b")]
+
+
+def test_a_frozen_partner_never_changes_and_the_learner_does(tmp_path):
+    Trainer(tiny(follower={"policy": "idle"}, total_steps=64), tmp_path / "lead", progress=False,
+            tensorboard=False).train()
+    leader_file = export_agent(tmp_path / "lead" / "checkpoints" / "latest.pt", "leader", tmp_path / "leader.pt")
+    before = load_checkpoint(leader_file)["agents"]["leader"]["state_dict"]
+    trainer = Trainer(tiny(leader={"policy": str(leader_file)}, total_steps=3 * 64), tmp_path / "f",
+                      progress=False, tensorboard=False)
+    follower_before = weights(trainer.learners[1].model)
+    trainer.train()
+    frozen = trainer.partners[0].model.state_dict()
+    assert all(torch.equal(before[k], frozen[k]) for k in before)
+    after = trainer.learners[1].model.state_dict()
+    assert any(not torch.equal(follower_before[k], after[k]) for k in after)
+    saved = load_checkpoint(tmp_path / "f" / "checkpoints" / "latest.pt")
+    assert saved["agents"]["leader"] is None and saved["agents"]["follower"] is not None
+
+
+@pytest.mark.parametrize("preset", preset_names())
+def test_every_preset_runs_with_a_tiny_budget(tmp_path, preset, shipped_leader):
+    data = merge(load_preset(preset), merge(TINY, {"total_steps": 32, "eval_every": 1, "eval_episodes": 2,
+                                                   "replay_episodes": 1,
+                                                   "ppo": {"num_envs": 2, "num_steps": 16, "num_minibatches": 1}}))
+    config = from_dict(data)
+    Trainer(config, tmp_path, progress=False, tensorboard=False).train()
+    rows = [json.loads(x) for x in (tmp_path / "metrics.jsonl").read_text().splitlines()]
+    assert [r["stream"] for r in rows] == ["train", "eval"]
+    assert all(math.isfinite(v) for k, v in rows[0].items() if k.endswith("/loss"))
+    assert len(list((tmp_path / "replays").rglob("*.replay.json"))) == 1
+    assert (tmp_path / "checkpoints" / "latest.pt").is_file()
+
+
+@pytest.fixture(scope="session")
+def shipped_leader():
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "checkpoints" / "leader.pt"
+    assert path.is_file(), "the shipped leader checkpoint is missing (presets refer to it)"
+    return path
+
+
+# -------------------------------------------------------------- bad input
+def test_config_errors_name_the_field_and_what_is_allowed():
+    cases = [
+        ({"ppo": {"lr": -1}}, "ppo.lr=-1 is invalid"),
+        ({"ppo": {"num_envs": 6, "num_minibatches": 4}}, "must divide ppo.num_envs=6"),
+        ({"leader": {"policy": "nope"}}, "'learn', one of"),
+        ({"leader": {"policy": "astar"}, "follower": {"policy": "idle"}}, "at least one agent must have"),
+        ({"follower": {"net": {"arch": "resnet"}}}, "choose one of ['fast', 'paper']"),
+        ({"schedule": {"penalty_start": 5}}, "set both penalty_start and penalty_end"),
+        ({"ppo": {"learning_rate": 1}}, "unknown field(s) ['learning_rate'] in ppo"),
+        ({"env": {"height": 2}}, "height"),
+    ]
+    for change, message in cases:
+        with pytest.raises(ValueError) as err:
+            from_dict(change)
+        assert message in str(err.value), (change, str(err.value))
+    with pytest.raises(TrainConfigError, match="expected KEY=VALUE"):
+        parse_override("ppo.lr")
+    assert parse_override("follower.net.lstm=true") == {"follower": {"net": {"lstm": True}}}
+
+
+def test_checkpoint_errors_are_clear(tmp_path):
+    Trainer(tiny(follower={"policy": "idle"}, total_steps=64), tmp_path / "run", progress=False,
+            tensorboard=False).train()
+    ckpt = tmp_path / "run" / "checkpoints" / "latest.pt"
+    with pytest.raises(ValueError, match="holds no trained follower"):
+        load_policy(ckpt, role="follower")
+    with pytest.raises(ValueError, match="does not fit this environment .*height: trained 32, requested 16"):
+        run_episodes(EnvConfig(height=16, width=16), load_policy(ckpt, "leader"), make_policy("idle"), 1, 0)
+    with pytest.raises(ValueError, match="was trained with"):
+        Trainer(tiny(leader={"init": str(ckpt), "net": {"lstm": True}}, follower={"policy": "idle"}),
+                tmp_path / "x", progress=False, tensorboard=False)
+    broken = tmp_path / "broken.pt"
+    broken.write_bytes(ckpt.read_bytes()[:1000])
+    with pytest.raises(ValueError, match="not a readable ColorGrid checkpoint"):
+        load_policy(broken)
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        load_policy(tmp_path / "missing.pt")
+    exported = export_agent(ckpt, "leader", tmp_path / "small.pt")
+    assert exported.stat().st_size < ckpt.stat().st_size / 2
+    with pytest.raises(ValueError, match="exported policy"):
+        Trainer(tiny(follower={"policy": "idle"}), tmp_path / "y", progress=False, tensorboard=False).restore(exported)
+
+
+def test_cli_trains_exports_and_evaluates_a_checkpoint(tmp_path):
+    run = tmp_path / "run"
+    cmd = [sys.executable, "-m", "colorgrid.cli", "train", "--preset", "leader_solo", "--out", str(run),
+           "--no-progress", "--set", "total_steps=64", "--set", "ppo.num_envs=4", "--set", "ppo.num_steps=16",
+           "--set", "eval_every=1", "--set", "eval_episodes=2", "--set", "replay_episodes=1"]
+    done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert (run / "train.csv").read_text().startswith("step,")
+    assert list((run / "tb").iterdir())
+    small = tmp_path / "leader.pt"
+    done = subprocess.run([sys.executable, "-m", "colorgrid.cli", "checkpoint", "export",
+                           str(run / "checkpoints" / "latest.pt"), "--agent", "leader", "--out", str(small)],
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    done = subprocess.run([sys.executable, "-m", "colorgrid.cli", "eval", "--leader", str(small), "--follower",
+                           "idle", "--episodes", "2"], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "leader net pickups" in done.stdout
+    bad = subprocess.run([sys.executable, "-m", "colorgrid.cli", "train", "--set", "ppo.clip_coef=-1"],
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "ppo.clip_coef=-1 is invalid" in bad.stderr

@@ -1,0 +1,97 @@
+"""Checkpoint files: weights, optimizer, configs, step and the trainer's state for exact resumption.
+
+Layout (``torch.save`` of plain containers, loadable with ``weights_only=True``)::
+
+    format: "colorgrid-ippo", version: 1
+    config: the TrainConfig as a dict        env_config: the EnvConfig as a dict
+    step, iteration                          agents: {"leader": entry | None, "follower": entry | None}
+    entry: {"net": NetConfig dict, "agent_index", "state_dict", "optimizer" (or None when exported)}
+    trainer_state: pickled bytes (env state, recurrent states, partners, RNG) or None when exported
+
+``trainer_state`` is only unpickled when resuming a run, from its own directory.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import io
+from pathlib import Path
+
+import torch
+
+from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.files import atomic_path
+from train.config import NetConfig, TrainConfigError, _build
+from train.nets import ActorCritic
+
+FORMAT, VERSION = "colorgrid-ippo", 1
+
+
+def agent_entry(model: ActorCritic, optimizer: torch.optim.Optimizer | None) -> dict:
+    return {"net": dataclasses.asdict(model.net), "agent_index": model.agent_index,
+            "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+            "optimizer": optimizer.state_dict() if optimizer is not None else None}
+
+
+def save_checkpoint(path: str | Path, payload: dict) -> Path:
+    """Write atomically (a crash mid-write never leaves a truncated checkpoint)."""
+    payload = {"format": FORMAT, "version": VERSION, **payload}
+    buffer = io.BytesIO()
+    torch.save(payload, buffer)
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(buffer.getvalue())
+    return path
+
+
+def load_checkpoint(path: str | Path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"checkpoint {path} does not exist")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises many types for a damaged file
+        raise ValueError(f"{path} is not a readable ColorGrid checkpoint ({type(err).__name__}: {err})") from None
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        raise ValueError(f"{path} is not a ColorGrid trainer checkpoint (format {FORMAT!r})")
+    if ckpt.get("version") != VERSION:
+        raise ValueError(f"{path} has checkpoint version {ckpt.get('version')!r}; this trainer reads {VERSION}")
+    for key in ("agents", "env_config", "config", "step"):
+        if key not in ckpt:
+            raise ValueError(f"{path} lacks {key!r}; it is not a complete checkpoint")
+    return ckpt
+
+
+def build_model(entry: dict, env: EnvConfig, what: str) -> ActorCritic:
+    """Rebuild a network from a checkpoint entry, with a clear error when the weights do not fit."""
+    try:
+        net = _build(NetConfig, entry["net"], "net")
+    except TrainConfigError as err:
+        raise ValueError(f"{what}: {err}") from None
+    model = ActorCritic(net, env, int(entry["agent_index"]))
+    load_weights(model, entry["state_dict"], what)
+    return model
+
+
+def load_weights(model: ActorCritic, state_dict: dict, what: str) -> None:
+    own = model.state_dict()
+    missing = sorted(set(own) - set(state_dict))
+    extra = sorted(set(state_dict) - set(own))
+    shapes = [f"{k}: checkpoint {tuple(state_dict[k].shape)}, network {tuple(own[k].shape)}"
+              for k in own if k in state_dict and own[k].shape != state_dict[k].shape]
+    if missing or extra or shapes:
+        raise ValueError(f"{what} does not match the network {model.net} for {AGENTS[model.agent_index]}: "
+                         f"missing {missing[:4]}, unexpected {extra[:4]}, shape mismatches {shapes[:4]}")
+    model.load_state_dict(state_dict)
+
+
+def export_agent(src: str | Path, role: str, dst: str | Path) -> Path:
+    """Keep only one agent's weights and configs (no optimizer, no trainer state): a small file to ship."""
+    ckpt = load_checkpoint(src)
+    entry = ckpt["agents"].get(role)
+    if entry is None:
+        raise ValueError(f"{src} holds no trained {role}")
+    agents = {name: None for name in AGENTS}
+    agents[role] = {**entry, "optimizer": None}
+    return save_checkpoint(dst, {"config": ckpt["config"], "env_config": ckpt["env_config"], "step": ckpt["step"],
+                                 "iteration": ckpt.get("iteration"), "agents": agents, "trainer_state": None})

@@ -1,0 +1,104 @@
+"""``colorgrid train`` (also ``python -m train``) and ``colorgrid checkpoint``: run, resume, inspect, export."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+from train.config import TrainConfig, from_dict, load_preset, merge, parse_override, preset_names
+
+
+def add_train_commands(sub) -> None:
+    train = sub.add_parser("train", help="train agents with IPPO (presets in train/presets/)",
+                           description="Train with IPPO. Settings: a preset, then a JSON config file, then --set "
+                                       "overrides, each on top of the last. Example: colorgrid train --preset "
+                                       "follower_astar --set total_steps=2000000 --out runs/follower")
+    train.add_argument("--preset", default="default", help=f"one of {preset_names()} or a JSON file")
+    train.add_argument("--config", help="a JSON file of settings applied on top of the preset")
+    train.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                       help="override one setting, e.g. ppo.lr=3e-4, follower.net.lstm=true, env.asymmetric=false")
+    train.add_argument("--out", help="run directory (default runs/<preset>-<time>)")
+    train.add_argument("--resume", metavar="RUN_DIR", help="continue a run from RUN_DIR/checkpoints/latest.pt")
+    train.add_argument("--no-progress", action="store_true", help="no progress bar")
+    train.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard event files")
+    train.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
+    train.set_defaults(func=cmd_train)
+
+    ck = sub.add_parser("checkpoint", help="inspect a checkpoint or export one agent as a small policy file")
+    ck.add_argument("action", choices=["info", "export"])
+    ck.add_argument("path", help="a checkpoint .pt")
+    ck.add_argument("--agent", choices=["leader", "follower"], help="export: which agent to keep")
+    ck.add_argument("--out", help="export: destination .pt")
+    ck.set_defaults(func=cmd_checkpoint)
+
+
+def resolve_config(args: argparse.Namespace) -> TrainConfig:
+    data = load_preset(args.preset)
+    if args.config:
+        path = Path(args.config)
+        if not path.is_file():
+            raise FileNotFoundError(f"--config {path}: no such file")
+        try:
+            data = merge(data, json.loads(path.read_text()))
+        except json.JSONDecodeError as err:
+            raise ValueError(f"--config {path} is not valid JSON: {err}") from None
+    for text in args.set:
+        data = merge(data, parse_override(text))
+    return from_dict(data)
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    from train.trainer import Trainer
+
+    if args.resume:
+        run_dir = Path(args.resume)
+        saved = run_dir / "config.json"
+        if not saved.is_file():
+            raise FileNotFoundError(f"--resume {run_dir}: no config.json there; is it a run directory?")
+        data = json.loads(saved.read_text())
+        for text in args.set:
+            data = merge(data, parse_override(text))
+        config = from_dict(data)
+    else:
+        config = resolve_config(args)
+        run_dir = Path(args.out or f"runs/{Path(args.preset).stem}-{time.strftime('%Y%m%d-%H%M%S')}")
+    if args.print_config:
+        print(json.dumps(config.to_dict(), indent=2))
+        return 0
+    trainer = Trainer(config, run_dir, progress=not args.no_progress, tensorboard=not args.no_tensorboard)
+    if args.resume:
+        latest = run_dir / "checkpoints" / "latest.pt"
+        trainer.restore(latest)
+        print(f"resuming {run_dir} at step {trainer.step}")
+    print(f"training {config.num_iterations} iterations of {config.batch_steps} steps on {trainer.device}; "
+          f"run directory {run_dir}")
+    last = trainer.train()
+    shown = {k: round(v, 3) for k, v in last.items() if isinstance(v, float) and ("eval/" in k or k == "sps")}
+    print(f"done at step {trainer.step}: {shown}")
+    print(f"checkpoints in {run_dir / 'checkpoints'}")
+    return 0
+
+
+def cmd_checkpoint(args: argparse.Namespace) -> int:
+    from train.checkpoint import export_agent, load_checkpoint
+
+    if args.action == "info":
+        ckpt = load_checkpoint(args.path)
+        agents = {k: (v["net"] if v else None) for k, v in ckpt["agents"].items()}
+        print(json.dumps({"step": ckpt["step"], "iteration": ckpt.get("iteration"), "agents": agents,
+                          "env_config": ckpt["env_config"], "resumable": ckpt.get("trainer_state") is not None},
+                         indent=2))
+        return 0
+    if not args.agent or not args.out:
+        raise ValueError("checkpoint export needs --agent (leader or follower) and --out PATH.pt")
+    path = export_agent(args.path, args.agent, args.out)
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    from colorgrid.cli import main as colorgrid_main
+
+    return colorgrid_main(["train", *(argv if argv is not None else __import__("sys").argv[1:])])

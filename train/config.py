@@ -1,0 +1,302 @@
+"""Training configuration: frozen dataclasses, validated on construction, loadable from preset files.
+
+A run is one ``TrainConfig``: the environment, one ``AgentConfig`` per agent (learn,
+freeze a checkpoint, or play a scripted policy), the PPO settings (defaults are the
+paper's table), the schedules, and where and how often to log, evaluate and save.
+Presets in ``train/presets/*.json`` hold only the fields that differ from these defaults.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from colorgrid.config import AGENTS, EnvConfig
+
+PRESETS_DIR = Path(__file__).parent / "presets"
+ARCHS = ("fast", "paper")
+GOAL_FUSIONS = ("early", "late")
+DEVICES = ("auto", "cpu", "cuda")
+
+
+class TrainConfigError(ValueError):
+    """A training setting is invalid; the message names the field, the value and what is allowed."""
+
+
+def _fail(name: str, value, allowed: str):
+    raise TrainConfigError(f"{name}={value!r} is invalid: {allowed}")
+
+
+@dataclass(frozen=True)
+class NetConfig:
+    """The actor-critic of one agent."""
+
+    arch: str = "fast"
+    """``fast``: egocentric view, downsampled in the first conv (CPU-friendly). ``paper``: the paper's exact net."""
+    lstm: bool = False
+    """Add an LSTM core (trained with truncated BPTT over whole rollouts)."""
+    lstm_size: int = 128
+    hidden: int = 128
+    """Width of the fast net's trunk (the paper net is fixed at 192)."""
+    goal_fusion: str = "early"
+    """Where the goal one-hot joins: ``early`` (with the conv features) or ``late`` (before the heads)."""
+    extra_inputs: bool = False
+    """Also feed last step's team reward, both agents' actions and the colors they collected."""
+    belief_input: bool = False
+    """Feed the agent's own goal prediction (detached softmax of the auxiliary head) to its policy and value heads."""
+
+    def __post_init__(self):
+        if self.arch not in ARCHS:
+            _fail("net.arch", self.arch, f"choose one of {list(ARCHS)}")
+        if self.goal_fusion not in GOAL_FUSIONS:
+            _fail("net.goal_fusion", self.goal_fusion, f"choose one of {list(GOAL_FUSIONS)}")
+        for name in ("lstm_size", "hidden"):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= 4096:
+                _fail(f"net.{name}", value, "an integer in [1, 4096]")
+        for name in ("lstm", "extra_inputs", "belief_input"):
+            if not isinstance(getattr(self, name), bool):
+                _fail(f"net.{name}", getattr(self, name), "true or false")
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """How one agent takes part in a run."""
+
+    policy: str = "learn"
+    """``learn`` (trained here), a scripted policy name (``astar``, ``idle``, ``bayes``, ...), or a checkpoint path (frozen)."""
+    init: str | None = None
+    """For ``learn``: warm-start weights (and network settings) from this checkpoint."""
+    net: NetConfig = field(default_factory=NetConfig)
+    aux_coef: float = 0.2
+    """Weight kappa of the auxiliary goal-prediction cross-entropy (0 turns it off)."""
+    lr: float | None = None
+    """Learning rate for this agent; None uses ``ppo.lr``."""
+
+    @property
+    def learns(self) -> bool:
+        return self.policy == "learn"
+
+    def __post_init__(self):
+        if not isinstance(self.policy, str) or not self.policy:
+            _fail("policy", self.policy, "'learn', a scripted policy name or a checkpoint path ending in .pt")
+        if not self.learns and not self.policy.endswith(".pt"):
+            from colorgrid.policies import SCRIPTED
+            if self.policy not in SCRIPTED:
+                _fail("policy", self.policy, f"'learn', one of {sorted(SCRIPTED)} or a checkpoint path ending in .pt")
+        if self.init is not None and not self.learns:
+            _fail("init", self.init, "warm-starting only applies to policy='learn'")
+        if not 0.0 <= self.aux_coef <= 100.0:
+            _fail("aux_coef", self.aux_coef, "a number in [0, 100]")
+        if self.lr is not None and not 0.0 < self.lr < 1.0:
+            _fail("lr", self.lr, "a learning rate in (0, 1) or null")
+
+
+@dataclass(frozen=True)
+class PPOConfig:
+    """PPO settings; defaults are the paper's table."""
+
+    lr: float = 1e-4
+    num_envs: int = 16
+    num_steps: int = 128
+    gamma: float = 0.99
+    gae_lambda: float = 0.95
+    num_minibatches: int = 4
+    update_epochs: int = 4
+    clip_coef: float = 0.2
+    clip_vloss: bool = True
+    ent_coef: float = 0.01
+    vf_coef: float = 0.5
+    max_grad_norm: float = 0.5
+    target_kl: float | None = 0.01
+    norm_adv: bool = True
+
+    def __post_init__(self):
+        for name, lo, hi in (("num_envs", 1, 65536), ("num_steps", 1, 65536), ("num_minibatches", 1, 65536),
+                             ("update_epochs", 1, 1000)):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
+                _fail(f"ppo.{name}", value, f"an integer in [{lo}, {hi}]")
+        if self.num_envs % self.num_minibatches:
+            _fail("ppo.num_minibatches", self.num_minibatches,
+                  f"must divide ppo.num_envs={self.num_envs} (recurrent minibatches are whole envs)")
+        if not 0.0 < self.lr < 1.0:
+            _fail("ppo.lr", self.lr, "a learning rate in (0, 1)")
+        for name in ("gamma", "gae_lambda"):
+            if not 0.0 <= getattr(self, name) <= 1.0:
+                _fail(f"ppo.{name}", getattr(self, name), "a number in [0, 1]")
+        for name in ("clip_coef", "ent_coef", "vf_coef", "max_grad_norm"):
+            if not getattr(self, name) >= 0.0:
+                _fail(f"ppo.{name}", getattr(self, name), "a non-negative number")
+        if self.target_kl is not None and not self.target_kl > 0.0:
+            _fail("ppo.target_kl", self.target_kl, "a positive number, or null to never stop early")
+
+
+@dataclass(frozen=True)
+class ScheduleConfig:
+    """Schedules over env steps (counted across the whole batch)."""
+
+    penalty_start: int | None = None
+    """Penalty annealing: the wrong-block penalty coefficient is 0 until this step ..."""
+    penalty_end: int | None = None
+    """... and rises linearly to 1 at this step (both None: no annealing, the env's own coefficient)."""
+    shaping_steps: int | None = None
+    """Reward-shaping terms (set in the env config) count toward training rewards only for this many steps."""
+
+    def __post_init__(self):
+        if (self.penalty_start is None) != (self.penalty_end is None):
+            _fail("schedule.penalty_end", self.penalty_end, "set both penalty_start and penalty_end, or neither")
+        if self.penalty_start is not None and not 0 <= self.penalty_start <= self.penalty_end:
+            _fail("schedule.penalty_start", self.penalty_start, f"0 <= penalty_start <= penalty_end={self.penalty_end}")
+        if self.shaping_steps is not None and self.shaping_steps < 0:
+            _fail("schedule.shaping_steps", self.shaping_steps, "a non-negative step count or null (always on)")
+
+    def penalty_coef(self, step: int, default: float) -> float:
+        if self.penalty_start is None:
+            return default
+        if step < self.penalty_start:
+            return 0.0
+        if step >= self.penalty_end:
+            return 1.0
+        return (step - self.penalty_start) / max(1, self.penalty_end - self.penalty_start)
+
+    def shaping_on(self, step: int) -> bool:
+        return self.shaping_steps is None or step < self.shaping_steps
+
+
+@dataclass(frozen=True)
+class TrainConfig:
+    """One training run."""
+
+    env: EnvConfig = field(default_factory=EnvConfig)
+    leader: AgentConfig = field(default_factory=AgentConfig)
+    follower: AgentConfig = field(default_factory=AgentConfig)
+    ppo: PPOConfig = field(default_factory=PPOConfig)
+    schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
+    total_steps: int = 1_000_000
+    """Env steps to train for (iterations x num_envs x num_steps, rounded up to whole iterations)."""
+    seed: int = 0
+    eval_every: int = 10
+    """Evaluate every this many iterations with the evaluation harness (0: never)."""
+    eval_episodes: int = 32
+    replay_episodes: int = 2
+    """Sample episodes saved as replays at each evaluation."""
+    save_every: int = 50
+    """Write a checkpoint every this many iterations (and always at the end)."""
+    device: str = "auto"
+    threads: int = 0
+    """Torch CPU threads (0: all cores)."""
+
+    def __post_init__(self):
+        if not any(a.learns for a in self.agents):
+            _fail("leader.policy/follower.policy", (self.leader.policy, self.follower.policy),
+                  "at least one agent must have policy='learn'")
+        if self.device not in DEVICES:
+            _fail("device", self.device, f"choose one of {list(DEVICES)}")
+        for name, lo in (("total_steps", 1), ("seed", 0), ("eval_every", 0), ("eval_episodes", 1),
+                         ("replay_episodes", 0), ("save_every", 1), ("threads", 0)):
+            value = getattr(self, name)
+            if not isinstance(value, int) or isinstance(value, bool) or value < lo:
+                _fail(name, value, f"an integer >= {lo}")
+        if self.replay_episodes > self.eval_episodes:
+            _fail("replay_episodes", self.replay_episodes, f"at most eval_episodes={self.eval_episodes}")
+        if self.env.num_agents != len(AGENTS):
+            _fail("env", self.env.num_agents, "the trainer handles one leader and one follower")
+
+    @property
+    def agents(self) -> tuple[AgentConfig, AgentConfig]:
+        return (self.leader, self.follower)
+
+    @property
+    def batch_steps(self) -> int:
+        return self.ppo.num_envs * self.ppo.num_steps
+
+    @property
+    def num_iterations(self) -> int:
+        return -(-self.total_steps // self.batch_steps)
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["env"] = self.env.to_dict()
+        return d
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "TrainConfig":
+        return from_dict(data)
+
+
+_SECTIONS = {"leader": AgentConfig, "follower": AgentConfig, "ppo": PPOConfig, "schedule": ScheduleConfig}
+
+
+def _build(kind, data: dict, where: str):
+    if not isinstance(data, dict):
+        raise TrainConfigError(f"{where} must be a mapping, got {type(data).__name__}")
+    names = {f.name for f in dataclasses.fields(kind)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise TrainConfigError(f"unknown field(s) {unknown} in {where or 'the training config'}; "
+                               f"allowed: {sorted(names)}")
+    data = dict(data)
+    if kind is AgentConfig and "net" in data:
+        data["net"] = _build(NetConfig, data["net"], f"{where}.net")
+    return kind(**data)
+
+
+def from_dict(data: dict) -> TrainConfig:
+    """A TrainConfig from nested plain data (as in preset files); unknown keys are errors."""
+    if not isinstance(data, dict):
+        raise TrainConfigError(f"a training config must be a mapping, got {type(data).__name__}")
+    data = dict(data)
+    data.pop("description", None)
+    names = {f.name for f in dataclasses.fields(TrainConfig)}
+    unknown = sorted(set(data) - names)
+    if unknown:
+        raise TrainConfigError(f"unknown field(s) {unknown} in the training config; allowed: {sorted(names)}")
+    if "env" in data:
+        data["env"] = EnvConfig.from_dict(data["env"])
+    for key, kind in _SECTIONS.items():
+        if key in data:
+            data[key] = _build(kind, data[key], key)
+    return TrainConfig(**data)
+
+
+def merge(base: dict, override: dict) -> dict:
+    """Recursively merge plain dicts (override wins)."""
+    out = dict(base)
+    for key, value in override.items():
+        out[key] = merge(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
+def preset_names() -> list[str]:
+    return sorted(p.stem for p in PRESETS_DIR.glob("*.json"))
+
+
+def load_preset(name: str) -> dict:
+    """A preset's plain data by name (``train/presets/<name>.json``) or by file path."""
+    path = Path(name)
+    if not path.suffix:
+        path = PRESETS_DIR / f"{name}.json"
+    if not path.is_file():
+        raise TrainConfigError(f"unknown preset {name!r}: no file {path}; presets: {preset_names()}")
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as err:
+        raise TrainConfigError(f"preset {path} is not valid JSON: {err}") from None
+
+
+def parse_override(text: str) -> dict:
+    """``a.b.c=value`` to ``{"a": {"b": {"c": value}}}``; the value is JSON if it parses, else a string."""
+    if "=" not in text:
+        raise TrainConfigError(f"--set {text!r}: expected KEY=VALUE, e.g. ppo.lr=3e-4 or follower.net.lstm=true")
+    key, raw = text.split("=", 1)
+    try:
+        value = json.loads(raw)
+    except json.JSONDecodeError:
+        value = raw
+    out: dict = value
+    for part in reversed(key.strip().split(".")):
+        out = {part: out}
+    return out

@@ -1,0 +1,33 @@
+"""From the common policy input (``AgentInput``, numpy) to a network's tensors, one step at a time."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from colorgrid.config import EnvConfig
+from colorgrid.policies.base import AgentInput
+
+
+def one_hot(values: np.ndarray, n: int) -> np.ndarray:
+    """One-hot of ``values [...]`` over ``n`` classes; negative values (none) give all zeros."""
+    out = np.zeros((*values.shape, n), dtype=np.float32)
+    valid = values >= 0
+    out[valid, values[valid]] = 1.0
+    return out
+
+
+def step_tensors(inp: AgentInput, env: EnvConfig, agent_index: int, device) -> dict[str, torch.Tensor]:
+    """The tensors of one step for ``B`` envs, each with a leading time axis of 1."""
+    obs = inp.observation
+    B, _, H, W = obs.shape
+    flat = obs[:, env.num_colors + agent_index].reshape(B, -1).argmax(axis=1)
+    me = np.stack([flat // W, flat % W], axis=1)
+    extras = np.concatenate([
+        np.asarray(inp.prev_reward, dtype=np.float32).reshape(B, 1),
+        one_hot(inp.prev_actions, env.num_actions).reshape(B, -1),
+        one_hot(inp.prev_picked_color, env.num_colors).reshape(B, -1),
+    ], axis=1)
+    arrays = {"obs": obs, "me": me, "goal": inp.goal_info.astype(np.float32), "extras": extras,
+              "starts": np.asarray(inp.episode_start, dtype=bool)}
+    return {k: torch.as_tensor(np.array(v, copy=True))[None].to(device) for k, v in arrays.items()}

@@ -1,0 +1,129 @@
+"""One learning agent: its network, optimizer, rollout buffer and PPO update (IPPO: nothing is shared)."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from train.config import PPOConfig
+from train.nets import ActorCritic
+from train.ppo import LossWeights, compute_gae, explained_variance, ppo_loss
+
+_SIDE = ("goal", "extras", "starts")
+
+
+class Learner:
+    """Acts during rollouts (keeping its recurrent state), then updates on the whole rollout.
+
+    Recurrent networks are trained on whole sequences: minibatches are sets of envs, each
+    replayed over the full rollout from the recurrent state it had at the rollout's start,
+    with the state zeroed at episode starts, exactly as during the rollout.
+    """
+
+    def __init__(self, model: ActorCritic, ppo: PPOConfig, weights: LossWeights, lr: float, seed: int,
+                 device: torch.device):
+        self.model, self.ppo, self.weights, self.device = model.to(device), ppo, weights, device
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=lr, eps=1e-5)
+        self.generator = torch.Generator().manual_seed(seed)
+        self.state = self.model.initial_state(ppo.num_envs, device)
+        self.buffer: dict[str, list] = {}
+
+    # ------------------------------------------------------------ rollout
+    def start_rollout(self) -> None:
+        self.initial_state = None if self.state is None else tuple(s.clone() for s in self.state)
+        self.buffer = {k: [] for k in ("view", *_SIDE, "actions", "logp", "values", "rewards", "dones", "final_values",
+                                       "true_goal")}
+
+    @torch.no_grad()
+    def act(self, x: dict[str, torch.Tensor]) -> tuple[np.ndarray, np.ndarray]:
+        """One step for every env: sampled actions and goal probabilities."""
+        view = self.model.prepare(x["obs"], x["me"])
+        logits, value, goal_logits, self.state = self.model(view, *(x[k] for k in _SIDE), self.state)
+        probs = torch.softmax(logits[0], dim=1)
+        actions = torch.multinomial(probs.cpu(), 1, generator=self.generator)[:, 0].to(self.device)
+        self.buffer["view"].append({k: v[0] for k, v in view.items()})
+        for k in _SIDE:
+            self.buffer[k].append(x[k][0])
+        self.buffer["actions"].append(actions)
+        self.buffer["logp"].append(torch.log(probs.gather(1, actions[:, None])[:, 0]))
+        self.buffer["values"].append(value[0])
+        return actions.cpu().numpy(), torch.softmax(goal_logits[0], dim=1).cpu().numpy()
+
+    @torch.no_grad()
+    def value(self, x: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Values of observations ``x`` under the current recurrent state, without advancing it."""
+        view = self.model.prepare(x["obs"], x["me"])
+        _, value, _, _ = self.model(view, *(x[k] for k in _SIDE), self.state)
+        return value[0]
+
+    def record(self, reward: np.ndarray, done: np.ndarray, true_goal: np.ndarray,
+               final_value: torch.Tensor | None) -> None:
+        """The outcome of the last action; ``final_value`` holds V(final observation) where ``done``."""
+        as_t = lambda a, dt: torch.as_tensor(np.asarray(a), dtype=dt, device=self.device)  # noqa: E731
+        self.buffer["rewards"].append(as_t(reward, torch.float32))
+        self.buffer["dones"].append(as_t(done, torch.bool))
+        self.buffer["true_goal"].append(as_t(true_goal, torch.int64))
+        fv = final_value if final_value is not None else torch.zeros(len(done), device=self.device)
+        self.buffer["final_values"].append(fv)
+
+    # ------------------------------------------------------------- update
+    def stacked(self) -> dict:
+        """The rollout as ``[T, B, ...]`` tensors (``view`` is a dict of them)."""
+        b = {k: torch.stack(v) for k, v in self.buffer.items() if k != "view"}
+        views = self.buffer["view"]
+        b["view"] = {k: torch.stack([v[k] for v in views]) for k in views[0]}
+        return b
+
+    def update(self, bootstrap_value: torch.Tensor) -> dict[str, float]:
+        """PPO epochs over the rollout; returns the last epoch's mean statistics."""
+        b = self.stacked()
+        values, dones = b["values"], b["dones"]
+        following = torch.cat([values[1:], bootstrap_value[None]], dim=0)
+        next_values = torch.where(dones, b["final_values"], following)
+        advantages, returns = compute_gae(b["rewards"], values, next_values, dones, self.ppo.gamma,
+                                          self.ppo.gae_lambda)
+        T, B = values.shape
+        recurrent = self.model.lstm is not None
+        epochs_done, stats = 0, []
+        for _ in range(self.ppo.update_epochs):
+            stats = []
+            if recurrent:
+                order = torch.randperm(B, generator=self.generator).to(self.device)
+                groups = order.view(self.ppo.num_minibatches, -1)
+            else:
+                order = torch.randperm(T * B, generator=self.generator).to(self.device)
+                groups = order.view(self.ppo.num_minibatches, -1)
+            for idx in groups:
+                if recurrent:
+                    state = tuple(s[:, idx] for s in self.initial_state)
+                    view = {k: v[:, idx] for k, v in b["view"].items()}
+                    logits, v, gl, _ = self.model(view, *(b[k][:, idx] for k in _SIDE), state)
+                    pick = lambda t: t[:, idx].reshape(T * len(idx), *t.shape[2:])  # noqa: E731
+                    logits, v, gl = (pick_all(z) for z in (logits, v, gl))
+                else:
+                    flat = lambda t: t.reshape(T * B, *t.shape[2:])[idx][None]  # noqa: E731
+                    view = {k: flat(v) for k, v in b["view"].items()}
+                    logits, v, gl, _ = self.model(view, *(flat(b[k]) for k in _SIDE), None)
+                    pick = lambda t: t.reshape(T * B, *t.shape[2:])[idx]  # noqa: E731
+                    logits, v, gl = logits[0], v[0], gl[0]
+                loss, s = ppo_loss(logits, v, gl, pick(b["actions"]), pick(b["logp"]), pick(values),
+                                   pick(advantages), pick(returns), pick(b["true_goal"]), self.weights)
+                self.optimizer.zero_grad(set_to_none=True)
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.ppo.max_grad_norm)
+                self.optimizer.step()
+                stats.append(s)
+            epochs_done += 1
+            kl = torch.stack([s["approx_kl"] for s in stats]).mean()
+            if self.ppo.target_kl is not None and kl > self.ppo.target_kl:
+                break
+        out = {k: float(torch.stack([s[k] for s in stats]).mean()) for k in stats[0]}
+        out["explained_variance"] = explained_variance(values.flatten(), returns.flatten())
+        out["epochs"] = epochs_done
+        out["lr"] = self.optimizer.param_groups[0]["lr"]
+        return out
+
+
+def pick_all(t: torch.Tensor) -> torch.Tensor:
+    """``[T, b, ...]`` network outputs flattened to ``[T * b, ...]`` (the order ``pick`` uses)."""
+    return t.reshape(t.shape[0] * t.shape[1], *t.shape[2:])

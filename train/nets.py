@@ -1,0 +1,170 @@
+"""Actor-critic networks: the paper's architecture and a fast CPU default, optional LSTM, auxiliary goal head.
+
+Every network maps one agent's observation to action logits, a value and goal logits
+(the auxiliary head, whose softmax is the agent's belief over the goal). Inputs come as
+``[T, B, ...]`` sequences so that the recurrent core can run whole rollouts (truncated BPTT);
+feed-forward networks simply flatten the time axis.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from colorgrid.config import EnvConfig
+from train.config import NetConfig
+
+
+def extra_size(env: EnvConfig) -> int:
+    """Last step's reward (1), both agents' actions (one-hot) and collected colors (one-hot)."""
+    return 1 + env.num_agents * env.num_actions + env.num_agents * env.num_colors
+
+
+def egocentric(obs: torch.Tensor, me: torch.Tensor, radius: int) -> torch.Tensor:
+    """The ``(2r+1) x (2r+1)`` window of ``obs [N, P, H, W]`` centred on cell ``me [N, 2]``: ``[N, P + 1, 2r+1, 2r+1]``.
+
+    The extra plane is 1 on the grid and 0 beyond the walls. Works on any dtype (uint8 is fastest).
+    """
+    N, P, H, W = obs.shape
+    r = radius
+    x = obs.new_zeros(N, P + 1, H + 2 * r, W + 2 * r)
+    x[:, :P, r:r + H, r:r + W] = obs
+    x[:, P, r:r + H, r:r + W] = 1
+    windows = x.unfold(2, 2 * radius + 1, 1).unfold(3, 2 * radius + 1, 1)  # [N, P+1, H, W, 2r+1, 2r+1], a view
+    return windows[torch.arange(N, device=obs.device), :, me[:, 0], me[:, 1]]
+
+
+class PaperEncoder(nn.Module):
+    """conv 5->32->64->64 (3x3, stride 1, no padding, LeakyReLU) then 192-192-192 Tanh."""
+
+    def __init__(self, env: EnvConfig, goal_in: int):
+        super().__init__()
+        P = env.num_colors + env.num_agents
+        self.convs = nn.Sequential(
+            nn.Conv2d(P, 32, 3), nn.LeakyReLU(), nn.Conv2d(32, 64, 3), nn.LeakyReLU(),
+            nn.Conv2d(64, 64, 3), nn.LeakyReLU(), nn.Flatten())
+        flat = 64 * (env.height - 6) * (env.width - 6)
+        self.mlp = nn.Sequential(nn.Linear(flat + goal_in, 192), nn.Tanh(), nn.Linear(192, 192), nn.Tanh(),
+                                 nn.Linear(192, 192), nn.Tanh())
+        self.out_size = 192
+
+    def prepare(self, obs: torch.Tensor, me: torch.Tensor) -> dict[str, torch.Tensor]:
+        return {"obs": obs}
+
+    def forward(self, view: dict[str, torch.Tensor], side: torch.Tensor) -> torch.Tensor:
+        return self.mlp(torch.cat([self.convs(view["obs"].float()), side], dim=1))
+
+
+class FastEncoder(nn.Module):
+    """CPU-friendly: an egocentric window downsampled 3x by its first conv, plus a coarse view of the whole board.
+
+    * local: the ``(2r+1)^2`` window around the agent (r = 11), conv 3x3 stride 3 -> 16,
+      conv 3x3 stride 2 -> 32 (translation-friendly: what is near the agent looks the same anywhere);
+    * global: every plane average-pooled 4x4 (block densities and both agents, coarsely);
+    * both, with the side inputs (goal, extras), through one ReLU layer of ``hidden`` units.
+    """
+
+    radius = 11
+    pool = 4
+
+    def __init__(self, env: EnvConfig, goal_in: int, hidden: int):
+        super().__init__()
+        P = env.num_colors + env.num_agents
+        self.convs = nn.Sequential(
+            nn.Conv2d(P + 1, 16, 3, stride=3), nn.ReLU(), nn.Conv2d(16, 32, 3, stride=2), nn.ReLU(), nn.Flatten())
+        with torch.no_grad():
+            local = self.convs(torch.zeros(1, P + 1, 2 * self.radius + 1, 2 * self.radius + 1)).shape[1]
+        coarse = P * -(-env.height // self.pool) * -(-env.width // self.pool)
+        self.mlp = nn.Sequential(nn.Linear(local + coarse + goal_in, hidden), nn.ReLU())
+        self.out_size = hidden
+
+    def prepare(self, obs: torch.Tensor, me: torch.Tensor) -> dict[str, torch.Tensor]:
+        """The network's view of ``obs [N, P, H, W]``: computed once per sample, reused by every epoch."""
+        return {"window": egocentric(obs, me, self.radius),
+                "coarse": F.avg_pool2d(obs.float(), self.pool, ceil_mode=True).flatten(1)}
+
+    def forward(self, view: dict[str, torch.Tensor], side: torch.Tensor) -> torch.Tensor:
+        local = self.convs(view["window"].float())
+        return self.mlp(torch.cat([local, view["coarse"], side], dim=1))
+
+
+def _head(n_in: int, n_out: int, gain: float) -> nn.Sequential:
+    head = nn.Sequential(nn.Linear(n_in, 64), nn.Tanh(), nn.Linear(64, 64), nn.Tanh(), nn.Linear(64, n_out))
+    nn.init.orthogonal_(head[-1].weight, gain)
+    nn.init.zeros_(head[-1].bias)
+    return head
+
+
+class ActorCritic(nn.Module):
+    """Encoder -> optional LSTM -> policy, value and auxiliary goal heads."""
+
+    def __init__(self, net: NetConfig, env: EnvConfig, agent_index: int):
+        super().__init__()
+        self.net, self.env, self.agent_index = net, env, agent_index
+        C = env.num_colors
+        side = (C if net.goal_fusion == "early" else 0) + (extra_size(env) if net.extra_inputs else 0)
+        self.encoder = PaperEncoder(env, side) if net.arch == "paper" else FastEncoder(env, side, net.hidden)
+        core = self.encoder.out_size
+        self.lstm = nn.LSTM(core, net.lstm_size) if net.lstm else None
+        if self.lstm is not None:
+            core = net.lstm_size
+        head_in = core + (C if net.goal_fusion == "late" else 0) + (C if net.belief_input else 0)
+        self.policy = _head(head_in, env.num_actions, 0.01)
+        self.value = _head(head_in, 1, 1.0)
+        aux = nn.Sequential(nn.Linear(core, 64), nn.Tanh(), nn.Linear(64, C))
+        self.aux = aux
+
+    def _recur(self, x, starts, state):
+        """Run the LSTM over ``x [T, B, F]`` in segments that start where any env starts an episode."""
+        T = x.shape[0]
+        bounds = sorted({0, *torch.nonzero(starts.any(dim=1)).flatten().tolist(), T})
+        h, c = state
+        outs = []
+        for t0, t1 in zip(bounds[:-1], bounds[1:]):
+            keep = (~starts[t0]).float()[None, :, None]
+            out, (h, c) = self.lstm(x[t0:t1], (h * keep, c * keep))
+            outs.append(out)
+        return torch.cat(outs, dim=0), (h, c)
+
+    def initial_state(self, batch: int, device=None) -> tuple[torch.Tensor, torch.Tensor] | None:
+        if self.lstm is None:
+            return None
+        zeros = torch.zeros(1, batch, self.net.lstm_size, device=device)
+        return (zeros, zeros.clone())
+
+    def prepare(self, obs: torch.Tensor, me: torch.Tensor) -> dict[str, torch.Tensor]:
+        """``obs [T, B, P, H, W]`` (uint8) and own cell ``me [T, B, 2]`` to the encoder's input view, ``[T, B, ...]``."""
+        T, B = obs.shape[:2]
+        view = self.encoder.prepare(obs.reshape(T * B, *obs.shape[2:]), me.reshape(T * B, 2))
+        return {k: v.reshape(T, B, *v.shape[1:]) for k, v in view.items()}
+
+    def forward(self, view, goal, extras, starts, state):
+        """``view`` from ``prepare``; all inputs ``[T, B, ...]``. Returns ``(logits, value, goal_logits, state)``.
+
+        ``starts [T, B]`` marks the first step of an episode: the recurrent state is zeroed
+        there, so sequences that span an episode boundary stay correct.
+        """
+        T, B = goal.shape[:2]
+        side = []
+        if self.net.goal_fusion == "early":
+            side.append(goal)
+        if self.net.extra_inputs:
+            side.append(extras)
+        side = torch.cat(side, dim=2) if side else goal.new_zeros(T, B, 0)
+        flat = {k: v.reshape(T * B, *v.shape[2:]) for k, v in view.items()}
+        x = self.encoder(flat, side.reshape(T * B, -1)).reshape(T, B, -1)
+        if self.lstm is not None:
+            x, state = self._recur(x, starts, state)
+        goal_logits = self.aux(x)
+        heads = [x]
+        if self.net.goal_fusion == "late":
+            heads.append(goal)
+        if self.net.belief_input:
+            heads.append(torch.softmax(goal_logits, dim=2).detach())
+        h = torch.cat(heads, dim=2)
+        return self.policy(h), self.value(h)[..., 0], goal_logits, state
+
+
+def count_parameters(module: nn.Module) -> int:
+    return sum(p.numel() for p in module.parameters())

@@ -1,0 +1,90 @@
+"""Trained networks behind the common ``Policy`` interface (evaluation, the play server, replays, frozen partners)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
+from train.inputs import step_tensors
+from train.nets import ActorCritic
+
+
+class NetPolicy(Policy):
+    """Acts with an ``ActorCritic``; its goal probabilities are the auxiliary head's softmax.
+
+    ``greedy`` picks the most likely action instead of sampling (sampling is the default,
+    as trained). Keeps one recurrent state per env row, cleared at episode starts.
+    """
+
+    has_belief = True
+
+    def __init__(self, model: ActorCritic, name: str = "net", greedy: bool = False, source: str | None = None):
+        self.model = model
+        self.name = name
+        self.greedy = greedy
+        self.source = source
+        self.device = next(model.parameters()).device
+
+    def reset(self, config: EnvConfig, num_envs: int, agent_index: int, seed: int = 0) -> None:
+        super().reset(config, num_envs, agent_index, seed)
+        check_compatible(self.model.env, config, self.source or self.name)
+        if agent_index != self.model.agent_index:
+            raise ValueError(f"{self.source or self.name} was trained as the {AGENTS[self.model.agent_index]}, "
+                             f"not the {AGENTS[agent_index]}")
+        self.state = self.model.initial_state(num_envs, self.device)
+        self.generator = torch.Generator().manual_seed(int(seed) * 2 + agent_index)
+
+    @torch.inference_mode()
+    def act(self, inp: AgentInput, rows: np.ndarray | None = None) -> PolicyOutput:
+        rows_idx = self._rows(rows)
+        x = step_tensors(inp, self.config, self.agent_index, self.device)
+        state = None
+        if self.state is not None:
+            state = (self.state[0][:, rows_idx], self.state[1][:, rows_idx])
+        view = self.model.prepare(x["obs"], x["me"])
+        logits, _, goal_logits, new_state = self.model(view, x["goal"], x["extras"], x["starts"], state)
+        if self.state is not None:
+            self.state[0][:, rows_idx], self.state[1][:, rows_idx] = new_state
+        logits = logits[0].cpu()
+        if self.greedy:
+            actions = logits.argmax(dim=1)
+        else:
+            actions = torch.multinomial(torch.softmax(logits, dim=1), 1, generator=self.generator)[:, 0]
+        probs = torch.softmax(goal_logits[0], dim=1).cpu().numpy().astype(np.float32)
+        return PolicyOutput(actions.numpy().astype(np.int64), probs)
+
+    def describe(self) -> dict:
+        d = {"policy": self.name, "arch": self.model.net.arch, "lstm": self.model.net.lstm}
+        if self.source:
+            d["checkpoint"] = self.source
+        return d
+
+
+def check_compatible(trained: EnvConfig, wanted: EnvConfig, what: str) -> None:
+    """A network fits an env only with the same grid, colors, agents and actions."""
+    keys = ("height", "width", "num_colors", "allow_stay")
+    diff = {k: (getattr(trained, k), getattr(wanted, k)) for k in keys if getattr(trained, k) != getattr(wanted, k)}
+    if diff:
+        detail = ", ".join(f"{k}: trained {a!r}, requested {b!r}" for k, (a, b) in diff.items())
+        raise ValueError(f"{what} does not fit this environment ({detail}); the network's input and output "
+                         f"shapes depend on these fields")
+
+
+def load_policy(path: str | Path, role: str | None = None, greedy: bool = False) -> NetPolicy:
+    """A ``NetPolicy`` from a checkpoint: the agent named ``role`` (default: the only trained one)."""
+    from train.checkpoint import load_checkpoint, build_model
+
+    ckpt = load_checkpoint(path)
+    agents = {name: entry for name, entry in ckpt["agents"].items() if entry is not None}
+    if role is None:
+        if len(agents) != 1:
+            raise ValueError(f"{path} holds trained agents {sorted(agents)}; say which one to load")
+        role = next(iter(agents))
+    if role not in agents:
+        raise ValueError(f"{path} holds no trained {role} (it has: {sorted(agents) or 'none'})")
+    model = build_model(agents[role], EnvConfig.from_dict(ckpt["env_config"]), str(path))
+    return NetPolicy(model, name=f"{Path(path).stem}", greedy=greedy, source=str(path))

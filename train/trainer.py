@@ -1,0 +1,288 @@
+"""IPPO for ColorGrid, top to bottom: build agents, then loop rollout -> update -> log -> evaluate -> save.
+
+Each learning agent has its own actor-critic and optimizer (independent PPO); a partner
+that does not learn is any ``Policy``: scripted (A*, idle, ...) or a frozen checkpoint.
+Everything that decides what happens next (env state, recurrent states, last-step inputs,
+RNGs) is saved in checkpoints, so a resumed run continues exactly as if never stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import pickle
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.env import BatchEnv
+from colorgrid.evaluate import evaluate, record_batch
+from colorgrid.policies import make_policy
+from colorgrid.rollout import agent_input, run_episodes
+from train.checkpoint import agent_entry, build_model, load_checkpoint, load_weights, save_checkpoint
+from train.config import TrainConfig
+from train.inputs import step_tensors
+from train.learner import Learner
+from train.metrics import MetricsLog
+from train.nets import ActorCritic
+from train.policy import NetPolicy, check_compatible, load_policy
+from train.ppo import LossWeights
+
+
+def pick_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device='cuda' but no CUDA device is available; use 'auto' or 'cpu'")
+    return torch.device(name)
+
+
+class Trainer:
+    def __init__(self, config: TrainConfig, run_dir: str | Path, progress: bool = True, tensorboard: bool = True):
+        self.config, self.run_dir, self.progress = config, Path(run_dir), progress
+        if config.threads:
+            torch.set_num_threads(config.threads)
+        torch.manual_seed(config.seed)
+        self.device = pick_device(config.device)
+        self.env = BatchEnv(config.env, num_envs=config.ppo.num_envs, seed=config.seed)
+        self.learners: dict[int, Learner] = {}
+        self.partners: dict[int, object] = {}
+        for i, agent in enumerate(config.agents):
+            if agent.learns:
+                self.learners[i] = self._make_learner(i)
+            else:
+                self.partners[i] = (load_policy(agent.policy, role=AGENTS[i]) if agent.policy.endswith(".pt")
+                                    else make_policy(agent.policy))
+                self.partners[i].reset(config.env, config.ppo.num_envs, i, seed=config.seed)
+        self.step, self.iteration = 0, 0
+        self._begin_episodes()
+        self.tensorboard = tensorboard
+        self.log: MetricsLog | None = None
+
+    def _make_learner(self, i: int) -> Learner:
+        cfg, agent = self.config, self.config.agents[i]
+        model = ActorCritic(agent.net, cfg.env, i)
+        if agent.init is not None:
+            ckpt = load_checkpoint(agent.init)
+            entry = ckpt["agents"].get(AGENTS[i])
+            if entry is None:
+                raise ValueError(f"{AGENTS[i]}.init={agent.init!r} holds no trained {AGENTS[i]}")
+            trained = build_model(entry, EnvConfig.from_dict(ckpt["env_config"]), agent.init)
+            if trained.net != agent.net:
+                raise ValueError(f"{AGENTS[i]}.init={agent.init!r} was trained with {trained.net}, but this run "
+                                 f"asks for {agent.net}; set {AGENTS[i]}.net to match the checkpoint")
+            check_compatible(trained.env, cfg.env, agent.init)
+            load_weights(model, trained.state_dict(), agent.init)
+        weights = LossWeights(cfg.ppo.clip_coef, cfg.ppo.clip_vloss, cfg.ppo.ent_coef, cfg.ppo.vf_coef,
+                              agent.aux_coef, cfg.ppo.norm_adv)
+        return Learner(model, cfg.ppo, weights, agent.lr or cfg.ppo.lr, cfg.seed * 2 + i + 1, self.device)
+
+    def _begin_episodes(self) -> None:
+        B, A = self.config.ppo.num_envs, self.config.env.num_agents
+        self.obs, _ = self.env.reset()
+        self.prev_reward = np.zeros((B, A), dtype=np.float32)
+        self.prev_picked = np.full((B, A), -1, dtype=np.int64)
+        self.prev_actions = np.full((B, A), -1, dtype=np.int64)
+        self.start = np.ones(B, dtype=bool)
+
+    # ------------------------------------------------------------------ loop
+    def train(self) -> dict:
+        cfg = self.config
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        (self.run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2))
+        self.log = MetricsLog(self.run_dir, tensorboard=self.tensorboard)
+        bar = None
+        if self.progress:
+            from tqdm import tqdm
+            bar = tqdm(total=cfg.num_iterations * cfg.batch_steps, initial=self.step, unit="step", smoothing=0.1)
+        last = {}
+        try:
+            while self.iteration < cfg.num_iterations:
+                last = self.train_iteration()
+                if bar is not None:
+                    bar.update(cfg.batch_steps)
+                    bar.set_postfix(sps=f"{last['sps']:.0f}", team=f"{last.get('team_reward', float('nan')):.2f}")
+                if cfg.eval_every and self.iteration % cfg.eval_every == 0:
+                    last.update(self.evaluate())
+                if self.iteration % cfg.save_every == 0 or self.iteration == cfg.num_iterations:
+                    self.save()
+        finally:
+            if bar is not None:
+                bar.close()
+            self.log.close()
+        return last
+
+    def train_iteration(self) -> dict:
+        cfg = self.config
+        self.env.penalty_coef = cfg.schedule.penalty_coef(self.step, cfg.env.penalty_coef)
+        t0 = time.perf_counter()
+        episodes, accuracy = self.collect_rollout()
+        t1 = time.perf_counter()
+        stats = {}
+        for i, learner in self.learners.items():
+            bootstrap = learner.value(self._tensors(i, self._inputs(i)))
+            for key, value in learner.update(bootstrap).items():
+                stats[f"{AGENTS[i]}/{key}"] = value
+            stats[f"{AGENTS[i]}/rollout_goal_accuracy"] = accuracy[i]
+        t2 = time.perf_counter()
+        self.iteration += 1
+        self.step += cfg.batch_steps
+        row = {"iteration": self.iteration, "penalty_coef": self.env.penalty_coef,
+               "shaping_on": float(cfg.schedule.shaping_on(self.step - cfg.batch_steps)),
+               "sps": cfg.batch_steps / (t2 - t0), "rollout_sps": cfg.batch_steps / (t1 - t0),
+               "update_sps": cfg.batch_steps / max(t2 - t1, 1e-9), **episodes, **stats}
+        self.log.write("train", self.step, row)
+        return row
+
+    def collect_rollout(self) -> tuple[dict, dict]:
+        """``num_steps`` steps of every env; returns episode means and each learner's goal accuracy."""
+        cfg, env = self.config, self.env
+        B, A = cfg.ppo.num_envs, cfg.env.num_agents
+        shaping = cfg.schedule.shaping_on(self.step)
+        for learner in self.learners.values():
+            learner.start_rollout()
+        done_eps: dict[str, list] = {}
+        shaped_sum = getattr(self, "_shaped_sum", np.zeros((B, A)))
+        hits = {i: 0.0 for i in self.learners}
+        for _ in range(cfg.ppo.num_steps):
+            true_goal = env.state.goal.copy()
+            actions = np.zeros((B, A), dtype=np.int64)
+            for i in range(A):
+                inp = self._inputs(i, true_goal)
+                if i in self.learners:
+                    actions[:, i], probs = self.learners[i].act(self._tensors(i, inp))
+                    hits[i] += float((probs.argmax(axis=1) == true_goal).mean())
+                else:
+                    actions[:, i] = self.partners[i].act(inp).actions
+            self.obs, rewards, terms, truncs, infos = env.step(actions)
+            if not shaping:
+                rewards = rewards - infos["distance_shaping"] - infos["potential_shaping"]
+            shaped_sum += rewards
+            done = terms[:, 0] | truncs[:, 0]
+            final = self._final_values(infos, actions, done) if done.any() else {}
+            for i, learner in self.learners.items():
+                learner.record(rewards[:, i], done, true_goal, final.get(i))
+            self.prev_reward = (np.repeat(infos["team_reward"][:, None], A, axis=1)
+                                if cfg.env.reward_mode == "shared" else infos["block_reward"])
+            self.prev_picked, self.prev_actions, self.start = infos["picked_color"], actions, done
+            if done.any():
+                fi = infos["final_info"]
+                for a, name in enumerate(AGENTS):
+                    done_eps.setdefault(f"{name}_block_reward", []).extend(fi["episode_block_reward"][done, a])
+                    done_eps.setdefault(f"{name}_goal_pickups", []).extend(fi["episode_goal_pickups"][done, a])
+                    done_eps.setdefault(f"{name}_wrong_pickups", []).extend(fi["episode_wrong_pickups"][done, a])
+                    done_eps.setdefault(f"{name}_training_reward", []).extend(shaped_sum[done, a])
+                done_eps.setdefault("team_reward", []).extend(fi["episode_block_reward"][done].sum(axis=1))
+                shaped_sum[done] = 0.0
+        self._shaped_sum = shaped_sum
+        episodes = {k: float(np.mean(v)) for k, v in done_eps.items()}
+        if done_eps:
+            episodes["episodes"] = len(done_eps["team_reward"])
+        return episodes, {i: h / cfg.ppo.num_steps for i, h in hits.items()}
+
+    def _inputs(self, i: int, true_goal: np.ndarray | None = None):
+        return agent_input(self.obs, i, self.start, self.prev_reward[:, i], self.prev_picked, self.prev_actions,
+                           self.env.penalty_coef, self.env.state.goal.copy() if true_goal is None else true_goal)
+
+    def _tensors(self, i: int, inp) -> dict:
+        return step_tensors(inp, self.config.env, i, self.device)
+
+    def _final_values(self, infos: dict, actions: np.ndarray, done: np.ndarray) -> dict[int, torch.Tensor]:
+        """V(final observation) of ended episodes, so that time-limit truncation is bootstrapped."""
+        out = {}
+        A = self.config.env.num_agents
+        prev_reward = (np.repeat(infos["team_reward"][:, None], A, axis=1)
+                       if self.config.env.reward_mode == "shared" else infos["block_reward"])
+        for i, learner in self.learners.items():
+            inp = agent_input(infos["final_obs"], i, np.zeros_like(done), prev_reward[:, i], infos["picked_color"],
+                              actions, self.env.penalty_coef, self.env.state.goal)
+            value = learner.value(self._tensors(i, inp))
+            out[i] = torch.where(torch.as_tensor(done, device=self.device), value, torch.zeros_like(value))
+        return out
+
+    # ------------------------------------------------------ evaluate / save
+    def policies(self) -> list:
+        """The current agents as ``Policy`` objects (learners wrap their live networks)."""
+        return [NetPolicy(self.learners[i].model, name=f"{AGENTS[i]}@{self.step}") if i in self.learners
+                else self.partners[i] for i in range(self.config.env.num_agents)]
+
+    def evaluate(self) -> dict:
+        """The evaluation harness on fixed seeds, plus a few sample episodes saved as replays."""
+        cfg = self.config
+        seed = 1_000_000 + cfg.seed
+        report = evaluate(cfg.env, *self._fresh_policies(), cfg.eval_episodes, seed)
+        row = {"team_reward": report["team_reward"]["mean"]}
+        for name in AGENTS:
+            entry = report["agents"][name]
+            for key in ("goal_pickups", "wrong_pickups", "net_pickups"):
+                row[f"{name}_{key}"] = entry[key]["mean"]
+            if "belief" in entry:
+                row[f"{name}_goal_accuracy"] = entry["belief"]["accuracy"]
+        self.log.write("eval", self.step, row)
+        if cfg.replay_episodes:
+            leader, follower = self._fresh_policies()
+            batch = run_episodes(cfg.env, leader, follower, cfg.replay_episodes, seed, record_hashes=True)
+            record_batch(batch, leader.name, follower.name, leader, follower,
+                         self.run_dir / "replays" / f"step_{self.step:09d}", source="train",
+                         meta={"train_step": self.step, "run": str(self.run_dir)})
+        return {f"eval/{k}": v for k, v in row.items()}
+
+    def _fresh_policies(self) -> list:
+        """Policies for a separate evaluation: partners are rebuilt so the training batch's state is untouched."""
+        out = []
+        for i, agent in enumerate(self.config.agents):
+            if i in self.learners:
+                out.append(NetPolicy(self.learners[i].model, name=f"{AGENTS[i]}@{self.step}"))
+            elif agent.policy.endswith(".pt"):
+                out.append(load_policy(agent.policy, role=AGENTS[i]))
+            else:
+                out.append(make_policy(agent.policy))
+        return out
+
+    def checkpoint_payload(self) -> dict:
+        agents = {name: None for name in AGENTS}
+        for i, learner in self.learners.items():
+            agents[AGENTS[i]] = agent_entry(learner.model, learner.optimizer)
+        state = {
+            "env_state": self.env.state, "penalty_coef": self.env.penalty_coef,
+            "prev": (self.prev_reward, self.prev_picked, self.prev_actions, self.start),
+            "shaped_sum": getattr(self, "_shaped_sum", None),
+            "recurrent": {i: l.state for i, l in self.learners.items()},
+            "generators": {i: l.generator.get_state() for i, l in self.learners.items()},
+            "partners": self.partners, "torch_rng": torch.get_rng_state(),
+        }
+        return {"config": self.config.to_dict(), "env_config": self.config.env.to_dict(), "step": self.step,
+                "iteration": self.iteration, "agents": agents, "trainer_state": pickle.dumps(state)}
+
+    def save(self) -> Path:
+        payload = self.checkpoint_payload()
+        folder = self.run_dir / "checkpoints"
+        path = save_checkpoint(folder / f"step_{self.step:09d}.pt", payload)
+        save_checkpoint(folder / "latest.pt", payload)
+        return path
+
+    def restore(self, path: str | Path) -> None:
+        """Continue from a checkpoint of this run: weights, optimizers, env, recurrent states, RNGs."""
+        ckpt = load_checkpoint(path)
+        if ckpt.get("trainer_state") is None:
+            raise ValueError(f"{path} is an exported policy (no trainer state); resume from a run's checkpoints/")
+        for i, learner in self.learners.items():
+            entry = ckpt["agents"].get(AGENTS[i])
+            if entry is None:
+                raise ValueError(f"{path} holds no trained {AGENTS[i]}, but this run trains one")
+            load_weights(learner.model, entry["state_dict"], str(path))
+            learner.optimizer.load_state_dict(entry["optimizer"])
+        state = pickle.loads(ckpt["trainer_state"])
+        self.obs = self.env.load_state(state["env_state"])
+        self.env.penalty_coef = state["penalty_coef"]
+        self.prev_reward, self.prev_picked, self.prev_actions, self.start = state["prev"]
+        if state["shaped_sum"] is not None:
+            self._shaped_sum = state["shaped_sum"]
+        for i, learner in self.learners.items():
+            learner.state = state["recurrent"][i]
+            learner.generator.set_state(state["generators"][i])
+        self.partners = state["partners"]
+        torch.set_rng_state(state["torch_rng"])
+        self.step, self.iteration = int(ckpt["step"]), int(ckpt["iteration"])
