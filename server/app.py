@@ -48,6 +48,10 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
     async def replays_page():
         return FileResponse(WEB_DIR / "replays.html")
 
+    @app.get("/replay", include_in_schema=False)
+    async def replay_page():
+        return FileResponse(WEB_DIR / "replay.html")
+
     app.mount("/static", StaticFiles(directory=WEB_DIR), name="static")
 
     @app.get("/api/health")
@@ -71,6 +75,7 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
 
     @app.get("/api/replays")
     async def list_replays(source: str | None = None, follower: str | None = None, collection: str | None = None,
+                           setting: str | None = None,
                            sort: str = Query("created", pattern="^(created|team_score)$"),
                            order: str = Query("desc", pattern="^(asc|desc)$"),
                            offset: int = Query(0, ge=0), limit: int = Query(50, ge=1, le=500)):
@@ -82,6 +87,10 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
             items = [i for i in items if i.get("follower") == follower]
         if collection:
             items = [i for i in items if i.get("collection") == collection]
+        if setting:
+            items = [i for i in items if i.get("setting") == setting
+                     or (setting in ("asymmetric", "symmetric") and "config" in i
+                         and i["config"]["asymmetric"] == (setting == "asymmetric"))]
 
         def key(i):
             return (i.get("final", {}).get("team_score", float("-inf")) if sort == "team_score"
@@ -97,6 +106,25 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
         if entry is None:
             raise HTTPException(404, f"no replay with id {replay_id!r}")
         return JSONResponse(json.loads(entry.path.read_text()))
+
+    @app.get("/api/replays/{replay_id}/timeline")
+    async def replay_timeline(replay_id: str):
+        """What the replay player draws: verification, one board per step, belief curves, events, key log."""
+        from colorgrid.replay import ReplayError, load
+        from colorgrid.replay.timeline import timeline
+
+        entry = catalogue.get(replay_id)
+        if entry is None:
+            raise HTTPException(404, f"no replay with id {replay_id!r}")
+        try:
+            replay = load(entry.path)
+        except ReplayError as err:
+            return {"id": replay_id, "verified": False, "problem": err.problem}
+        try:
+            data = await asyncio.get_running_loop().run_in_executor(None, timeline, replay, entry.path)
+        except ReplayError as err:
+            return {"id": replay_id, "verified": False, "problem": err.problem}
+        return {"id": replay_id, **data}
 
     @app.get("/api/replays/{replay_id}/export")
     async def export_replay(replay_id: str, format: str = Query("gif", pattern="^(gif|mp4)$")):

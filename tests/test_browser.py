@@ -50,6 +50,11 @@ def test_play_a_short_game_in_the_browser(server, browser):
     href = link.get_attribute("href")
     replay_id = href.split("id=")[1]
     link.click()
+    expect(page.locator("#player")).to_be_visible()  # the game just played, in the replay player
+    expect(page.locator("#step")).to_have_text("0 / 6")
+    expect(page.locator("#keylog tbody tr")).to_have_count(6)
+    expect(page.locator("#keylog tbody tr").first.locator("td").nth(3)).to_have_text("applied")
+    page.goto(server.url + f"/replays?id={replay_id}")
     row = page.locator(f"tr[data-id='{replay_id}']")
     page.select_option("#source", "play")
     expect(row).to_be_visible()
@@ -75,4 +80,103 @@ def test_belief_can_be_hidden(server, browser):
     expect(page.locator(".belief-row")).to_have_count(0)
     page.click("#quit")
     expect(page.locator("#over")).to_be_visible()
+    page.close()
+
+
+def board_pixels(page) -> str:
+    return page.locator("#board").evaluate("c => c.toDataURL()")
+
+
+def test_replay_player_scrubs_plays_links_and_downloads(server, browser, tmp_path):
+    page = browser.new_page(accept_downloads=True)
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(server.url + "/replays")
+    page.select_option("#collection", "released")
+    page.select_option("#setting", "default")
+    expect(page.locator("#list tbody tr")).to_have_count(6)
+    page.fill("#follower", "bayes")
+    expect(page.locator("#list tbody tr")).to_have_count(2)
+    assert page.locator("#list tbody tr td:nth-child(5)").all_text_contents() == ["bayes", "bayes"]
+    first = page.locator("#list tbody tr a.open").first
+    replay_id = first.text_content()
+    first.click()
+    expect(page.locator("#player")).to_be_visible()
+    assert page.locator("body").get_attribute("data-verified") == "true"
+    timeline = server.get(f"/api/replays/{replay_id}/timeline")[0]
+    board, chart = page.locator("#board"), page.locator("#chart")
+    expect(board).to_have_attribute("data-step", "0")
+    before, cursor_before = board_pixels(page), float(chart.get_attribute("data-cursor-x"))
+    page.locator("#scrub").evaluate("el => { el.value = 40; el.dispatchEvent(new Event('input')); }")
+    expect(board).to_have_attribute("data-step", "40")
+    expect(chart).to_have_attribute("data-cursor", "40")
+    assert float(chart.get_attribute("data-cursor-x")) > cursor_before
+    assert board_pixels(page) != before
+    assert int(board.get_attribute("data-leader")) == timeline["boards"][40]["leader"]
+    assert int(board.get_attribute("data-follower")) == timeline["boards"][40]["follower"]
+    expect(page.locator("#step")).to_have_text(f"40 / {timeline['steps']}")
+    page.keyboard.press("ArrowRight")
+    expect(board).to_have_attribute("data-step", "41")
+    page.keyboard.press("ArrowLeft")
+    page.keyboard.press("ArrowLeft")
+    expect(board).to_have_attribute("data-step", "39")
+    expect(page.locator(".belief-row")).to_have_count(3)
+    # the belief bars show the recorded probabilities of this step
+    shown = page.locator(".belief-value").all_text_contents()
+    assert shown == [f"{p:.2f}" for p in timeline["goal_probs"]["follower"][39]]
+    # trails draw over the same board
+    plain = board_pixels(page)
+    page.check("#trails")
+    assert board_pixels(page) != plain
+    # play at 8x and pause
+    page.select_option("#speed", "8")
+    page.keyboard.press(" ")
+    page.wait_for_function("() => Number(document.getElementById('board').dataset.step) >= 50")
+    page.keyboard.press(" ")
+    stopped = int(board.get_attribute("data-step"))
+    page.wait_for_timeout(300)
+    assert int(board.get_attribute("data-step")) == stopped
+    # clicking the chart jumps there
+    box = chart.bounding_box()
+    chart.click(position={"x": box["width"] - 9, "y": box["height"] / 2})
+    expect(board).to_have_attribute("data-step", str(timeline["steps"]))
+    # the step link reopens the replay at that step
+    page.locator("#scrub").evaluate("el => { el.value = 17; el.dispatchEvent(new Event('input')); }")
+    href = page.locator("#step-link").get_attribute("href")
+    assert href.endswith("step=17")
+    page.goto(server.url + href)
+    expect(page.locator("#board")).to_have_attribute("data-step", "17")
+    expect(page.locator("#chart")).to_have_attribute("data-cursor", "17")
+    # download the GIF made on the server and read it back
+    with page.expect_download() as info:
+        page.click("#gif")
+    path = tmp_path / "replay.gif"
+    info.value.save_as(path)
+    import imageio.v3 as iio
+
+    frames = iio.imread(path, index=None)
+    assert frames.ndim == 4 and frames.shape[0] >= timeline["steps"] and frames.shape[-1] in (3, 4)
+    assert errors == []
+    page.close()
+
+
+def test_a_replay_that_fails_verification_is_shown_as_such(server, browser):
+    import glob
+
+    from colorgrid.replay import load, save
+
+    replay = load(sorted(glob.glob("replays/default/*.replay.json"))[0])
+    replay.actions[5] = [(replay.actions[5][0] + 1) % 4, replay.actions[5][1]]  # a valid file, a different game
+    save(replay, server.replays_dir / "tampered.replay.json")
+    (server.replays_dir / "garbled.replay.json").write_text('{"format": "colorgrid-replay", "ver')
+    page = browser.new_page()
+    for replay_id, message in (("tampered", "state hash mismatch"), ("garbled", "not valid JSON")):
+        page.goto(server.url + f"/replay?id={replay_id}")
+        expect(page.locator("#status")).to_contain_text("failed verification")
+        expect(page.locator("#status")).to_contain_text(message)
+        expect(page.locator("#player")).to_be_hidden()
+        assert page.locator("body").get_attribute("data-verified") == "false"
+    page.goto(server.url + "/replays?id=garbled")
+    page.select_option("#collection", "recorded")
+    expect(page.locator("tr[data-id='garbled'] td").nth(7)).to_contain_text("invalid")
     page.close()

@@ -74,6 +74,10 @@ class AgentConfig:
     """Weight kappa of the auxiliary goal-prediction cross-entropy (0 turns it off)."""
     lr: float | None = None
     """Learning rate for this agent; None uses ``ppo.lr``."""
+    train_reward: str = "env"
+    """What this agent learns from: ``env`` (the env's reward for it: the team reward in ``shared`` mode) or
+    ``own`` (its own block reward, plus shaping). ``own`` gives a cleaner credit signal while the env, and so
+    the agent's inputs and all metrics, stay in the configured reward mode."""
 
     @property
     def learns(self) -> bool:
@@ -90,6 +94,8 @@ class AgentConfig:
             _fail("init", self.init, "warm-starting only applies to policy='learn'")
         if not 0.0 <= self.aux_coef <= 100.0:
             _fail("aux_coef", self.aux_coef, "a number in [0, 100]")
+        if self.train_reward not in ("env", "own"):
+            _fail("train_reward", self.train_reward, "'env' (the env's reward) or 'own' (own block reward)")
         if self.lr is not None and not 0.0 < self.lr < 1.0:
             _fail("lr", self.lr, "a learning rate in (0, 1) or null")
 

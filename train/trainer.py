@@ -157,8 +157,7 @@ class Trainer:
                 else:
                     actions[:, i] = self.partners[i].act(inp).actions
             self.obs, rewards, terms, truncs, infos = env.step(actions)
-            if not shaping:
-                rewards = rewards - infos["distance_shaping"] - infos["potential_shaping"]
+            rewards = self._training_rewards(rewards, infos, shaping)
             shaped_sum += rewards
             done = terms[:, 0] | truncs[:, 0]
             final = self._final_values(infos, actions, done) if done.any() else {}
@@ -181,6 +180,15 @@ class Trainer:
         if done_eps:
             episodes["episodes"] = len(done_eps["team_reward"])
         return episodes, {i: h / cfg.ppo.num_steps for i, h in hits.items()}
+
+    def _training_rewards(self, rewards: np.ndarray, infos: dict, shaping: bool) -> np.ndarray:
+        """Each agent's learning signal: the env's reward or its own block reward; shaping only while on."""
+        shaped = infos["distance_shaping"] + infos["potential_shaping"]
+        out = rewards - shaped
+        for i, agent in enumerate(self.config.agents):
+            if agent.train_reward == "own":
+                out[:, i] = infos["block_reward"][:, i]
+        return out + shaped if shaping else out
 
     def _inputs(self, i: int, true_goal: np.ndarray | None = None):
         return agent_input(self.obs, i, self.start, self.prev_reward[:, i], self.prev_picked, self.prev_actions,

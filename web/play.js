@@ -56,7 +56,7 @@ function onMessage(msg) {
     $("over-scores").textContent = `team ${fmt(msg.scores.team)} (you ${fmt(msg.scores.leader)}, follower ${fmt(msg.scores.follower)}) after ${msg.steps} steps`;
     const link = $("replay-link");
     link.hidden = !msg.replay_id;
-    if (msg.replay_id) link.href = `/replays?id=${encodeURIComponent(msg.replay_id)}`;
+    if (msg.replay_id) link.href = `/replay?id=${encodeURIComponent(msg.replay_id)}`;
     status(msg.reason === "complete" ? "game over" : `game ended: ${msg.reason}`);
   } else if (msg.type === "error") {
     status(`${msg.code}: ${msg.message}`, "error");

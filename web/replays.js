@@ -4,9 +4,10 @@ const PAGE = 25;
 let offset = 0;
 
 async function load() {
-  const params = new URLSearchParams({ sort: $("sort").value, offset, limit: PAGE });
-  if ($("source").value) params.set("source", $("source").value);
-  if ($("follower").value) params.set("follower", $("follower").value);
+  const params = new URLSearchParams({ sort: $("sort").value, order: $("order").value, offset, limit: PAGE });
+  for (const name of ["source", "follower", "collection", "setting"]) {
+    if ($(name).value) params.set(name, $(name).value);
+  }
   const data = await (await fetch(`/api/replays?${params}`)).json();
   const highlight = new URLSearchParams(location.search).get("id");
   $("list").tBodies[0].replaceChildren(...data.items.map((item) => row(item, item.id === highlight)));
@@ -20,13 +21,19 @@ function row(item, highlight) {
   tr.dataset.id = item.id;
   if (highlight) tr.className = "highlight";
   const cells = item.error
-    ? [item.id, "-", "-", "-", "-", "-", `invalid: ${item.error}`]
-    : [item.id, item.source, item.leader, item.follower, item.steps, item.final.team_score, item.ended];
-  for (const value of cells) {
+    ? [item.id, "-", "-", "-", "-", "-", "-", `invalid: ${item.error}`]
+    : [item.id, item.source, item.setting ?? "", item.leader, item.follower, item.steps, item.final.team_score, item.ended];
+  cells.forEach((value, i) => {
     const td = document.createElement("td");
-    td.textContent = value;
+    if (i === 0) {
+      const a = document.createElement("a");
+      a.href = `/replay?id=${encodeURIComponent(item.id)}`;
+      a.className = "open";
+      a.textContent = value;
+      td.appendChild(a);
+    } else td.textContent = value;
     tr.appendChild(td);
-  }
+  });
   const files = document.createElement("td");
   const id = encodeURIComponent(item.id);
   files.innerHTML = `<a href="/api/replays/${id}">json</a> <a href="/api/replays/${id}/export?format=gif">gif</a> <a href="/api/replays/${id}/export?format=mp4">mp4</a>`;
@@ -34,7 +41,7 @@ function row(item, highlight) {
   return tr;
 }
 
-for (const id of ["source", "sort"]) $(id).addEventListener("change", () => { offset = 0; load(); });
+for (const id of ["source", "sort", "order", "collection", "setting"]) $(id).addEventListener("change", () => { offset = 0; load(); });
 $("follower").addEventListener("input", () => { offset = 0; load(); });
 $("prev").addEventListener("click", () => { offset = Math.max(0, offset - PAGE); load(); });
 $("next").addEventListener("click", () => { offset += PAGE; load(); });

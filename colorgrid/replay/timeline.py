@@ -1,0 +1,46 @@
+"""A replay as a player draws it: verified first, then one board per step plus the episode's events.
+
+The web replay player (``/api/replays/{id}/timeline``) and the 3D viewer both read this;
+a replay that fails verification comes back with ``verified: false`` and its problem,
+and no boards, so that nothing plays a trajectory the rules would not produce.
+"""
+
+from __future__ import annotations
+
+from colorgrid.config import AGENTS, COLOR_NAMES
+from colorgrid.replay.format import Replay
+from colorgrid.replay.simulate import encode_blocks, replay_states, verify
+
+
+def timeline(replay: Replay, path=None) -> dict:
+    check = verify(replay, path)
+    cfg = replay.config
+    out = {
+        "verified": check.ok, "problem": None if check.ok else check.message,
+        "kind": replay.kind, "source": replay.source, "agents": replay.agents, "created": replay.created,
+        "ended": replay.ended, "seed": replay.seed, "final": replay.final(), "meta": replay.meta,
+        "config": cfg.to_dict(), "colors": list(COLOR_NAMES[: cfg.num_colors]),
+        "height": cfg.height, "width": cfg.width, "steps": replay.num_steps,
+    }
+    if not check.ok:
+        return out
+    boards = []
+    for t, state in enumerate(replay_states(replay, path)):
+        boards.append({
+            "t": t, "blocks": encode_blocks(state.block_colors(cfg).reshape(-1)),
+            "leader": int(state.agent_cell[0, 0]), "follower": int(state.agent_cell[0, 1]),
+            "goal": int(replay.goal[t]) if t < replay.num_steps else int(state.goal[0]),
+            "scores": [float(x) for x in state.score[0]] if replay.kind == "actions" else None,
+        })
+    events = []  # pickups and goal switches, for timeline markers
+    for t in range(replay.num_steps):
+        for i, name in enumerate(AGENTS):
+            color = replay.picked_color[t][i] if replay.picked_color else -1
+            if color >= 0:
+                events.append({"t": t, "type": "pickup", "agent": name, "color": color,
+                               "correct": color == replay.goal[t]})
+        if replay.goal_switched and replay.goal_switched[t]:
+            events.append({"t": t, "type": "switch", "to": boards[t + 1]["goal"]})
+    out.update({"boards": boards, "goal": replay.goal, "actions": replay.actions, "goal_probs": replay.goal_probs,
+                "events": events, "key_events": replay.key_events or []})
+    return out
