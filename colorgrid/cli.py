@@ -74,6 +74,32 @@ def cmd_play(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_view(args: argparse.Namespace) -> int:
+    """Serve the 3D replay viewer (viser) for a folder of replays, or export one replay to standalone HTML."""
+    from pathlib import Path
+
+    from colorgrid.viewer import ReplayViewer, export_html
+
+    path = Path(args.path)
+    if args.export:
+        if not path.is_file():
+            raise FileNotFoundError(f"--export needs one replay file, got {path}")
+        print(f"wrote {export_html(path, args.export)}")
+        return 0
+    folder = path if path.is_dir() else path.parent
+    if not folder.is_dir():
+        raise FileNotFoundError(f"{path} is neither a replay file nor a folder of replays")
+    viewer = ReplayViewer(folder, host=args.host, port=args.port)
+    print(f"ColorGrid 3D viewer: http://{args.host}:{viewer.port}/  ({len(viewer.replay_names())} replays "
+          f"in {folder}; Ctrl+C stops)", flush=True)
+    try:
+        while True:
+            time.sleep(3600)
+    except KeyboardInterrupt:
+        viewer.stop()
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="colorgrid", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -108,6 +134,14 @@ def build_parser() -> argparse.ArgumentParser:
     play.add_argument("--inference-deadline-ms", type=float, default=100.0, help="follower budget per step")
     play.add_argument("--log-level", default="info")
     play.set_defaults(func=cmd_play)
+
+    view = sub.add_parser("view", help="3D replay viewer (viser) for a folder of replays")
+    view.add_argument("path", nargs="?", default="replays", help="a folder of *.replay.json (searched recursively) "
+                      "or one replay file (its folder is listed)")
+    view.add_argument("--host", default="127.0.0.1")
+    view.add_argument("--port", type=int, default=8080, help="0 picks a free port")
+    view.add_argument("--export", metavar="OUT.html", help="write PATH (one replay) as a standalone offline HTML file")
+    view.set_defaults(func=cmd_view)
 
     from colorgrid.cli_replay import add_replay_commands
 
