@@ -31,13 +31,13 @@ import numpy as np
 from colorgrid import rng
 from colorgrid.config import AGENTS, EnvConfig
 from colorgrid.generator import initial_layout
+from colorgrid import kernel
+from colorgrid.kernel import step_kernel
 from colorgrid.state import EnvState
 
 # Row and column change per action: up, down, left, right, stay.
 ACTION_DELTAS = np.array([[-1, 0], [1, 0], [0, -1], [0, 1], [0, 0]], dtype=np.int64)
 ACTION_NAMES = ("up", "down", "left", "right", "stay")
-_MAX_RESPAWN_ATTEMPTS = 1_000_000
-_PROPOSALS = 4  # respawn proposals drawn per pass; 4 make a second pass rare at 10% density
 
 
 class BatchEnv:
@@ -77,6 +77,13 @@ class BatchEnv:
         self._obs_base = self._envs * (cfg.num_planes * H * W)  # same for [B, P, H, W]
         self._move_table = move_table(cfg)
         self._block_color = np.arange(cfg.num_blocks) // cfg.blocks_per_color
+        self._obs_cells = self._obs.reshape(B, cfg.num_planes, H * W)  # a view, for the compiled step
+        self._fparams = np.array([cfg.goal_reward, cfg.wrong_penalty, self._penalty_coef, cfg.switch_prob,
+                                  cfg.distance_penalty if cfg.distance_penalty_agents else 0.0, cfg.potential_scale],
+                                 dtype=np.float64)
+        self._iparams = np.array([W, H, cfg.hemispheres, cfg.asymmetric, cfg.distance_threshold,
+                                  cfg.potential_shaping, cfg.num_actions, cfg.horizon, cfg.reward_mode == "shared",
+                                  *(name in cfg.distance_penalty_agents for name in AGENTS)], dtype=np.int64)
         self._needs_reset = np.ones(B, dtype=bool)
         self.state: EnvState | None = None
         self._pending_seed = seed
@@ -93,6 +100,7 @@ class BatchEnv:
         if not np.isfinite(value) or value < 0:
             raise ValueError(f"penalty_coef must be a finite number >= 0, got {value!r}")
         self._penalty_coef = value
+        self._fparams[kernel.F_PENALTY_COEF] = value
 
     def reset(self, seed: int | Sequence[int] | None = None):
         """Start a new episode in every env; returns ``(observations, infos)``.
@@ -156,167 +164,38 @@ class BatchEnv:
             raise RuntimeError("call reset() before step()")
         cfg, s = self.config, self.state
         actions = self._check_actions(actions)
-        if self._needs_reset.any():
+        if not self.autoreset and self._needs_reset.any():
             raise RuntimeError("an episode has ended and autoreset is off: call reset() before step()")
-        step_index = s.t + 1  # this step's number in its episode, 1..horizon
-
-        self._move_agents(actions)
-        block_reward, picked_color, goal_hit = self._collect_blocks(step_index)
-        team_reward = block_reward.sum(axis=1)
-        if cfg.reward_mode == "shared":
-            rewards = np.repeat(team_reward[:, None], cfg.num_agents, axis=1)
-        else:
-            rewards = block_reward.copy()
-        distance_term = self._distance_shaping()
-        potential_term = self._potential_shaping()
-        rewards = (rewards + distance_term + potential_term).astype(np.float32)
-
-        s.t += 1
-        switched = self._switch_goals(step_index)
-        truncations = np.repeat((s.t >= cfg.horizon)[:, None], cfg.num_agents, axis=1)
-        terminations = np.zeros_like(truncations)
+        B, A = self.num_envs, cfg.num_agents
+        fout = np.empty((5, B, A), dtype=np.float32)
+        picked_color = np.empty((B, A), dtype=np.int64)
+        bout = np.empty((4, B, A), dtype=np.bool_)
+        switched = np.empty(B, dtype=np.bool_)
+        code = step_kernel(actions, s.agent_cell, s.block_at.reshape(B, -1), s.block_cell, self._block_color, s.goal,
+                           s.t, s.seed, s.score, s.goal_pickups, s.wrong_pickups, self._obs_cells, self._goal_info,
+                           self._move_table, self._fparams, self._iparams, fout, picked_color, bout, switched)
+        if code == kernel.BAD_ACTION:
+            self._check_action_values(actions)
+        if code == kernel.NO_FREE_CELL:
+            raise RuntimeError("respawn found no free cell; EnvConfig validation should prevent this")
+        rewards, truncations, terminations = fout[kernel.O_REWARD], bout[kernel.O_TRUNCATED], bout[kernel.O_TERMINATED]
         infos = {
-            "block_reward": block_reward.astype(np.float32),  # [B, A], unshaped
-            "team_reward": team_reward.astype(np.float32),  # [B], unshaped
+            "block_reward": fout[kernel.O_BLOCK],  # [B, A] float32, unshaped
+            "team_reward": fout[kernel.O_TEAM, :, 0],  # [B], unshaped
             "picked_color": picked_color,  # [B, A] int64, -1 if nothing collected
-            "goal_pickup": (picked_color >= 0) & goal_hit,  # [B, A] bool
-            "wrong_pickup": (picked_color >= 0) & ~goal_hit,  # [B, A] bool
-            "distance_shaping": distance_term.astype(np.float32),  # [B, A]
-            "potential_shaping": potential_term.astype(np.float32),  # [B, A]
+            "goal_pickup": bout[kernel.O_GOAL_PICKUP],  # [B, A] bool
+            "wrong_pickup": bout[kernel.O_WRONG_PICKUP],  # [B, A] bool
+            "distance_shaping": fout[kernel.O_DISTANCE],  # [B, A] float32
+            "potential_shaping": fout[kernel.O_POTENTIAL],  # [B, A] float32
             "goal_color": s.goal.copy(),  # [B], after this step's switch
             "goal_switched": switched,  # [B] bool
             "penalty_coef": self._penalty_coef,
             "step": s.t.copy(),  # [B]
         }
-        if switched.any():
-            self._refresh_goal_info(self._envs[switched])
         done = truncations[:, 0]
-        if done.any():
+        if done[0] if B == 1 else done.any():
             self._end_episodes(done, infos)
         return self._observations(), rewards, terminations, truncations, infos
-
-    # ------------------------------------------------------------- dynamics
-    def _move_agents(self, actions: np.ndarray) -> None:
-        """Resolve moves in agent order; each agent is blocked by the others' current cells."""
-        s, cfg = self.state, self.config
-        HW = self._cells_per_env
-        # Sequential by rule (leader first, follower against the leader's new cell):
-        # a loop over the (two) agents, vectorised over the batch.
-        for a in range(cfg.num_agents):
-            old = s.agent_cell[:, a]
-            new = self._move_table[a, old, actions[:, a]]  # walls and halves already applied
-            for b in range(cfg.num_agents):
-                if b != a:
-                    new = np.where(new == s.agent_cell[:, b], old, new)
-            plane = self._obs_base + (cfg.num_colors + a) * HW
-            self._obs_flat[plane + old] = 0  # clear the old cell, then mark the new one (may be the same)
-            self._obs_flat[plane + new] = 1
-            s.agent_cell[:, a] = new
-
-    def _collect_blocks(self, step_index: np.ndarray):
-        """Each agent, leader first, collects the block on its cell; it respawns at once."""
-        s, cfg = self.state, self.config
-        B, A, HW = self.num_envs, cfg.num_agents, self._cells_per_env
-        block_reward = np.zeros((B, A), dtype=np.float64)
-        picked_color = np.full((B, A), -1, dtype=np.int64)
-        goal_hit = np.zeros((B, A), dtype=bool)
-        block_at_flat = s.block_at.reshape(-1)
-        if not (block_at_flat[self._env_base[:, None] + s.agent_cell] >= 0).any():
-            return block_reward, picked_color, goal_hit
-        for a in range(A):  # sequential by rule: the leader's block respawns before the follower collects
-            where = self._env_base + s.agent_cell[:, a]
-            block = block_at_flat[where]
-            picked = block >= 0
-            if not picked.any():
-                continue
-            e = self._envs[picked]
-            j = block[picked].astype(np.int64)
-            color = self._block_color[j]
-            hit = color == s.goal[e]
-            picked_color[e, a] = color
-            goal_hit[e, a] = hit
-            reward = np.where(hit, cfg.goal_reward, -cfg.wrong_penalty * self._penalty_coef)
-            block_reward[e, a] = reward
-            s.score[e, a] += reward
-            s.goal_pickups[e, a] += hit
-            s.wrong_pickups[e, a] += ~hit
-            cell = s.agent_cell[e, a]
-            block_at_flat[where[picked]] = -1
-            self._obs_flat[self._obs_base[e] + color * HW + cell] = 0
-            self._respawn(e, j, color, cell, step_index[e], a)
-        return block_reward, picked_color, goal_hit
-
-    def _respawn(self, envs, blocks, colors, collected_cell, step_index, agent: int) -> None:
-        """Put blocks back on uniformly drawn free cells (rejection sampling, exact).
-
-        Proposal ``k`` is a uniform cell (of the block's half in hemisphere mode);
-        the first proposal that holds no block and no agent is taken. Proposals are
-        drawn ``_PROPOSALS`` at a time, which gives the same result as drawing them
-        one by one. Validation guarantees a free cell exists.
-        """
-        s, cfg = self.state, self.config
-        H, W, HW = cfg.height, cfg.width, self._cells_per_env
-        span = W // 2 if cfg.hemispheres else W
-        lo = np.where(collected_cell % W >= span, span, 0) if cfg.hemispheres else 0
-        block_at_flat = s.block_at.reshape(-1)
-        todo = np.arange(envs.shape[0])
-        attempts = np.arange(_PROPOSALS)
-        for first in range(0, _MAX_RESPAWN_ATTEMPTS, _PROPOSALS):
-            e = envs[todo]
-            draw = rng.below(s.seed[e][:, None], H * span, step_index[todo][:, None], rng.STREAM_RESPAWN,
-                             first + attempts[None, :], agent)  # [n, K]
-            r, c = np.divmod(draw, span)
-            cell = r * W + c + (lo[todo][:, None] if cfg.hemispheres else 0)
-            free = block_at_flat[self._env_base[e][:, None] + cell] < 0
-            for a in range(cfg.num_agents):
-                free &= cell != s.agent_cell[e, a][:, None]
-            found = free.any(axis=1)
-            if found.any():
-                k = free.argmax(axis=1)[found]
-                ef, jf = e[found], blocks[todo[found]]
-                cf = cell[found, k]
-                block_at_flat[self._env_base[ef] + cf] = jf
-                s.block_cell[ef, jf] = cf
-                self._obs_flat[self._obs_base[ef] + colors[todo[found]] * HW + cf] = 1
-                todo = todo[~found]
-                if todo.size == 0:
-                    return
-        raise RuntimeError("respawn found no free cell; EnvConfig validation should prevent this")
-
-    def _distance_shaping(self) -> np.ndarray:
-        """[B, A]: ``-distance_penalty`` for listed agents within ``distance_threshold`` of the other."""
-        cfg = self.config
-        term = np.zeros((self.num_envs, cfg.num_agents), dtype=np.float64)
-        if cfg.distance_penalty == 0 or not cfg.distance_penalty_agents:
-            return term
-        pos = self.state.agent_pos
-        close = np.abs(pos[:, 0] - pos[:, 1]).sum(axis=-1) <= cfg.distance_threshold
-        for name in cfg.distance_penalty_agents:
-            term[:, AGENTS.index(name)] = np.where(close, -cfg.distance_penalty, 0.0)
-        return term
-
-    def _potential_shaping(self) -> np.ndarray:
-        """[B, A]: ``scale * (sum 1/(d+1) over goal blocks - wrong_penalty * sum over others)``."""
-        cfg, s = self.config, self.state
-        if not cfg.potential_shaping:
-            return np.zeros((self.num_envs, cfg.num_agents), dtype=np.float64)
-        d = np.abs(s.block_pos[:, None, :, :] - s.agent_pos[:, :, None, :]).sum(axis=-1)  # [B, A, N] Manhattan
-        closeness = 1.0 / (d + 1.0)
-        is_goal = (self._block_color[None, :] == s.goal[:, None])[:, None, :]  # [B, 1, N]
-        weight = np.where(is_goal, 1.0, -cfg.wrong_penalty)
-        return cfg.potential_scale * (closeness * weight).sum(axis=-1)
-
-    def _switch_goals(self, step_index: np.ndarray) -> np.ndarray:
-        """[B] bool: envs whose goal switched, uniformly to one of the other colors."""
-        cfg, s = self.config, self.state
-        if cfg.switch_prob == 0:
-            return np.zeros(self.num_envs, dtype=bool)
-        switched = rng.uniform(s.seed, step_index, rng.STREAM_SWITCH) < cfg.switch_prob
-        if switched.any():
-            e = self._envs[switched]
-            offset = 1 + rng.below(s.seed[e], cfg.num_colors - 1, step_index[e], rng.STREAM_SWITCH_COLOR)
-            s.goal[e] = (s.goal[e] + offset) % cfg.num_colors
-        return switched
 
     # ------------------------------------------------------ episodes, obs
     def _reset_envs(self, envs: np.ndarray, seeds: np.ndarray) -> None:
@@ -385,19 +264,22 @@ class BatchEnv:
         return np.array([int(x) for x in seeds], dtype=np.uint64)
 
     def _check_actions(self, actions) -> np.ndarray:
-        actions = np.asarray(actions)
-        expected = (self.num_envs, self.config.num_agents)
-        if actions.shape != expected:
-            raise ValueError(f"actions must have shape {expected} (envs, agents), got {actions.shape}")
-        if actions.dtype.kind not in "iu":
-            raise ValueError(f"actions must be integers, got dtype {actions.dtype}")
+        """Shape and dtype here; the compiled step checks the range before it changes anything."""
+        if type(actions) is not np.ndarray or actions.dtype != np.int64:
+            actions = np.asarray(actions)
+            if actions.dtype.kind not in "iu":
+                raise ValueError(f"actions must be integers, got dtype {actions.dtype}")
+            actions = actions.astype(np.int64)
+        if actions.shape != (self.num_envs, self.config.num_agents):
+            raise ValueError(f"actions must have shape {(self.num_envs, self.config.num_agents)} (envs, agents), "
+                             f"got {actions.shape}")
+        return actions
+
+    def _check_action_values(self, actions: np.ndarray) -> None:
         n = self.config.num_actions
-        if actions.size and (actions.min() < 0 or actions.max() >= n):
-            raise ValueError(
-                f"actions must be in [0, {n}) ({', '.join(ACTION_NAMES[:n])}); got values from "
-                f"{actions.min()} to {actions.max()}" + ("" if n == 5 else "; set allow_stay=True for 4 (stay)")
-            )
-        return actions.astype(np.int64, copy=False)
+        raise ValueError(
+            f"actions must be in [0, {n}) ({', '.join(ACTION_NAMES[:n])}); got values from "
+            f"{actions.min()} to {actions.max()}" + ("" if n == 5 else "; set allow_stay=True for 4 (stay)"))
 
 
 def move_table(config: EnvConfig) -> np.ndarray:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from colorgrid import rng
 from colorgrid.config import EnvConfig
@@ -24,13 +25,19 @@ def _shuffled_prefix(seeds: np.ndarray, cells: np.ndarray, count: int, offset: i
     """
     n, m = seeds.shape[0], cells.shape[0]
     perm = np.tile(cells, (n, 1))
-    rows = np.arange(n)
     k = np.arange(count)
     picks = k + rng.below(seeds[:, None], m - k, 0, rng.STREAM_LAYOUT, index=offset + k)  # [n, count]
-    for k in range(count):
-        j = picks[:, k]
-        perm[rows, k], perm[rows, j] = perm[rows, j], perm[rows, k].copy()
+    swap_prefix(perm, picks)
     return perm[:, :count]
+
+
+@njit(cache=True)
+def swap_prefix(perm: np.ndarray, picks: np.ndarray) -> None:
+    """The Fisher-Yates swaps: for each row, position k takes the element at ``picks[k]`` (>= k), in order."""
+    for r in range(perm.shape[0]):
+        for k in range(picks.shape[1]):
+            j = picks[r, k]
+            perm[r, k], perm[r, j] = perm[r, j], perm[r, k]
 
 
 def initial_layout(config: EnvConfig, seeds: np.ndarray):

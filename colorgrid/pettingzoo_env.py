@@ -59,30 +59,29 @@ class ColorGridParallelEnv(ParallelEnv):
         missing = [a for a in self.agents if a not in actions]
         if missing:
             raise ValueError(f"actions missing for agent(s) {missing}; expected one per agent in {self.agents}")
-        joint = np.array([[int(actions[a]) for a in AGENTS]], dtype=np.int64)
+        joint = np.array([[actions[a] for a in AGENTS]], dtype=np.int64)
         obs, rewards, terms, truncs, info = self.batch.step(joint)
         out_obs = self._split(obs)
+        # one .tolist() per array: Python scalars without per-element numpy conversions
+        block, shaping_d, shaping_p = (info[k][0].tolist() for k in ("block_reward", "distance_shaping",
+                                                                       "potential_shaping"))
+        hit, wrong = info["goal_pickup"][0].tolist(), info["wrong_pickup"][0].tolist()
+        team, goal, switched = float(info["team_reward"][0]), int(info["goal_color"][0]), bool(info["goal_switched"][0])
         infos = {
-            a: {
-                "block_reward": float(info["block_reward"][0, i]),
-                "team_reward": float(info["team_reward"][0]),
-                "goal_pickup": bool(info["goal_pickup"][0, i]),
-                "wrong_pickup": bool(info["wrong_pickup"][0, i]),
-                "distance_shaping": float(info["distance_shaping"][0, i]),
-                "potential_shaping": float(info["potential_shaping"][0, i]),
-                "goal_color": int(info["goal_color"][0]),
-                "goal_switched": bool(info["goal_switched"][0]),
-            }
+            a: {"block_reward": block[i], "team_reward": team, "goal_pickup": hit[i], "wrong_pickup": wrong[i],
+                "distance_shaping": shaping_d[i], "potential_shaping": shaping_p[i], "goal_color": goal,
+                "goal_switched": switched}
             for i, a in enumerate(AGENTS)
         }
+        reward_list, term_list, trunc_list = rewards[0].tolist(), terms[0].tolist(), truncs[0].tolist()
         out = (
             out_obs,
-            {a: float(rewards[0, i]) for i, a in enumerate(AGENTS)},
-            {a: bool(terms[0, i]) for i, a in enumerate(AGENTS)},
-            {a: bool(truncs[0, i]) for i, a in enumerate(AGENTS)},
+            dict(zip(AGENTS, reward_list)),
+            dict(zip(AGENTS, term_list)),
+            dict(zip(AGENTS, trunc_list)),
             infos,
         )
-        if truncs[0].all() or terms[0].all():
+        if all(trunc_list) or all(term_list):
             self.agents = []
         if self.render_mode == "human":
             self.render()

@@ -288,3 +288,17 @@ def test_invalid_actions_get_clear_errors():
         env.step(np.zeros((2, 2)))
     with pytest.raises(ValueError, match="num_envs must be a positive integer"):
         BatchEnv(EnvConfig(), num_envs=0)
+
+
+def test_compiled_step_draws_the_same_random_numbers_as_the_vectorised_hash():
+    from colorgrid import rng
+    from colorgrid.kernel import hash64
+
+    gen = np.random.default_rng(3)
+    seeds = gen.integers(0, 2**63 - 1, 200, dtype=np.uint64)
+    steps = gen.integers(0, 10_000, 200)
+    for stream in (rng.STREAM_RESPAWN, rng.STREAM_SWITCH, rng.STREAM_SWITCH_COLOR):
+        for attempt, index in ((0, 0), (3, 1), (999_999, 0)):
+            expected = rng.hash64(seeds, steps, stream, attempt, index)
+            got = [hash64(np.uint64(s), int(t), np.uint64(stream), attempt, index) for s, t in zip(seeds, steps)]
+            assert np.array_equal(np.array(got, dtype=np.uint64), expected)

@@ -77,9 +77,10 @@ def test_egocentric_window_centres_the_agent_and_marks_walls():
 
 
 # ----------------------------------------------------------------- recurrence
-def test_lstm_log_probs_recomputed_at_update_match_the_rollout():
+@pytest.mark.parametrize("fusion", ["early", "planes"])  # LSTM core, or LSTM belief core feeding goal planes
+def test_lstm_log_probs_recomputed_at_update_match_the_rollout(fusion):
     config = tiny(leader={"policy": "astar"},
-                  follower={"net": {"lstm": True, "extra_inputs": True, "belief_input": True}},
+                  follower={"net": {"lstm": True, "extra_inputs": True, "belief_input": True, "goal_fusion": fusion}},
                   ppo={"num_steps": 30})  # horizon 12: episodes start inside the rollout
     trainer = Trainer(config, "unused", progress=False, tensorboard=False)
     trainer.collect_rollout()
@@ -94,8 +95,9 @@ def test_lstm_log_probs_recomputed_at_update_match_the_rollout():
     torch.testing.assert_close(values, b["values"], atol=1e-5, rtol=0)
     # without the recurrent state carried in, the recomputation would differ
     with torch.no_grad():
-        _, cold, _, _ = learner.model(b["view"], b["goal"], b["extras"], b["starts"], learner.model.initial_state(4))
-    assert not torch.allclose(cold[0], values[0], atol=1e-4)
+        _, cold, cold_goal, _ = learner.model(b["view"], b["goal"], b["extras"], b["starts"], learner.model.initial_state(4))
+    _, _, warm_goal, _ = learner.model(b["view"], b["goal"], b["extras"], b["starts"], learner.initial_state)
+    assert not torch.allclose(cold_goal[0], warm_goal[0], atol=1e-5)
 
 
 # --------------------------------------------------------------------- runs
@@ -168,6 +170,8 @@ def test_config_errors_name_the_field_and_what_is_allowed():
         ({"schedule": {"penalty_start": 5}}, "set both penalty_start and penalty_end"),
         ({"ppo": {"learning_rate": 1}}, "unknown field(s) ['learning_rate'] in ppo"),
         ({"env": {"height": 2}}, "height"),
+        ({"follower": {"net": {"goal_fusion": "planes", "belief_input": True}}}, "set net.lstm=true and"),
+        ({"follower": {"train_reward": "team"}}, "'env' (the env's reward) or 'own'"),
     ]
     for change, message in cases:
         with pytest.raises(ValueError) as err:

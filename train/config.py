@@ -17,7 +17,7 @@ from colorgrid.config import AGENTS, EnvConfig
 
 PRESETS_DIR = Path(__file__).parent / "presets"
 ARCHS = ("fast", "paper")
-GOAL_FUSIONS = ("early", "late")
+GOAL_FUSIONS = ("early", "late", "planes")
 DEVICES = ("auto", "cpu", "cuda")
 
 
@@ -41,7 +41,9 @@ class NetConfig:
     hidden: int = 128
     """Width of the fast net's trunk (the paper net is fixed at 192)."""
     goal_fusion: str = "early"
-    """Where the goal one-hot joins: ``early`` (with the conv features) or ``late`` (before the heads)."""
+    """Where the goal joins: ``early`` (one-hot with the conv features), ``late`` (before the heads) or
+    ``planes`` (the block planes are split into goal-colored blocks and the rest, as two extra input planes;
+    with ``belief_input`` the split uses the agent's own belief, from an LSTM over the last-step inputs)."""
     extra_inputs: bool = False
     """Also feed last step's team reward, both agents' actions and the colors they collected."""
     belief_input: bool = False
@@ -59,6 +61,9 @@ class NetConfig:
         for name in ("lstm", "extra_inputs", "belief_input"):
             if not isinstance(getattr(self, name), bool):
                 _fail(f"net.{name}", getattr(self, name), "true or false")
+        if self.goal_fusion == "planes" and self.belief_input and not (self.lstm and self.extra_inputs):
+            _fail("net.belief_input", self.belief_input, "with goal_fusion='planes' the belief comes from an LSTM "
+                  "over the last-step inputs: set net.lstm=true and net.extra_inputs=true too")
 
 
 @dataclass(frozen=True)

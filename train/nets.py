@@ -35,14 +35,23 @@ def egocentric(obs: torch.Tensor, me: torch.Tensor, radius: int) -> torch.Tensor
     return windows[torch.arange(N, device=obs.device), :, me[:, 0], me[:, 1]]
 
 
+def goal_planes(blocks: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
+    """From block planes ``[N, C, ...]`` and a goal vector ``g [N, C]`` (one-hot or a belief): two planes,
+    ``[N, 2, ...]``: the (expected) goal-colored blocks and the rest. The goal becomes spatial."""
+    weights = g.reshape(*g.shape, *([1] * (blocks.dim() - 2)))
+    goal = (blocks * weights).sum(dim=1, keepdim=True)
+    return torch.cat([goal, blocks.sum(dim=1, keepdim=True) - goal], dim=1)
+
+
 class PaperEncoder(nn.Module):
     """conv 5->32->64->64 (3x3, stride 1, no padding, LeakyReLU) then 192-192-192 Tanh."""
 
-    def __init__(self, env: EnvConfig, goal_in: int):
+    def __init__(self, env: EnvConfig, goal_in: int, planes: bool = False):
         super().__init__()
         P = env.num_colors + env.num_agents
+        self.C, self.planes = env.num_colors, planes
         self.convs = nn.Sequential(
-            nn.Conv2d(P, 32, 3), nn.LeakyReLU(), nn.Conv2d(32, 64, 3), nn.LeakyReLU(),
+            nn.Conv2d(P + (2 if planes else 0), 32, 3), nn.LeakyReLU(), nn.Conv2d(32, 64, 3), nn.LeakyReLU(),
             nn.Conv2d(64, 64, 3), nn.LeakyReLU(), nn.Flatten())
         flat = 64 * (env.height - 6) * (env.width - 6)
         self.mlp = nn.Sequential(nn.Linear(flat + goal_in, 192), nn.Tanh(), nn.Linear(192, 192), nn.Tanh(),
@@ -52,8 +61,11 @@ class PaperEncoder(nn.Module):
     def prepare(self, obs: torch.Tensor, me: torch.Tensor) -> dict[str, torch.Tensor]:
         return {"obs": obs}
 
-    def forward(self, view: dict[str, torch.Tensor], side: torch.Tensor) -> torch.Tensor:
-        return self.mlp(torch.cat([self.convs(view["obs"].float()), side], dim=1))
+    def forward(self, view: dict[str, torch.Tensor], side: torch.Tensor, g: torch.Tensor | None) -> torch.Tensor:
+        x = view["obs"].float()
+        if self.planes:
+            x = torch.cat([x, goal_planes(x[:, :self.C], g)], dim=1)
+        return self.mlp(torch.cat([self.convs(x), side], dim=1))
 
 
 class FastEncoder(nn.Module):
@@ -68,14 +80,17 @@ class FastEncoder(nn.Module):
     radius = 11
     pool = 4
 
-    def __init__(self, env: EnvConfig, goal_in: int, hidden: int):
+    def __init__(self, env: EnvConfig, goal_in: int, hidden: int, planes: bool = False):
         super().__init__()
         P = env.num_colors + env.num_agents
+        self.C, self.P, self.planes = env.num_colors, P, planes
+        extra = 2 if planes else 0
         self.convs = nn.Sequential(
-            nn.Conv2d(P + 1, 16, 3, stride=3), nn.ReLU(), nn.Conv2d(16, 32, 3, stride=2), nn.ReLU(), nn.Flatten())
+            nn.Conv2d(P + 1 + extra, 16, 3, stride=3), nn.ReLU(), nn.Conv2d(16, 32, 3, stride=2), nn.ReLU(),
+            nn.Flatten())
         with torch.no_grad():
-            local = self.convs(torch.zeros(1, P + 1, 2 * self.radius + 1, 2 * self.radius + 1)).shape[1]
-        coarse = P * -(-env.height // self.pool) * -(-env.width // self.pool)
+            local = self.convs(torch.zeros(1, P + 1 + extra, 2 * self.radius + 1, 2 * self.radius + 1)).shape[1]
+        coarse = (P + extra) * -(-env.height // self.pool) * -(-env.width // self.pool)
         self.mlp = nn.Sequential(nn.Linear(local + coarse + goal_in, hidden), nn.ReLU())
         self.out_size = hidden
 
@@ -84,9 +99,13 @@ class FastEncoder(nn.Module):
         return {"window": egocentric(obs, me, self.radius),
                 "coarse": F.avg_pool2d(obs.float(), self.pool, ceil_mode=True).flatten(1)}
 
-    def forward(self, view: dict[str, torch.Tensor], side: torch.Tensor) -> torch.Tensor:
-        local = self.convs(view["window"].float())
-        return self.mlp(torch.cat([local, view["coarse"], side], dim=1))
+    def forward(self, view: dict[str, torch.Tensor], side: torch.Tensor, g: torch.Tensor | None) -> torch.Tensor:
+        window, coarse = view["window"].float(), view["coarse"]
+        if self.planes:
+            window = torch.cat([window, goal_planes(window[:, :self.C], g)], dim=1)
+            grid = coarse.reshape(coarse.shape[0], self.P, -1)
+            coarse = torch.cat([coarse, goal_planes(grid[:, :self.C], g).flatten(1)], dim=1)
+        return self.mlp(torch.cat([self.convs(window), coarse, side], dim=1))
 
 
 def _head(n_in: int, n_out: int, gain: float) -> nn.Sequential:
@@ -97,23 +116,34 @@ def _head(n_in: int, n_out: int, gain: float) -> nn.Sequential:
 
 
 class ActorCritic(nn.Module):
-    """Encoder -> optional LSTM -> policy, value and auxiliary goal heads."""
+    """Encoder -> optional LSTM -> policy, value and auxiliary goal heads.
+
+    With ``goal_fusion="planes"`` and ``belief_input`` (an assistant that does not see the
+    goal), the LSTM is a *belief core* over the last-step inputs: its goal head's (detached)
+    softmax weights the block planes the encoder sees, so the follower looks at the board
+    through what it believes the goal is.
+    """
 
     def __init__(self, net: NetConfig, env: EnvConfig, agent_index: int):
         super().__init__()
         self.net, self.env, self.agent_index = net, env, agent_index
         C = env.num_colors
+        planes = net.goal_fusion == "planes"
+        self.belief_core = planes and net.belief_input
         side = (C if net.goal_fusion == "early" else 0) + (extra_size(env) if net.extra_inputs else 0)
-        self.encoder = PaperEncoder(env, side) if net.arch == "paper" else FastEncoder(env, side, net.hidden)
+        self.encoder = (PaperEncoder(env, side, planes) if net.arch == "paper"
+                        else FastEncoder(env, side, net.hidden, planes))
         core = self.encoder.out_size
-        self.lstm = nn.LSTM(core, net.lstm_size) if net.lstm else None
-        if self.lstm is not None:
+        self.lstm = None
+        if net.lstm:
+            self.lstm = nn.LSTM(extra_size(env) if self.belief_core else core, net.lstm_size)
+        aux_in = net.lstm_size if net.lstm else core
+        if net.lstm and not self.belief_core:
             core = net.lstm_size
         head_in = core + (C if net.goal_fusion == "late" else 0) + (C if net.belief_input else 0)
         self.policy = _head(head_in, env.num_actions, 0.01)
         self.value = _head(head_in, 1, 1.0)
-        aux = nn.Sequential(nn.Linear(core, 64), nn.Tanh(), nn.Linear(64, C))
-        self.aux = aux
+        self.aux = nn.Sequential(nn.Linear(aux_in, 64), nn.Tanh(), nn.Linear(64, C))
 
     def _recur(self, x, starts, state):
         """Run the LSTM over ``x [T, B, F]`` in segments that start where any env starts an episode."""
@@ -153,10 +183,16 @@ class ActorCritic(nn.Module):
             side.append(extras)
         side = torch.cat(side, dim=2) if side else goal.new_zeros(T, B, 0)
         flat = {k: v.reshape(T * B, *v.shape[2:]) for k, v in view.items()}
-        x = self.encoder(flat, side.reshape(T * B, -1)).reshape(T, B, -1)
-        if self.lstm is not None:
+        goal_logits, g = None, goal
+        if self.belief_core:
+            b, state = self._recur(extras, starts, state)
+            goal_logits = self.aux(b)
+            g = torch.softmax(goal_logits, dim=2).detach()
+        x = self.encoder(flat, side.reshape(T * B, -1), g.reshape(T * B, -1)).reshape(T, B, -1)
+        if self.lstm is not None and not self.belief_core:
             x, state = self._recur(x, starts, state)
-        goal_logits = self.aux(x)
+        if goal_logits is None:
+            goal_logits = self.aux(x)
         heads = [x]
         if self.net.goal_fusion == "late":
             heads.append(goal)

@@ -1,0 +1,195 @@
+"""The compiled step of ``BatchEnv``: moves, pickups, respawns, shaping terms and goal switches.
+
+One function, ``step_kernel``, compiled with numba, loops over environments and applies the
+rules of ``docs/ENV_CARD.md`` in place on the state arrays and the observation planes. It
+draws its random numbers with the same counter-based hash as ``colorgrid.rng`` (re-stated
+here for scalars; a test pins the two equal), so results do not depend on batch size,
+batch position or which implementation of the hash ran.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from colorgrid import rng
+
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+_K_STEP = np.uint64(rng._K_STEP)
+_K_ATTEMPT = np.uint64(rng._K_ATTEMPT)
+_K_INDEX = np.uint64(rng._K_INDEX)
+_K_STREAM = np.uint64(rng._K_STREAM)
+_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)
+_STREAM_RESPAWN = np.uint64(rng.STREAM_RESPAWN)
+_STREAM_SWITCH = np.uint64(rng.STREAM_SWITCH)
+_STREAM_SWITCH_COLOR = np.uint64(rng.STREAM_SWITCH_COLOR)
+_TO_UNIT = 1.0 / float(1 << 53)
+MAX_RESPAWN_ATTEMPTS = 1_000_000
+
+
+@njit(cache=True, inline="always")
+def _mix(x):
+    x = x ^ (x >> _S30)
+    x = x * _M1
+    x = x ^ (x >> _S27)
+    x = x * _M2
+    return x ^ (x >> _S31)
+
+
+@njit(cache=True, inline="always")
+def hash64(seed, step, stream, attempt, index):
+    """Scalar ``rng.hash64``: all arguments non-negative integers, the result a uint64."""
+    counter = (np.uint64(step) * _K_STEP + np.uint64(attempt) * _K_ATTEMPT + np.uint64(index) * _K_INDEX
+               + stream * _K_STREAM)
+    return _mix(_mix(seed ^ counter) + counter)
+
+
+# Layout of the parameter arrays (one array each keeps the call cheap for a batch of one).
+F_GOAL_REWARD, F_WRONG_PENALTY, F_PENALTY_COEF, F_SWITCH_PROB, F_DISTANCE_PENALTY, F_POTENTIAL_SCALE = range(6)
+(I_WIDTH, I_HEIGHT, I_HEMISPHERES, I_ASYMMETRIC, I_DISTANCE_THRESHOLD, I_POTENTIAL, I_NUM_ACTIONS, I_HORIZON,
+ I_SHARED, I_MASK) = range(10)
+# Rows of the outputs.
+O_REWARD, O_BLOCK, O_DISTANCE, O_POTENTIAL, O_TEAM = range(5)  # fout, float32 [5, B, A]
+O_GOAL_PICKUP, O_WRONG_PICKUP, O_TRUNCATED, O_TERMINATED = range(4)  # bout, bool [4, B, A]
+OK, NO_FREE_CELL, BAD_ACTION = 0, 1, 2
+
+
+@njit(cache=True)
+def step_kernel(actions, agent_cell, block_at, block_cell, block_color, goal, t, seed, score, goal_pickups,
+                wrong_pickups, obs, goal_info, move_table, fparams, iparams, fout, picked_color, bout, switched):
+    """Advance every env one step, in place. Shapes: B envs, A agents, N blocks, C colors, HW cells.
+
+    actions [B, A]; agent_cell [B, A]; block_at [B, HW] (block id or -1); block_cell [B, N];
+    block_color [N]; goal, t [B]; seed [B] uint64; score, goal/wrong pickups [B, A];
+    obs [B, P, HW] uint8; goal_info [B, A, C]; move_table [A, HW, num_actions];
+    fparams / iparams: the ``F_*`` / ``I_*`` entries (``I_MASK + a``: distance penalty applies to agent a).
+    Writes ``fout [5, B, A]`` float32 (``O_*`` rows: reward with shaping, block reward, distance
+    and potential terms, team reward), ``picked_color [B, A]`` (-1 if none), ``bout [4, B, A]``
+    (goal pickup, wrong pickup, truncated, terminated) and ``switched [B]``. Returns ``OK``,
+    ``BAD_ACTION`` (nothing changed) or ``NO_FREE_CELL`` (validation prevents it).
+    """
+    goal_reward, wrong_penalty = fparams[F_GOAL_REWARD], fparams[F_WRONG_PENALTY]
+    penalty_coef, switch_prob = fparams[F_PENALTY_COEF], fparams[F_SWITCH_PROB]
+    distance_penalty, potential_scale = fparams[F_DISTANCE_PENALTY], fparams[F_POTENTIAL_SCALE]
+    width, height = iparams[I_WIDTH], iparams[I_HEIGHT]
+    hemispheres, asymmetric = iparams[I_HEMISPHERES] != 0, iparams[I_ASYMMETRIC] != 0
+    distance_threshold, potential_on = iparams[I_DISTANCE_THRESHOLD], iparams[I_POTENTIAL] != 0
+    for b in range(actions.shape[0]):
+        for a in range(actions.shape[1]):
+            if actions[b, a] < 0 or actions[b, a] >= iparams[I_NUM_ACTIONS]:
+                return BAD_ACTION
+    horizon, shared = iparams[I_HORIZON], iparams[I_SHARED] != 0
+    A = actions.shape[1]
+    block_reward = np.zeros(A)
+    distance_term = np.zeros(A)
+    potential_term = np.zeros(A)
+    B, A = actions.shape
+    C = goal_info.shape[2]
+    N = block_cell.shape[1]
+    span = width // 2 if hemispheres else width
+    for b in range(B):
+        step_index = t[b] + 1
+        # moves, leader first; an agent is blocked by the others' current cells
+        for a in range(A):
+            old = agent_cell[b, a]
+            new = move_table[a, old, actions[b, a]]
+            for o in range(A):
+                if o != a and new == agent_cell[b, o]:
+                    new = old
+            obs[b, C + a, old] = 0
+            obs[b, C + a, new] = 1
+            agent_cell[b, a] = new
+        # pickups, leader first; a collected block respawns before the next agent collects
+        for a in range(A):
+            cell = agent_cell[b, a]
+            j = block_at[b, cell]
+            block_reward[a] = 0.0
+            picked_color[b, a] = -1
+            bout[O_GOAL_PICKUP, b, a] = False
+            bout[O_WRONG_PICKUP, b, a] = False
+            if j < 0:
+                continue
+            color = block_color[j]
+            hit = color == goal[b]
+            picked_color[b, a] = color
+            bout[O_GOAL_PICKUP, b, a] = hit
+            bout[O_WRONG_PICKUP, b, a] = not hit
+            reward = goal_reward if hit else -wrong_penalty * penalty_coef
+            block_reward[a] = reward
+            score[b, a] += reward
+            if hit:
+                goal_pickups[b, a] += 1
+            else:
+                wrong_pickups[b, a] += 1
+            block_at[b, cell] = -1
+            obs[b, color, cell] = 0
+            lo = span if (hemispheres and cell % width >= span) else 0
+            placed = False
+            for k in range(MAX_RESPAWN_ATTEMPTS):
+                draw = np.int64(hash64(seed[b], step_index, _STREAM_RESPAWN, k, a) % np.uint64(height * span))
+                target = (draw // span) * width + draw % span + lo
+                if block_at[b, target] >= 0:
+                    continue
+                free = True
+                for o in range(A):
+                    if agent_cell[b, o] == target:
+                        free = False
+                if free:
+                    block_at[b, target] = j
+                    block_cell[b, j] = target
+                    obs[b, color, target] = 1
+                    placed = True
+                    break
+            if not placed:
+                return NO_FREE_CELL
+        # shaping terms (reported separately; the caller adds them to rewards)
+        for a in range(A):
+            distance_term[a] = 0.0
+            potential_term[a] = 0.0
+        if distance_penalty != 0.0:
+            r0, c0 = agent_cell[b, 0] // width, agent_cell[b, 0] % width
+            r1, c1 = agent_cell[b, 1] // width, agent_cell[b, 1] % width
+            if abs(r0 - r1) + abs(c0 - c1) <= distance_threshold:
+                for a in range(A):
+                    if iparams[I_MASK + a] != 0:
+                        distance_term[a] = -distance_penalty
+        if potential_on:
+            for a in range(A):
+                ra, ca = agent_cell[b, a] // width, agent_cell[b, a] % width
+                total = 0.0
+                for j in range(N):
+                    cell = block_cell[b, j]
+                    d = abs(cell // width - ra) + abs(cell % width - ca)
+                    weight = 1.0 if block_color[j] == goal[b] else -wrong_penalty
+                    total += (1.0 / (d + 1.0)) * weight
+                potential_term[a] = potential_scale * total
+        team = 0.0
+        for a in range(A):
+            team += block_reward[a]
+        for a in range(A):
+            own = team if shared else block_reward[a]
+            fout[O_REWARD, b, a] = (own + distance_term[a]) + potential_term[a]
+            fout[O_BLOCK, b, a] = block_reward[a]
+            fout[O_DISTANCE, b, a] = distance_term[a]
+            fout[O_POTENTIAL, b, a] = potential_term[a]
+            fout[O_TEAM, b, a] = team
+            bout[O_TRUNCATED, b, a] = step_index >= horizon
+            bout[O_TERMINATED, b, a] = False
+        # the step ends; then the goal may switch to one of the other colors
+        t[b] = step_index
+        switched[b] = False
+        if switch_prob > 0.0:
+            u = np.float64(hash64(seed[b], step_index, _STREAM_SWITCH, 0, 0) >> _S11) * _TO_UNIT
+            if u < switch_prob:
+                offset = 1 + np.int64(hash64(seed[b], step_index, _STREAM_SWITCH_COLOR, 0, 0) % np.uint64(C - 1))
+                goal[b] = (goal[b] + offset) % C
+                switched[b] = True
+                for a in range(A):
+                    for k in range(C):
+                        goal_info[b, a, k] = 0.0
+                goal_info[b, 0, goal[b]] = 1.0
+                if not asymmetric:
+                    for a in range(1, A):
+                        goal_info[b, a, goal[b]] = 1.0
+    return OK
