@@ -1,7 +1,9 @@
 """The batched ColorGrid environment: the one implementation of the rules.
 
 Every other view (the PettingZoo env, replays, the play server) steps this class.
-The rules it implements are in ``docs/ENV_CARD.md``; a summary:
+The dynamics of a step run in one compiled function (``colorgrid/kernel.py``); this
+class holds the state, checks inputs, builds infos and handles episodes. The rules are
+in ``docs/ENV_CARD.md``; a summary:
 
 * moves resolve leader first; off-grid (or out-of-half) moves and moves onto the
   other agent's current cell are blocked, so agents never overlap or swap;
