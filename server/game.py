@@ -47,6 +47,7 @@ class Game:
         self.start = True
         self.pending: dict | None = None  # the latest key not yet applied (its key-log entry)
         self.key_log: list[dict] = []
+        self.state_sent_ms: list[float] = [now_ms()]  # when each state t went out (reaction times)
         self.actions: list = []
         self.goals: list = []
         self.block_reward: list = []
@@ -120,6 +121,7 @@ class Game:
         if belief is not None:
             self.beliefs.append([round(float(p), 5) for p in belief])
         self.hashes.append(self.env.state.state_hash(0))
+        self.state_sent_ms.append(now_ms())
         if missed_deadline:
             self.deadline_misses.append(t)
         reward_seen = info["team_reward"] if self.config.reward_mode == "shared" else info["block_reward"][:, 1]
@@ -172,5 +174,5 @@ class Game:
             goal_probs={"follower": self.beliefs} if len(self.beliefs) == len(self.actions) and self.beliefs else {},
             state_hashes=self.hashes, ended=ended, key_events=self.key_log,
             meta={"game_id": self.game_id, "mode": self.mode, "preset": self.preset,
-                  "deadline_misses": self.deadline_misses},
+                  "deadline_misses": self.deadline_misses, "state_sent_ms": self.state_sent_ms},
         )

@@ -40,6 +40,8 @@ def test_play_a_short_game_in_the_browser(server, browser):
     expect(page.locator("#step")).to_have_text("0 / 6")
     expect(page.locator("#keylog tbody tr")).to_have_count(6)
     expect(page.locator("#keylog tbody tr").first.locator("td").nth(3)).to_have_text("applied")
+    reactions = page.locator("#keylog tbody tr td:nth-child(5)").all_text_contents()
+    assert all(float(r) >= 0 for r in reactions), reactions  # from the state being sent to the key arriving
     page.goto(server.url + f"/replays?id={replay_id}")
     row = page.locator(f"tr[data-id='{replay_id}']")
     page.select_option("#source", "play")

@@ -95,9 +95,8 @@ function buildKeyLog() {
     const tr = document.createElement("tr");
     tr.dataset.step = k.applied_step ?? "";
     const gap = previous == null ? "" : (k.t_client - previous).toFixed(0);
-    const latency = k.t_server != null && k.t_client != null ? (k.t_server - k.t_client).toFixed(0) : "";
     previous = k.t_client;
-    for (const v of [k.seq, k.key, k.applied_step ?? "-", k.status, gap, latency]) {
+    for (const v of [k.seq, k.key, k.applied_step ?? "-", k.status, k.reaction_ms ?? "", gap]) {
       const td = document.createElement("td"); td.textContent = v; tr.appendChild(td);
     }
     tr.addEventListener("click", () => k.applied_step != null && show(k.applied_step));

@@ -196,8 +196,9 @@ def load(path: str | os.PathLike) -> Replay:
 
 
 def describe_agent(policy_description: dict, checkpoint: str | None = None) -> dict:
-    """An ``agents`` entry; with a checkpoint, its file hash pins the exact weights."""
+    """An ``agents`` entry; with a checkpoint (given, or named by the description), its hash pins the weights."""
     out = dict(policy_description)
+    checkpoint = checkpoint or out.get("checkpoint")
     if checkpoint is not None:
         out["checkpoint_sha256"] = hashlib.sha256(Path(checkpoint).read_bytes()).hexdigest()
     return out

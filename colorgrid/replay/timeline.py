@@ -7,6 +7,8 @@ and no boards, so that nothing plays a trajectory the rules would not produce.
 
 from __future__ import annotations
 
+import bisect
+
 from colorgrid.config import AGENTS, COLOR_NAMES
 from colorgrid.replay.format import Replay
 from colorgrid.replay.simulate import encode_blocks, replay_states, verify
@@ -42,5 +44,19 @@ def timeline(replay: Replay, path=None) -> dict:
         if replay.goal_switched and replay.goal_switched[t]:
             events.append({"t": t, "type": "switch", "to": boards[t + 1]["goal"]})
     out.update({"boards": boards, "goal": replay.goal, "actions": replay.actions, "goal_probs": replay.goal_probs,
-                "events": events, "key_events": replay.key_events or []})
+                "events": events, "key_events": reaction_times(replay.key_events or [],
+                                                               replay.meta.get("state_sent_ms"))})
+    return out
+
+
+def reaction_times(keys: list[dict], state_sent_ms: list | None) -> list[dict]:
+    """Key events with ``shown_step`` (the state on screen when the key reached the server) and
+    ``reaction_ms`` (from that state being sent to the key arriving; it includes the network both ways)."""
+    if not state_sent_ms:
+        return keys
+    out = []
+    for key in keys:
+        k = bisect.bisect_right(state_sent_ms, key.get("t_server", float("-inf"))) - 1
+        extra = {"shown_step": k, "reaction_ms": round(key["t_server"] - state_sent_ms[k], 1)} if k >= 0 else {}
+        out.append({**key, **extra})
     return out
