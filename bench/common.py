@@ -2,22 +2,15 @@
 
 from __future__ import annotations
 
-import os
-import platform
 import statistics
 import time
 
 
 def machine() -> str:
     """One line naming the machine, CPU count and thread settings the figures were taken on."""
-    cpu = platform.processor() or platform.machine()
-    try:
-        with open("/proc/cpuinfo") as f:
-            cpu = next(line.split(":", 1)[1].strip() for line in f if line.startswith("model name"))
-    except (OSError, StopIteration):
-        pass
-    threads = os.environ.get("OMP_NUM_THREADS", "unset")
-    return f"{cpu}; {os.cpu_count()} CPUs; Python {platform.python_version()}; OMP_NUM_THREADS={threads}"
+    from colorgrid.machine import describe
+
+    return describe()
 
 
 def timed(fn, repeats: int) -> tuple[float, float]:

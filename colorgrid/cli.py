@@ -123,7 +123,8 @@ def build_parser() -> argparse.ArgumentParser:
     play = sub.add_parser("play", help="run the play server: lead in the browser, a follower assists")
     play.add_argument("--host", default="127.0.0.1")
     play.add_argument("--port", type=int, default=8000)
-    play.add_argument("--follower", default="bayes", help="default follower (scripted name or checkpoint .pt)")
+    play.add_argument("--follower", default="ippo", help="default follower: ippo (the shipped trained one), a "
+                      "scripted name or a checkpoint .pt")
     play.add_argument("--preset", default="default", help="default environment preset")
     play.add_argument("--tick-hz", type=float, default=5.0, help="real-time mode: steps per second")
     play.add_argument("--replays-dir", default="recordings", help="where every game is saved")

@@ -19,9 +19,9 @@ class ServerSettings:
     """Interface to listen on (loopback by default)."""
     port: int = 8000
     """TCP port (0 picks a free one)."""
-    follower: str = "bayes"
+    follower: str = "ippo"
     """Default follower: a scripted name or a checkpoint path; players may pick another allowed one."""
-    followers: tuple[str, ...] = ("bayes", "copy", "oracle", "idle", "random")
+    followers: tuple[str, ...] = ("ippo", "bayes", "copy", "oracle", "idle", "random")
     """Followers a player may choose from (the default is always allowed)."""
     preset: str = "default"
     """Default environment preset (see ``colorgrid.cli_config.PRESETS``)."""

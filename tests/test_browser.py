@@ -9,7 +9,8 @@ def test_play_a_short_game_in_the_browser(server, browser):
     errors = []
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.goto(server.url + "/")
-    expect(page.locator("#follower option")).to_have_count(5)
+    expect(page.locator("#follower option")).to_have_count(6)
+    expect(page.locator("#follower")).to_have_value("ippo")
     page.select_option("#mode", "turn")
     page.fill("#horizon", "6")
     page.click("#start")

@@ -1,5 +1,6 @@
 """The play server through a real uvicorn on loopback: whole games, protocol errors, rejoin, limits, replays."""
 
+import hashlib
 import json
 import time
 
@@ -7,6 +8,7 @@ import pytest
 from websockets.sync.client import connect
 
 from colorgrid.replay import load, verify
+from tests.conftest import ROOT
 
 MOVES = ["ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight"]
 
@@ -54,7 +56,7 @@ def test_health_options_and_openapi(server):
     health, status, _ = server.get("/api/health")
     assert status == 200 and health["status"] == "ok" and health["max_sessions"] == 4
     options = server.get("/api/options")[0]
-    assert options["default_follower"] == "bayes" and "turn" in options["modes"]
+    assert options["default_follower"] == "ippo" and "turn" in options["modes"]  # the shipped trained follower
     docs, status, kind = server.get("/docs")
     assert status == 200 and "html" in kind
     assert "/ws/play" not in server.get("/openapi.json")[0]["paths"]  # websockets are documented in docs/
@@ -62,7 +64,7 @@ def test_health_options_and_openapi(server):
 
 def test_turn_based_game_end_to_end_and_its_replay(server):
     client = Client(server)
-    welcome, state = client.new_game(mode="turn", horizon=16, follower="bayes")
+    welcome, state = client.new_game(mode="turn", horizon=16, follower="ippo")
     assert welcome["mode"] == "turn" and welcome["horizon"] == 16 and state["step"] == 0
     keys, seen = [], [state]
     for t in range(16):
@@ -79,7 +81,9 @@ def test_turn_based_game_end_to_end_and_its_replay(server):
     path = server.replays_dir / f"{over['replay_id']}.replay.json"
     replay = load(path)
     assert verify(replay).ok and replay.source == "play" and replay.ended == "complete"
-    assert replay.agents["leader"]["policy"] == "human" and replay.agents["follower"]["policy"] == "bayes"
+    assert replay.agents["leader"]["policy"] == "human" and replay.agents["follower"]["policy"] == "ippo"
+    shipped = ROOT / "checkpoints" / "follower.pt"
+    assert replay.agents["follower"]["checkpoint_sha256"] == hashlib.sha256(shipped.read_bytes()).hexdigest()
     assert [a[0] for a in replay.actions] == [MOVES.index(k) for k in keys]
     assert replay.final()["team_score"] == seen[-1]["scores"]["team"]
     assert [e["applied_step"] for e in replay.key_events] == list(range(16))

@@ -226,3 +226,33 @@ def test_cli_trains_exports_and_evaluates_a_checkpoint(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "colorgrid.cli", "train", "--set", "ppo.clip_coef=-1"],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "ppo.clip_coef=-1 is invalid" in bad.stderr
+
+
+def test_model_card_evaluates_against_the_baselines_on_the_same_seeds(tmp_path):
+    from train.card import model_card
+
+    Trainer(tiny(leader={"policy": "astar"}, total_steps=64), tmp_path / "run", progress=False,
+            tensorboard=False).train()
+    small = export_agent(tmp_path / "run" / "checkpoints" / "latest.pt", "follower", tmp_path / "f.pt")
+    text, data = model_card(str(small), "follower", str(tmp_path / "run"), "colorgrid train ...", episodes=3)
+    assert "| astar + bayes |" in text and "| astar + f |" in text and "64 env steps" in text
+    assert [r["seed"] for r in data["reports"]] == [0] * 5 and all(r["episodes"] == 3 for r in data["reports"])
+
+
+# --------------------------------------------------------- shipped agents
+def test_the_shipped_follower_assists_the_astar_leader():
+    """The bar for the shipped follower: net pickups clearly positive (95% interval above zero)."""
+    from colorgrid.evaluate import evaluate
+
+    report = evaluate(EnvConfig(), "astar", "ippo", episodes=100, seed=0)
+    net = report["agents"]["follower"]["net_pickups"]
+    assert net["mean"] - net["ci95"] > 0, net
+    assert report["agents"]["follower"]["belief"]["accuracy"] > 0.5
+
+
+def test_the_shipped_leader_collects_goal_blocks():
+    from colorgrid.evaluate import evaluate
+
+    report = evaluate(EnvConfig(), "ippo-leader", "idle", episodes=50, seed=0)
+    net = report["agents"]["leader"]["net_pickups"]
+    assert net["mean"] - net["ci95"] > 0, net

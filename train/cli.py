@@ -27,10 +27,12 @@ def add_train_commands(sub) -> None:
     train.set_defaults(func=cmd_train)
 
     ck = sub.add_parser("checkpoint", help="inspect a checkpoint or export one agent as a small policy file")
-    ck.add_argument("action", choices=["info", "export"])
+    ck.add_argument("action", choices=["info", "export", "card"])
     ck.add_argument("path", help="a checkpoint .pt")
     ck.add_argument("--agent", choices=["leader", "follower"], help="export: which agent to keep")
-    ck.add_argument("--out", help="export: destination .pt")
+    ck.add_argument("--out", help="export: destination .pt; card: destination .md (a .json of the reports beside it)")
+    ck.add_argument("--run", help="card: the run directory (for the wall time)")
+    ck.add_argument("--command", default="", help="card: the command that trained it")
     ck.set_defaults(func=cmd_checkpoint)
 
 
@@ -92,7 +94,12 @@ def cmd_checkpoint(args: argparse.Namespace) -> int:
                          indent=2))
         return 0
     if not args.agent or not args.out:
-        raise ValueError("checkpoint export needs --agent (leader or follower) and --out PATH.pt")
+        raise ValueError(f"checkpoint {args.action} needs --agent (leader or follower) and --out PATH")
+    if args.action == "card":
+        from train.card import write_card
+
+        print(f"wrote {write_card(args.path, args.agent, args.run, args.command, args.out)}")
+        return 0
     path = export_agent(args.path, args.agent, args.out)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
     return 0

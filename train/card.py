@@ -1,0 +1,83 @@
+"""Model cards for trained checkpoints: what was trained, how, and how it does against the baselines.
+
+``colorgrid checkpoint card CKPT --agent follower --run RUN_DIR --command "..." --out CARD.md``
+evaluates the agent with the evaluation harness (100 episodes, seeds 0..99, default config
+unless the checkpoint's env differs) beside the baselines on the same seeds, and writes the
+card plus the raw reports as JSON next to it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+from colorgrid.config import EnvConfig
+from colorgrid.evaluate import evaluate
+from colorgrid.machine import cpu_name
+from train.checkpoint import load_checkpoint
+
+
+def _row(report: dict, agent: str) -> str:
+    a = report["agents"][agent]
+    belief = a.get("belief")
+    acc = f"{belief['accuracy']:.1%}" if belief else "-"
+    ci = lambda m: f"{m['mean']:+.2f} ± {m['ci95']:.2f}"  # noqa: E731
+    return (f"| {report['leader']['policy']} + {report['follower']['policy']} | {ci(report['team_reward'])} | "
+            f"{a['goal_pickups']['mean']:.2f} | {a['wrong_pickups']['mean']:.2f} | {ci(a['net_pickups'])} | {acc} |")
+
+
+def model_card(checkpoint: str, agent: str, run_dir: str | None, command: str, episodes: int = 100,
+               seed: int = 0) -> tuple[str, dict]:
+    ckpt = load_checkpoint(checkpoint)
+    config = EnvConfig.from_dict(ckpt["env_config"])
+    train_cfg = ckpt["config"]
+    if agent == "follower":
+        leader = train_cfg["leader"]["policy"] if train_cfg["leader"]["policy"] != "learn" else "astar"
+        rows = [(leader, f) for f in ("idle", "copy", "bayes", "oracle")] + [(leader, checkpoint)]
+    else:
+        rows = [("astar", "idle"), (checkpoint, "idle"), (checkpoint, "bayes")]
+    reports = [evaluate(config, lead, follow, episodes, seed) for lead, follow in rows]
+    wall = None
+    if run_dir:
+        run = Path(run_dir)
+        latest = run / "checkpoints" / "latest.pt"
+        if (run / "config.json").is_file() and latest.is_file():
+            wall = latest.stat().st_mtime - (run / "config.json").stat().st_mtime
+    net = ckpt["agents"][agent]["net"]
+    lines = [
+        f"# Model card: `{Path(checkpoint).name}` (the {agent})",
+        "",
+        f"- **Trained with**: `{command}`",
+        f"- **Steps**: {ckpt['step']:,} env steps ({ckpt.get('iteration')} PPO iterations of "
+        f"{train_cfg['ppo']['num_envs']} envs x {train_cfg['ppo']['num_steps']} steps)",
+        f"- **Wall time**: {wall / 60:.0f} min" if wall else "- **Wall time**: not recorded",
+        f"- **Hardware**: {cpu_name()} ({os.cpu_count()} CPUs), {train_cfg.get('threads') or 'all'} "
+        f"torch thread(s), no GPU",
+        f"- **Network**: {json.dumps(net)}",
+        f"- **Partner during training**: leader `{train_cfg['leader']['policy']}`, follower "
+        f"`{train_cfg['follower']['policy']}`",
+        f"- **Training settings**: PPO {json.dumps(train_cfg['ppo'])}; schedule {json.dumps(train_cfg['schedule'])}; "
+        f"aux_coef {train_cfg[agent]['aux_coef']}; train_reward `{train_cfg[agent].get('train_reward', 'env')}`",
+        f"- **Environment**: {json.dumps(ckpt['env_config'])}",
+        "",
+        f"## Evaluation ({episodes} episodes, seeds {seed}..{seed + episodes - 1}, the same for every row)",
+        "",
+        f"Figures are the {agent}'s; ± is the half-width of a 95% normal interval over episodes.",
+        "",
+        "| leader + follower | team reward | goal pickups | wrong pickups | net pickups | goal-prediction accuracy |",
+        "|---|---:|---:|---:|---:|---:|",
+        *(_row(r, agent) for r in reports),
+        "",
+        f"Reproduce: `colorgrid eval --leader {rows[-1][0]} --follower {rows[-1][1]} --episodes {episodes} "
+        f"--seed {seed}`.",
+    ]
+    return "\n".join(lines) + "\n", {"rows": [list(r) for r in rows], "reports": reports}
+
+
+def write_card(checkpoint: str, agent: str, run_dir: str | None, command: str, out: str) -> Path:
+    text, data = model_card(checkpoint, agent, run_dir, command)
+    out_path = Path(out)
+    out_path.write_text(text)
+    out_path.with_suffix(".json").write_text(json.dumps(data, indent=2))
+    return out_path
