@@ -81,15 +81,16 @@ async def run(args) -> None:
     server = subprocess.Popen([sys.executable, "-m", "colorgrid.cli", "play", "--port", str(port), "--replays-dir",
                                str(tmp), "--tick-hz", str(args.tick_hz), "--follower", args.follower,
                                "--max-sessions", str(args.players), "--log-level", "warning"],
-                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                              stdout=open(tmp / "server.log", "w"), stderr=subprocess.STDOUT)
     base = f"http://127.0.0.1:{port}"
     try:
-        for _ in range(300):
+        for _ in range(600):  # until the server has loaded its follower and the compiled env step
             try:
-                urllib.request.urlopen(base + "/api/health", timeout=2)
-                break
+                if json.loads(urllib.request.urlopen(base + "/api/health", timeout=2).read()).get("ready"):
+                    break
             except OSError:
-                await asyncio.sleep(0.2)
+                pass
+            await asyncio.sleep(0.2)
         cpu0, wall0 = cpu_seconds(server.pid), time.perf_counter()
         latencies: list[float] = []
         results: list[dict] = []
@@ -99,6 +100,7 @@ async def run(args) -> None:
         cpu, wall = cpu_seconds(server.pid) - cpu0, time.perf_counter() - wall0
         health = json.loads(urllib.request.urlopen(base + "/api/health", timeout=5).read())
         saved = len(list(tmp.glob("*.replay.json")))
+        await asyncio.sleep(0)
         ended = sum(1 for r in results if r["type"] == "game_over")
         print(f"machine: {machine()}")
         print(f"{args.players} real-time games at {args.tick_hz} Hz, follower {args.follower}, {args.seconds:.0f} s")
@@ -110,7 +112,7 @@ async def run(args) -> None:
                   f"(a key waits for the next tick: up to {1000 / args.tick_hz:.0f} ms by design)")
         print(f"follower deadline misses: {health['deadline_misses']}")
         print(f"server CPU: {cpu:.1f} s over {wall:.1f} s wall ({100 * cpu / wall:.0f}% of one core)")
-        print(f"games ended {ended}/{args.players}, replays saved {saved}/{args.players}")
+        print(f"games ended {ended}/{args.players}, replays saved {saved}/{args.players}; server log {tmp / 'server.log'}")
     finally:
         server.terminate()
         server.wait(timeout=30)

@@ -62,7 +62,7 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
         def pct(q):
             return round(lateness[int(q * (len(lateness) - 1))], 2) if lateness else 0.0
 
-        return {"status": "ok", "version": __version__, "games": len(hub.games), "max_sessions": settings.max_sessions,
+        return {"status": "ok", "ready": hub.ready, "version": __version__, "games": len(hub.games), "max_sessions": settings.max_sessions,
                 "tick_hz": settings.tick_hz, "tick_lateness_p50_ms": pct(0.5), "tick_lateness_p99_ms": pct(0.99),
                 **hub.stats}
 

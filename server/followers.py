@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
 from colorgrid.config import EnvConfig
@@ -21,11 +23,33 @@ class FollowerPool:
         self.name = name
         self.config = config
         self.policy = make_policy(name, role="follower")
+        if "torch" in sys.modules:  # a trained follower: one inference thread, so that torch's worker
+            import torch  # threads never spin against the event loop and the replay saver
+
+            torch.set_num_threads(1)
         self.policy.reset(config, capacity, agent_index=1, seed=seed)
         self.idle = IdleFollower()
         self.idle.reset(config, capacity, agent_index=1, seed=seed + 1)
         self.free = list(range(capacity - 1, -1, -1))
         self.busy = False  # an inference call is still running (it may outlive its deadline)
+
+    def warm_up(self) -> None:
+        """One call on a fresh board in a free slot, and one env step (loading the compiled kernel), so that
+        the first real step is as fast as the rest."""
+        from colorgrid.env import BatchEnv
+
+        env = BatchEnv(self.config, num_envs=1, seed=0)
+        obs, _ = env.reset()
+        A = self.config.num_agents
+        slot = self.acquire()
+        try:
+            self.act([AgentInput(observation=obs["observation"].copy(), goal_info=obs["goal_info"][:, 1].copy(),
+                                 episode_start=np.ones(1, dtype=bool), prev_reward=np.zeros(1, dtype=np.float32),
+                                 prev_picked_color=np.full((1, A), -1), prev_actions=np.full((1, A), -1),
+                                 true_goal=env.state.goal.copy())], [slot])
+        finally:
+            self.release(slot)
+        env.step(np.zeros((1, A), dtype=np.int64))
 
     def acquire(self) -> int:
         if not self.free:

@@ -36,6 +36,8 @@ class GameHub:
         self.games: dict[str, Game] = {}
         self.senders: dict[str, Sender | None] = {}
         self.pools: dict[tuple, FollowerPool] = {}
+        self._loading: dict[tuple, asyncio.Future] = {}
+        self.ready = False  # the default follower and the compiled env step are loaded
         self.executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="follower")
         self.saver = ThreadPoolExecutor(max_workers=1, thread_name_prefix="replay-saver")
         self.lock = asyncio.Lock()  # one step at a time: ticks and turn-based keys never interleave
@@ -47,7 +49,19 @@ class GameHub:
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         Path(self.settings.replays_dir).mkdir(parents=True, exist_ok=True)
-        self._tasks = [asyncio.create_task(self._tick_loop()), asyncio.create_task(self._sweep_loop())]
+        self._tasks = [asyncio.create_task(self._tick_loop()), asyncio.create_task(self._sweep_loop()),
+                       asyncio.create_task(self._warm_up())]
+
+    async def _warm_up(self) -> None:
+        """Load the default follower for both modes before the first player waits on it (a trained
+        network's first call pays for loading torch and the weights; games must not)."""
+        for mode in ("turn", "realtime"):
+            try:
+                pool = await self.pool_for(self.settings.follower, self.make_config(self.settings.preset, mode, None))
+                await asyncio.get_running_loop().run_in_executor(self.executor, pool.warm_up)
+            except Exception:  # a bad default follower is reported when a game asks for it
+                log.exception("could not warm up follower %s", self.settings.follower)
+        self.ready = True
 
     async def stop(self) -> None:
         for task in self._tasks:
@@ -68,10 +82,22 @@ class GameHub:
             changes["horizon"] = horizon
         return EnvConfig().replace(**changes) if changes else EnvConfig()
 
-    def pool_for(self, follower: str, config: EnvConfig) -> FollowerPool:
+    async def pool_for(self, follower: str, config: EnvConfig) -> FollowerPool:
+        """The pool for this follower and config, built on the inference thread (loading never blocks the loop)."""
         key = (follower, config)
-        if key not in self.pools:
-            self.pools[key] = FollowerPool(follower, config, self.settings.max_sessions)
+        if key in self.pools:
+            return self.pools[key]
+        loading = self._loading.get(key)
+        if loading is None:  # the first game to ask builds it; games arriving meanwhile wait for the same one
+            loading = asyncio.get_running_loop().run_in_executor(
+                self.executor, FollowerPool, follower, config, self.settings.max_sessions)
+            self._loading[key] = loading
+        try:
+            pool = await asyncio.shield(loading)
+        finally:
+            if loading.done():
+                self._loading.pop(key, None)
+        self.pools.setdefault(key, pool)
         return self.pools[key]
 
     async def new_game(self, follower: str | None, preset: str | None, mode: str, horizon: int | None,
@@ -84,7 +110,7 @@ class GameHub:
                              " try again in a minute")
         preset = preset or self.settings.preset
         config = self.make_config(preset, mode, horizon)
-        pool = self.pool_for(follower, config)
+        pool = await self.pool_for(follower, config)
         self._seed_counter += 1
         game = Game(config=config, mode=mode, follower=follower, preset=preset, seed=self._seed_counter,
                     show_belief=show_belief and self.settings.show_belief, slot=pool.acquire(), pool=pool)
@@ -158,8 +184,12 @@ class GameHub:
         while True:
             await asyncio.sleep(max(0.0, next_tick - time.perf_counter()))
             lateness = (time.perf_counter() - next_tick) * 1000.0
-            self._record_lateness(lateness)
             live = [g for g in self.games.values() if g.mode == "realtime" and g.disconnected_at is None]
+            if live:  # lateness matters to games: ticks with none to step are not counted
+                self._record_lateness(lateness)
+            if live and lateness > 50:
+                log.warning("tick %.0f ms late (%d real-time games, %d games in all)", lateness, len(live),
+                            len(self.games))
             if live:
                 try:
                     await self.step_games(live)

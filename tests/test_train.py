@@ -190,6 +190,8 @@ def test_checkpoint_errors_are_clear(tmp_path):
         load_policy(ckpt, role="follower")
     with pytest.raises(ValueError, match="does not fit this environment .*height: trained 32, requested 16"):
         run_episodes(EnvConfig(height=16, width=16), load_policy(ckpt, "leader"), make_policy("idle"), 1, 0)
+    # a network trained without "stay" may act where the leader can stay (the server's real-time mode)
+    run_episodes(EnvConfig(allow_stay=True), load_policy(ckpt, "leader"), make_policy("random"), 1, 0)
     with pytest.raises(ValueError, match="was trained with"):
         Trainer(tiny(leader={"init": str(ckpt), "net": {"lstm": True}}, follower={"policy": "idle"}),
                 tmp_path / "x", progress=False, tensorboard=False)

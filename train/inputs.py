@@ -10,9 +10,9 @@ from colorgrid.policies.base import AgentInput
 
 
 def one_hot(values: np.ndarray, n: int) -> np.ndarray:
-    """One-hot of ``values [...]`` over ``n`` classes; negative values (none) give all zeros."""
+    """One-hot of ``values [...]`` over ``n`` classes; values outside ``[0, n)`` (none) give all zeros."""
     out = np.zeros((*values.shape, n), dtype=np.float32)
-    valid = values >= 0
+    valid = (values >= 0) & (values < n)
     out[valid, values[valid]] = 1.0
     return out
 

@@ -41,7 +41,7 @@ class NetPolicy(Policy):
     @torch.inference_mode()
     def act(self, inp: AgentInput, rows: np.ndarray | None = None) -> PolicyOutput:
         rows_idx = self._rows(rows)
-        x = step_tensors(inp, self.config, self.agent_index, self.device)
+        x = step_tensors(inp, self.model.env, self.agent_index, self.device)  # sized as the network was trained
         state = None
         if self.state is not None:
             state = (self.state[0][:, rows_idx], self.state[1][:, rows_idx])
@@ -65,18 +65,40 @@ class NetPolicy(Policy):
 
 
 def check_compatible(trained: EnvConfig, wanted: EnvConfig, what: str) -> None:
-    """A network fits an env only with the same grid, colors, agents and actions."""
-    keys = ("height", "width", "num_colors", "allow_stay")
+    """A network fits an env with the same grid and colors, and the same actions or more.
+
+    A network trained without ``stay`` may act where ``stay`` exists (the play server's
+    real-time mode gives the leader one): it never chooses it, and a partner's ``stay`` shows
+    in its last-action inputs as no move.
+    """
+    keys = ("height", "width", "num_colors")
     diff = {k: (getattr(trained, k), getattr(wanted, k)) for k in keys if getattr(trained, k) != getattr(wanted, k)}
+    if trained.allow_stay and not wanted.allow_stay:
+        diff["allow_stay"] = (True, False)
     if diff:
         detail = ", ".join(f"{k}: trained {a!r}, requested {b!r}" for k, (a, b) in diff.items())
         raise ValueError(f"{what} does not fit this environment ({detail}); the network's input and output "
                          f"shapes depend on these fields")
 
 
+_MODELS: dict[tuple, ActorCritic] = {}
+
+
 def load_policy(path: str | Path, role: str | None = None, greedy: bool = False) -> NetPolicy:
-    """A ``NetPolicy`` from a checkpoint: the agent named ``role`` (default: the only trained one)."""
-    from train.checkpoint import load_checkpoint, build_model
+    """A ``NetPolicy`` from a checkpoint: the agent named ``role`` (default: the only trained one).
+
+    Networks are loaded once per file version and shared (read-only) by every policy made from
+    them; each policy keeps its own recurrent state and random generator.
+    """
+    file = Path(path)
+    key = (str(file.resolve()), file.stat().st_mtime_ns if file.is_file() else None, role)
+    if key not in _MODELS:
+        _MODELS[key] = _load_model(path, role)
+    return NetPolicy(_MODELS[key], name=f"{file.stem}", greedy=greedy, source=str(path))
+
+
+def _load_model(path: str | Path, role: str | None) -> ActorCritic:
+    from train.checkpoint import build_model, load_checkpoint
 
     ckpt = load_checkpoint(path)
     agents = {name: entry for name, entry in ckpt["agents"].items() if entry is not None}
@@ -86,5 +108,4 @@ def load_policy(path: str | Path, role: str | None = None, greedy: bool = False)
         role = next(iter(agents))
     if role not in agents:
         raise ValueError(f"{path} holds no trained {role} (it has: {sorted(agents) or 'none'})")
-    model = build_model(agents[role], EnvConfig.from_dict(ckpt["env_config"]), str(path))
-    return NetPolicy(model, name=f"{Path(path).stem}", greedy=greedy, source=str(path))
+    return build_model(agents[role], EnvConfig.from_dict(ckpt["env_config"]), str(path))

@@ -200,8 +200,20 @@ def describe_agent(policy_description: dict, checkpoint: str | None = None) -> d
     out = dict(policy_description)
     checkpoint = checkpoint or out.get("checkpoint")
     if checkpoint is not None:
-        out["checkpoint_sha256"] = hashlib.sha256(Path(checkpoint).read_bytes()).hexdigest()
+        out["checkpoint_sha256"] = file_sha256(checkpoint)
     return out
+
+
+_SHA256: dict[tuple, str] = {}
+
+
+def file_sha256(path: str | os.PathLike) -> str:
+    """The file's sha256, computed once per file version (a server records it with every game)."""
+    stat = os.stat(path)
+    key = (os.path.abspath(path), stat.st_mtime_ns, stat.st_size)
+    if key not in _SHA256:
+        _SHA256[key] = hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    return _SHA256[key]
 
 
 __all__ = ["FORMAT_VERSION", "Replay", "ReplayError", "SUFFIX", "describe_agent", "load", "save"]
