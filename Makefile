@@ -15,6 +15,8 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q "torch==2.13.0"
 	$(PY) -m pip install -q -e ".[dev]"
+	@echo "compiling the env step (numba, cached for later runs)"
+	$(PY) -c "import numpy as np; from colorgrid.env import BatchEnv; e = BatchEnv(num_envs=1, seed=0); e.reset(); e.step(np.zeros((1, 2), dtype=np.int64))"
 	touch $(STAMP)
 
 # Browser tests drive Debian's chromium through playwright (no browser download).

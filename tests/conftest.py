@@ -45,17 +45,18 @@ def start_server(tmp: Path, *flags: str) -> RunningServer:
         cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )
     server = RunningServer(port, replays_dir, process, log_path)
-    deadline = time.monotonic() + 60
+    deadline = time.monotonic() + 180  # a fresh checkout compiles the env step and loads torch first
     while time.monotonic() < deadline:
         if process.poll() is not None:
             raise RuntimeError(f"server exited: {log_path.read_text()}")
         try:
-            server.get("/api/health")
-            return server
+            if server.get("/api/health")[0]["ready"]:
+                return server
         except OSError:
-            time.sleep(0.2)
+            pass
+        time.sleep(0.2)
     process.kill()
-    raise RuntimeError("server did not start in 60 s")
+    raise RuntimeError(f"server was not ready in 180 s: {log_path.read_text()}")
 
 
 def stop_server(server: RunningServer) -> None:
