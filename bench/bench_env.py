@@ -59,6 +59,10 @@ def main() -> None:
         print(f"{'BatchEnv N=' + str(n):<24}{wall:>14,.0f}{cpu:>18,.0f}")
     wall, cpu = bench_pettingzoo(args.steps * 4, args.repeats)
     print(f"{'parallel_env (1 env)':<24}{wall:>14,.0f}{cpu:>18,.0f}")
+    env = parallel_env()
+    env.reset(seed=0)
+    wall, cpu = timed(lambda: [env.reset() for _ in range(200)], args.repeats)
+    print(f"parallel_env reset (fresh seed, new layout): {wall / 200 * 1e6:.0f} us wall, {cpu / 200 * 1e6:.0f} us CPU")
 
 
 if __name__ == "__main__":

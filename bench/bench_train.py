@@ -63,6 +63,7 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=5)
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: all cores)")
     parser.add_argument("--device", default="auto")
+    parser.add_argument("--profile", action="store_true", help="print torch's profile of one update (first setup)")
     args = parser.parse_args()
     print(f"machine: {machine()}; torch {torch.__version__}; cuda: {torch.cuda.is_available()}")
     print(f"{'setup':<10} {'device':<7} {'threads':>7} {'env-steps/s':>12} {'rollout/s':>10} {'update/s':>10} "
@@ -73,6 +74,29 @@ def main() -> None:
               f"{r['update_sps']:>10.0f} {r['cpu_s_per_iter']:>10.2f}", flush=True)
     print("(median over iterations of 16 envs x 128 steps, both agents learning; the paper's public trainer: "
           "about 36 env-steps/s on a 2-core CPU)")
+    if args.profile:
+        profile_update(args.setup[0], args.threads, args.device)
+
+
+def profile_update(name: str, threads: int, device: str) -> None:
+    """Where one learner's PPO update spends its time (after one warm-up iteration)."""
+    from torch.profiler import ProfilerActivity, profile
+
+    config = from_dict({**SETUPS[name], "threads": threads, "device": device, "eval_every": 0, "total_steps": 10**9})
+    with tempfile.TemporaryDirectory() as tmp:
+        from train.metrics import MetricsLog
+
+        trainer = Trainer(config, tmp, progress=False, tensorboard=False)
+        trainer.log = MetricsLog(Path(tmp), tensorboard=False)
+        trainer.train_iteration()
+        trainer.collect_rollout()
+        learner = trainer.learners[0]
+        bootstrap = learner.value(trainer._tensors(0, trainer._inputs(0)))
+        with profile(activities=[ProfilerActivity.CPU]) as prof:
+            learner.update(bootstrap)
+        trainer.log.close()
+    print(f"profile of one {name} update (leader):")
+    print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=12))
 
 
 if __name__ == "__main__":

@@ -33,6 +33,14 @@ class EpisodeBatch:
         return int(self.seeds.shape[0])
 
 
+def reward_seen(config: EnvConfig, info: dict) -> np.ndarray:
+    """``[B, A]``: the unshaped reward each agent receives after a step: the team reward in ``shared``
+    mode, its own block reward otherwise (what ``AgentInput.prev_reward`` carries)."""
+    if config.reward_mode == "shared":
+        return np.repeat(info["team_reward"][:, None], config.num_agents, axis=1)
+    return info["block_reward"]
+
+
 def agent_input(obs: dict, agent: int, start: np.ndarray, prev_reward, prev_picked, prev_actions,
                 penalty_coef: float, true_goal: np.ndarray) -> AgentInput:
     return AgentInput(
@@ -81,8 +89,7 @@ def run_episodes(config: EnvConfig, leader: Policy, follower: Policy, num_episod
         team_reward[t] = info["team_reward"]
         picked[t] = info["picked_color"]
         switched[t] = info["goal_switched"]
-        prev_reward = (np.repeat(info["team_reward"][:, None], A, axis=1) if config.reward_mode == "shared"
-                       else info["block_reward"])
+        prev_reward = reward_seen(config, info)
         prev_picked, prev_actions = info["picked_color"], actions[t]
         start = np.zeros(B, dtype=bool)
     if record_hashes:

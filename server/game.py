@@ -12,6 +12,7 @@ from colorgrid.config import AGENTS, EnvConfig
 from colorgrid.env import BatchEnv
 from colorgrid.policies.base import AgentInput
 from colorgrid.replay import Replay
+from colorgrid.rollout import reward_seen
 from server.protocol import KEY_ACTIONS
 
 STAY = 4
@@ -124,8 +125,7 @@ class Game:
         self.state_sent_ms.append(now_ms())
         if missed_deadline:
             self.deadline_misses.append(t)
-        reward_seen = info["team_reward"] if self.config.reward_mode == "shared" else info["block_reward"][:, 1]
-        self.prev_reward = reward_seen.astype(np.float32)
+        self.prev_reward = reward_seen(self.config, info)[:, 1].astype(np.float32)
         self.prev_picked, self.prev_actions, self.start = info["picked_color"].copy(), joint, False
         self.last_events = [
             {"agent": AGENTS[i], "color": int(c), "goal": bool(info["goal_pickup"][0, i])}

@@ -29,6 +29,11 @@ def _fail(name: str, value, allowed: str):
     raise TrainConfigError(f"{name}={value!r} is invalid: {allowed}")
 
 
+def _check_int(name: str, value, lo: int, hi: int | None = None) -> None:
+    if isinstance(value, bool) or not isinstance(value, int) or value < lo or (hi is not None and value > hi):
+        _fail(name, value, f"an integer in [{lo}, {hi}]" if hi is not None else f"an integer >= {lo}")
+
+
 @dataclass(frozen=True)
 class NetConfig:
     """The actor-critic of one agent."""
@@ -55,9 +60,7 @@ class NetConfig:
         if self.goal_fusion not in GOAL_FUSIONS:
             _fail("net.goal_fusion", self.goal_fusion, f"choose one of {list(GOAL_FUSIONS)}")
         for name in ("lstm_size", "hidden"):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or not 1 <= value <= 4096:
-                _fail(f"net.{name}", value, "an integer in [1, 4096]")
+            _check_int(f"net.{name}", getattr(self, name), 1, 4096)
         for name in ("lstm", "extra_inputs", "belief_input"):
             if not isinstance(getattr(self, name), bool):
                 _fail(f"net.{name}", getattr(self, name), "true or false")
@@ -127,9 +130,7 @@ class PPOConfig:
     def __post_init__(self):
         for name, lo, hi in (("num_envs", 1, 65536), ("num_steps", 1, 65536), ("num_minibatches", 1, 65536),
                              ("update_epochs", 1, 1000)):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or not lo <= value <= hi:
-                _fail(f"ppo.{name}", value, f"an integer in [{lo}, {hi}]")
+            _check_int(f"ppo.{name}", getattr(self, name), lo, hi)
         if self.num_envs % self.num_minibatches:
             _fail("ppo.num_minibatches", self.num_minibatches,
                   f"must divide ppo.num_envs={self.num_envs} (recurrent minibatches are whole envs)")
@@ -208,9 +209,7 @@ class TrainConfig:
             _fail("device", self.device, f"choose one of {list(DEVICES)}")
         for name, lo in (("total_steps", 1), ("seed", 0), ("eval_every", 0), ("eval_episodes", 1),
                          ("replay_episodes", 0), ("save_every", 1), ("threads", 0)):
-            value = getattr(self, name)
-            if not isinstance(value, int) or isinstance(value, bool) or value < lo:
-                _fail(name, value, f"an integer >= {lo}")
+            _check_int(name, getattr(self, name), lo)
         if self.replay_episodes > self.eval_episodes:
             _fail("replay_episodes", self.replay_episodes, f"at most eval_episodes={self.eval_episodes}")
         if self.env.num_agents != len(AGENTS):

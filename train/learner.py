@@ -87,13 +87,9 @@ class Learner:
         epochs_done, stats = 0, []
         for _ in range(self.ppo.update_epochs):
             stats = []
-            if recurrent:
-                order = torch.randperm(B, generator=self.generator).to(self.device)
-                groups = order.view(self.ppo.num_minibatches, -1)
-            else:
-                order = torch.randperm(T * B, generator=self.generator).to(self.device)
-                groups = order.view(self.ppo.num_minibatches, -1)
-            for idx in groups:
+            # recurrent minibatches are whole envs (sequences kept intact), others single steps
+            order = torch.randperm(B if recurrent else T * B, generator=self.generator).to(self.device)
+            for idx in order.view(self.ppo.num_minibatches, -1):
                 if recurrent:
                     state = tuple(s[:, idx] for s in self.initial_state)
                     view = {k: v[:, idx] for k, v in b["view"].items()}

@@ -20,14 +20,14 @@ from colorgrid.config import AGENTS, EnvConfig
 from colorgrid.env import BatchEnv
 from colorgrid.evaluate import evaluate, record_batch
 from colorgrid.policies import make_policy
-from colorgrid.rollout import agent_input, run_episodes
+from colorgrid.rollout import agent_input, reward_seen, run_episodes
 from train.checkpoint import agent_entry, build_model, load_checkpoint, load_weights, save_checkpoint
 from train.config import TrainConfig
 from train.inputs import step_tensors
 from train.learner import Learner
 from train.metrics import MetricsLog
 from train.nets import ActorCritic
-from train.policy import NetPolicy, check_compatible, load_policy
+from train.policy import NetPolicy, check_compatible
 from train.ppo import LossWeights
 
 
@@ -53,8 +53,7 @@ class Trainer:
             if agent.learns:
                 self.learners[i] = self._make_learner(i)
             else:
-                self.partners[i] = (load_policy(agent.policy, role=AGENTS[i]) if agent.policy.endswith(".pt")
-                                    else make_policy(agent.policy))
+                self.partners[i] = make_policy(agent.policy, role=AGENTS[i])
                 self.partners[i].reset(config.env, config.ppo.num_envs, i, seed=config.seed)
         self.step, self.iteration = 0, 0
         self._begin_episodes()
@@ -63,8 +62,9 @@ class Trainer:
 
     def _make_learner(self, i: int) -> Learner:
         cfg, agent = self.config, self.config.agents[i]
-        model = ActorCritic(agent.net, cfg.env, i)
-        if agent.init is not None:
+        if agent.init is None:
+            model = ActorCritic(agent.net, cfg.env, i)
+        else:
             ckpt = load_checkpoint(agent.init)
             entry = ckpt["agents"].get(AGENTS[i])
             if entry is None:
@@ -74,7 +74,7 @@ class Trainer:
                 raise ValueError(f"{AGENTS[i]}.init={agent.init!r} was trained with {trained.net}, but this run "
                                  f"asks for {agent.net}; set {AGENTS[i]}.net to match the checkpoint")
             check_compatible(trained.env, cfg.env, agent.init)
-            load_weights(model, trained.state_dict(), agent.init)
+            model = trained
         weights = LossWeights(cfg.ppo.clip_coef, cfg.ppo.clip_vloss, cfg.ppo.ent_coef, cfg.ppo.vf_coef,
                               agent.aux_coef, cfg.ppo.norm_adv)
         return Learner(model, cfg.ppo, weights, agent.lr or cfg.ppo.lr, cfg.seed * 2 + i + 1, self.device)
@@ -86,6 +86,7 @@ class Trainer:
         self.prev_picked = np.full((B, A), -1, dtype=np.int64)
         self.prev_actions = np.full((B, A), -1, dtype=np.int64)
         self.start = np.ones(B, dtype=bool)
+        self.shaped_sum = np.zeros((B, A))  # each env's training reward so far this episode
 
     # ------------------------------------------------------------------ loop
     def train(self) -> dict:
@@ -144,7 +145,7 @@ class Trainer:
         for learner in self.learners.values():
             learner.start_rollout()
         done_eps: dict[str, list] = {}
-        shaped_sum = getattr(self, "_shaped_sum", np.zeros((B, A)))
+        shaped_sum = self.shaped_sum
         hits = {i: 0.0 for i in self.learners}
         for _ in range(cfg.ppo.num_steps):
             true_goal = env.state.goal.copy()
@@ -163,8 +164,7 @@ class Trainer:
             final = self._final_values(infos, actions, done) if done.any() else {}
             for i, learner in self.learners.items():
                 learner.record(rewards[:, i], done, true_goal, final.get(i))
-            self.prev_reward = (np.repeat(infos["team_reward"][:, None], A, axis=1)
-                                if cfg.env.reward_mode == "shared" else infos["block_reward"])
+            self.prev_reward = reward_seen(cfg.env, infos)
             self.prev_picked, self.prev_actions, self.start = infos["picked_color"], actions, done
             if done.any():
                 fi = infos["final_info"]
@@ -175,7 +175,6 @@ class Trainer:
                     done_eps.setdefault(f"{name}_training_reward", []).extend(shaped_sum[done, a])
                 done_eps.setdefault("team_reward", []).extend(fi["episode_block_reward"][done].sum(axis=1))
                 shaped_sum[done] = 0.0
-        self._shaped_sum = shaped_sum
         episodes = {k: float(np.mean(v)) for k, v in done_eps.items()}
         if done_eps:
             episodes["episodes"] = len(done_eps["team_reward"])
@@ -200,9 +199,7 @@ class Trainer:
     def _final_values(self, infos: dict, actions: np.ndarray, done: np.ndarray) -> dict[int, torch.Tensor]:
         """V(final observation) of ended episodes, so that time-limit truncation is bootstrapped."""
         out = {}
-        A = self.config.env.num_agents
-        prev_reward = (np.repeat(infos["team_reward"][:, None], A, axis=1)
-                       if self.config.env.reward_mode == "shared" else infos["block_reward"])
+        prev_reward = reward_seen(self.config.env, infos)
         for i, learner in self.learners.items():
             inp = agent_input(infos["final_obs"], i, np.zeros_like(done), prev_reward[:, i], infos["picked_color"],
                               actions, self.env.penalty_coef, self.env.state.goal)
@@ -211,11 +208,6 @@ class Trainer:
         return out
 
     # ------------------------------------------------------ evaluate / save
-    def policies(self) -> list:
-        """The current agents as ``Policy`` objects (learners wrap their live networks)."""
-        return [NetPolicy(self.learners[i].model, name=f"{AGENTS[i]}@{self.step}") if i in self.learners
-                else self.partners[i] for i in range(self.config.env.num_agents)]
-
     def evaluate(self) -> dict:
         """The evaluation harness on fixed seeds, plus a few sample episodes saved as replays."""
         cfg = self.config
@@ -243,10 +235,8 @@ class Trainer:
         for i, agent in enumerate(self.config.agents):
             if i in self.learners:
                 out.append(NetPolicy(self.learners[i].model, name=f"{AGENTS[i]}@{self.step}"))
-            elif agent.policy.endswith(".pt"):
-                out.append(load_policy(agent.policy, role=AGENTS[i]))
             else:
-                out.append(make_policy(agent.policy))
+                out.append(make_policy(agent.policy, role=AGENTS[i]))
         return out
 
     def checkpoint_payload(self) -> dict:
@@ -256,7 +246,7 @@ class Trainer:
         state = {
             "env_state": self.env.state, "penalty_coef": self.env.penalty_coef,
             "prev": (self.prev_reward, self.prev_picked, self.prev_actions, self.start),
-            "shaped_sum": getattr(self, "_shaped_sum", None),
+            "shaped_sum": self.shaped_sum,
             "recurrent": {i: l.state for i, l in self.learners.items()},
             "generators": {i: l.generator.get_state() for i, l in self.learners.items()},
             "partners": self.partners, "torch_rng": torch.get_rng_state(),
@@ -286,8 +276,7 @@ class Trainer:
         self.obs = self.env.load_state(state["env_state"])
         self.env.penalty_coef = state["penalty_coef"]
         self.prev_reward, self.prev_picked, self.prev_actions, self.start = state["prev"]
-        if state["shaped_sum"] is not None:
-            self._shaped_sum = state["shaped_sum"]
+        self.shaped_sum = state["shaped_sum"]
         for i, learner in self.learners.items():
             learner.state = state["recurrent"][i]
             learner.generator.set_state(state["generators"][i])

@@ -37,13 +37,16 @@ class Verification:
     first_bad_step: int | None = None
 
 
-def verify(replay: Replay, path=None) -> Verification:
-    """Re-simulate and compare every state hash; reports the first step that differs."""
+def verify(replay: Replay, path=None, states: list[EnvState] | None = None) -> Verification:
+    """Re-simulate and compare every state hash; reports the first step that differs.
+
+    ``states``: the replay's states if the caller already simulated them (``replay_states``).
+    """
     if replay.kind == "frames":
         return Verification(True, "ok (frames replay: states are stored, nothing to re-simulate)")
     if replay.state_hashes is None:
         return Verification(False, "no state hashes stored: cannot verify")
-    states = replay_states(replay, path)
+    states = states if states is not None else replay_states(replay, path)
     for t, (state, expected) in enumerate(zip(states, replay.state_hashes)):
         got = state.state_hash(0)
         if got != expected:

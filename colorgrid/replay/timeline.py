@@ -15,7 +15,8 @@ from colorgrid.replay.simulate import encode_blocks, replay_states, verify
 
 
 def timeline(replay: Replay, path=None) -> dict:
-    check = verify(replay, path)
+    states = replay_states(replay, path)  # simulated once: verified, then drawn
+    check = verify(replay, path, states)
     cfg = replay.config
     out = {
         "verified": check.ok, "problem": None if check.ok else check.message,
@@ -27,7 +28,7 @@ def timeline(replay: Replay, path=None) -> dict:
     if not check.ok:
         return out
     boards = []
-    for t, state in enumerate(replay_states(replay, path)):
+    for t, state in enumerate(states):
         boards.append({
             "t": t, "blocks": encode_blocks(state.block_colors(cfg).reshape(-1)),
             "leader": int(state.agent_cell[0, 0]), "follower": int(state.agent_cell[0, 1]),
