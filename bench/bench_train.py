@@ -4,7 +4,11 @@ Prints the median over ``--iterations`` iterations (after one warm-up) and CPU s
 iteration, split into rollout and update, for the fast default network and the paper's
 architecture, at the paper's batch (16 envs x 128 steps).
 
-Usage: python bench/bench_train.py [--arch fast paper] [--iterations 5] [--threads 0] [--device auto]
+Also prints each setup's arithmetic: floating-point operations per env-step (counted with
+torch's FlopCounterMode on a short rollout and one update epoch, scaled to the configured
+epochs) and the ceiling this machine's own matrix-multiply rate puts on env-steps/s.
+
+Usage: python bench/bench_train.py [--setup fast fast-lstm paper] [--iterations 5] [--threads 0] [--device auto]
 """
 
 from __future__ import annotations
@@ -57,6 +61,39 @@ def measure(name: str, iterations: int, threads: int, device: str) -> dict:
     }
 
 
+def flops_per_env_step(name: str) -> float:
+    """Floating-point operations of one env-step of training (both learners' rollout forward + PPO update)."""
+    from torch.utils.flop_counter import FlopCounterMode
+
+    config = from_dict({**SETUPS[name], "threads": 1, "device": "cpu", "eval_every": 0, "total_steps": 10**9,
+                        "ppo": {"num_steps": 8, "num_minibatches": 1, "update_epochs": 1}})
+    epochs = from_dict(SETUPS[name]).ppo.update_epochs
+    threads = torch.get_num_threads()
+    with tempfile.TemporaryDirectory() as tmp:
+        trainer = Trainer(config, tmp, progress=False, tensorboard=False)
+        with FlopCounterMode(display=False) as rollout:
+            trainer.collect_rollout()
+        with FlopCounterMode(display=False) as update:
+            trainer._update_learners()
+    torch.set_num_threads(threads)
+    samples = config.batch_steps
+    return (rollout.get_total_flops() + epochs * update.get_total_flops()) / samples
+
+
+def matmul_rate(threads: int, size: int = 2048, repeats: int = 5) -> float:
+    """This machine's float32 matrix-multiply rate (FLOP/s): the practical ceiling for dense layers."""
+    if threads:
+        torch.set_num_threads(threads)
+    a, b = torch.randn(size, size), torch.randn(size, size)
+    torch.mm(a, b)
+    times = []
+    for _ in range(repeats):
+        t = time.perf_counter()
+        torch.mm(a, b)
+        times.append(time.perf_counter() - t)
+    return 2 * size ** 3 / statistics.median(times)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__)
     parser.add_argument("--setup", nargs="+", default=["fast", "fast-lstm", "paper"], choices=sorted(SETUPS))
@@ -74,6 +111,13 @@ def main() -> None:
               f"{r['update_sps']:>10.0f} {r['cpu_s_per_iter']:>10.2f}", flush=True)
     print("(median over iterations of 16 envs x 128 steps, both agents learning; the paper's public trainer: "
           "about 36 env-steps/s on a 2-core CPU)")
+    rate = matmul_rate(args.threads)
+    print(f"\nthis CPU's float32 matmul rate (2048x2048, {torch.get_num_threads()} threads): {rate / 1e9:.0f} GFLOP/s")
+    print(f"{'setup':<10} {'GFLOP/env-step':>15} {'ceiling env-steps/s':>20}")
+    for name in args.setup:
+        work = flops_per_env_step(name)
+        print(f"{name:<10} {work / 1e9:>15.3f} {rate / work:>20.0f}", flush=True)
+    print("(the ceiling: every operation at the matmul rate; nothing else costs time)")
     if args.profile:
         profile_update(args.setup[0], args.threads, args.device)
 

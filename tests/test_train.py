@@ -5,7 +5,6 @@ import math
 import subprocess
 import sys
 
-import numpy as np
 import pytest
 import torch
 
@@ -13,9 +12,10 @@ from colorgrid import EnvConfig
 from colorgrid.policies import make_policy
 from colorgrid.rollout import run_episodes
 from train.checkpoint import export_agent, load_checkpoint
-from train.config import (NetConfig, PPOConfig, TrainConfig, TrainConfigError, from_dict, load_preset, merge,
+from train.config import (NetConfig, TrainConfig, TrainConfigError, from_dict, load_preset, merge,
                           parse_override, preset_names)
-from train.nets import ActorCritic, count_parameters, egocentric
+from train.learner import sample
+from train.nets import ActorCritic, FastEncoder, count_parameters, egocentric, goal_planes
 from train.policy import load_policy
 from train.ppo import LossWeights, compute_gae, ppo_loss
 from train.trainer import Trainer
@@ -76,6 +76,41 @@ def test_egocentric_window_centres_the_agent_and_marks_walls():
     assert win[0, 5, 3:, 3:].all()
 
 
+@pytest.mark.parametrize("planes", [False, True])
+def test_fast_encoder_patches_compute_its_convolutions_exactly(planes):
+    """The patch/matmul form of the fast network's convs is the same function as the convs on the window."""
+    torch.manual_seed(0)
+    enc = FastEncoder(EnvConfig(), goal_in=3, hidden=32, planes=planes)
+    obs = (torch.rand(40, 5, 32, 32) < 0.2).to(torch.uint8)
+    me = torch.stack([torch.arange(40) % 32, (torch.arange(40) * 7) % 32], dim=1)  # corners and edges included
+    g = torch.softmax(torch.randn(40, 3), dim=1)
+    window = egocentric(obs, me, enc.radius)
+    patches = enc.prepare(obs, me)["patches"]
+    cut = window[:, :, :21, :21].reshape(40, 6, 7, 3, 7, 3).permute(0, 2, 4, 1, 3, 5).reshape(40, 49, 6, 9)
+    assert torch.equal(patches, cut)
+    window, patches = window.float(), patches.float()
+    if planes:
+        window = torch.cat([window, goal_planes(window[:, :3], g)], dim=1)
+        patches = torch.cat([patches, goal_planes(patches[:, :, :3].transpose(1, 2), g).transpose(1, 2)], dim=2)
+    reference = enc.convs(window)
+    assert reference.abs().sum() > 0
+    assert torch.allclose(enc.local(patches), reference, atol=1e-5)
+    grads = []
+    for out in (enc.local(patches), enc.convs(window)):
+        enc.zero_grad()
+        (out * torch.linspace(-1, 1, out.shape[1])).sum().backward()
+        grads.append(torch.cat([p.grad.flatten() for p in enc.convs.parameters()]))
+    assert torch.allclose(grads[0], grads[1], atol=1e-4)
+
+
+def test_sampled_actions_follow_the_probabilities():
+    probs = torch.tensor([[0.1, 0.2, 0.0, 0.7]]).repeat(40_000, 1)
+    actions = sample(probs, torch.Generator().manual_seed(0))
+    freq = torch.bincount(actions, minlength=4).float() / len(actions)
+    assert freq[2] == 0  # an action of probability 0 is never drawn
+    assert torch.allclose(freq, probs[0], atol=0.01)  # 0.01 is over 4 standard errors at 40,000 draws
+
+
 # ----------------------------------------------------------------- recurrence
 @pytest.mark.parametrize("fusion", ["early", "planes"])  # LSTM core, or LSTM belief core feeding goal planes
 def test_lstm_log_probs_recomputed_at_update_match_the_rollout(fusion):
@@ -117,6 +152,27 @@ def test_resume_continues_exactly_like_an_uninterrupted_run(tmp_path):
     rows = lambda d: [json.loads(x) for x in (d / "metrics.jsonl").read_text().splitlines()]  # noqa: E731
     drop = lambda r: {k: v for k, v in r.items() if "sps" not in k}  # noqa: E731
     assert [drop(r) for r in rows(tmp_path / "a")] == [drop(r) for r in rows(tmp_path / "b")]
+
+
+def test_two_learners_updating_side_by_side_match_one_after_the_other(tmp_path):
+    threads = torch.get_num_threads()
+    config = tiny(threads=2, follower={"net": {"lstm": True}})
+    side_by_side = Trainer(config, tmp_path / "a", progress=False, tensorboard=False)
+    one_by_one = Trainer(config, tmp_path / "b", progress=False, tensorboard=False)
+    try:
+        for trainer in (side_by_side, one_by_one):
+            trainer.collect_rollout()
+        parallel = side_by_side._update_learners()  # two threads, one torch thread each
+        torch.set_num_threads(1)  # one torch thread: the learners update in turn
+        sequential = one_by_one._update_learners()
+    finally:
+        torch.set_num_threads(threads)
+    assert side_by_side._pool is not None and one_by_one._pool is None  # both paths were taken
+    assert parallel == sequential
+    for i in (0, 1):
+        after = one_by_one.learners[i].model.state_dict()
+        for key, value in weights(side_by_side.learners[i].model).items():
+            assert torch.equal(value, after[key]), (i, key)
 
 
 def test_a_frozen_partner_never_changes_and_the_learner_does(tmp_path):

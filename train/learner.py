@@ -23,7 +23,7 @@ class Learner:
     def __init__(self, model: ActorCritic, ppo: PPOConfig, weights: LossWeights, lr: float, seed: int,
                  device: torch.device):
         self.model, self.ppo, self.weights, self.device = model.to(device), ppo, weights, device
-        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=lr, eps=1e-5)
+        self.optimizer = torch.optim.Adam(self.model.parameters(), lr=lr, eps=1e-5, fused=True)
         self.generator = torch.Generator().manual_seed(seed)
         self.state = self.model.initial_state(ppo.num_envs, device)
         self.buffer: dict[str, list] = {}
@@ -34,13 +34,13 @@ class Learner:
         self.buffer = {k: [] for k in ("view", *_SIDE, "actions", "logp", "values", "rewards", "dones", "final_values",
                                        "true_goal")}
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def act(self, x: dict[str, torch.Tensor]) -> tuple[np.ndarray, np.ndarray]:
         """One step for every env: sampled actions and goal probabilities."""
         view = self.model.prepare(x["obs"], x["me"])
         logits, value, goal_logits, self.state = self.model(view, *(x[k] for k in _SIDE), self.state)
         probs = torch.softmax(logits[0], dim=1)
-        actions = torch.multinomial(probs.cpu(), 1, generator=self.generator)[:, 0].to(self.device)
+        actions = sample(probs, self.generator)
         self.buffer["view"].append({k: v[0] for k, v in view.items()})
         for k in _SIDE:
             self.buffer[k].append(x[k][0])
@@ -49,7 +49,7 @@ class Learner:
         self.buffer["values"].append(value[0])
         return actions.cpu().numpy(), torch.softmax(goal_logits[0], dim=1).cpu().numpy()
 
-    @torch.no_grad()
+    @torch.inference_mode()
     def value(self, x: dict[str, torch.Tensor]) -> torch.Tensor:
         """Values of observations ``x`` under the current recurrent state, without advancing it."""
         view = self.model.prepare(x["obs"], x["me"])
@@ -91,16 +91,16 @@ class Learner:
             order = torch.randperm(B if recurrent else T * B, generator=self.generator).to(self.device)
             for idx in order.view(self.ppo.num_minibatches, -1):
                 if recurrent:
-                    state = tuple(s[:, idx] for s in self.initial_state)
-                    view = {k: v[:, idx] for k, v in b["view"].items()}
-                    logits, v, gl, _ = self.model(view, *(b[k][:, idx] for k in _SIDE), state)
-                    pick = lambda t: t[:, idx].reshape(T * len(idx), *t.shape[2:])  # noqa: E731
+                    envs = lambda t: t.index_select(1, idx)  # noqa: E731
+                    state = tuple(envs(s) for s in self.initial_state)
+                    view = {k: envs(v) for k, v in b["view"].items()}
+                    logits, v, gl, _ = self.model(view, *(envs(b[k]) for k in _SIDE), state)
+                    pick = lambda t: pick_all(envs(t))  # noqa: E731
                     logits, v, gl = (pick_all(z) for z in (logits, v, gl))
                 else:
-                    flat = lambda t: t.reshape(T * B, *t.shape[2:])[idx][None]  # noqa: E731
-                    view = {k: flat(v) for k, v in b["view"].items()}
-                    logits, v, gl, _ = self.model(view, *(flat(b[k]) for k in _SIDE), None)
-                    pick = lambda t: t.reshape(T * B, *t.shape[2:])[idx]  # noqa: E731
+                    pick = lambda t: t.reshape(T * B, *t.shape[2:]).index_select(0, idx)  # noqa: E731
+                    view = {k: pick(v)[None] for k, v in b["view"].items()}
+                    logits, v, gl, _ = self.model(view, *(pick(b[k])[None] for k in _SIDE), None)
                     logits, v, gl = logits[0], v[0], gl[0]
                 loss, s = ppo_loss(logits, v, gl, pick(b["actions"]), pick(b["logp"]), pick(values),
                                    pick(advantages), pick(returns), pick(b["true_goal"]), self.weights)
@@ -118,6 +118,12 @@ class Learner:
         out["epochs"] = epochs_done
         out["lr"] = self.optimizer.param_groups[0]["lr"]
         return out
+
+
+def sample(probs: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+    """One action per row of ``probs [B, A]`` by inverting the CDF (uniforms from ``generator``, on the CPU)."""
+    u = torch.rand(probs.shape[0], 1, generator=generator).to(probs.device)
+    return (probs.cumsum(dim=1) <= u).sum(dim=1).clamp_(max=probs.shape[1] - 1)
 
 
 def pick_all(t: torch.Tensor) -> torch.Tensor:
