@@ -150,8 +150,11 @@ def test_resume_continues_exactly_like_an_uninterrupted_run(tmp_path):
     for key, value in weights(straight.learners[1].model).items():
         assert torch.equal(value, resumed.learners[1].model.state_dict()[key]), key
     rows = lambda d: [json.loads(x) for x in (d / "metrics.jsonl").read_text().splitlines()]  # noqa: E731
-    drop = lambda r: {k: v for k, v in r.items() if "sps" not in k}  # noqa: E731
+    timing = lambda k: "sps" in k or k == "wall_time_s"  # noqa: E731
+    drop = lambda r: {k: v for k, v in r.items() if not timing(k)}  # noqa: E731
     assert [drop(r) for r in rows(tmp_path / "a")] == [drop(r) for r in rows(tmp_path / "b")]
+    times = [r["wall_time_s"] for r in rows(tmp_path / "b") if r["stream"] == "train"]
+    assert len(times) == 4 and all(b > a > 0 for a, b in zip(times, times[1:]))  # carried across the resume
 
 
 def test_two_learners_updating_side_by_side_match_one_after_the_other(tmp_path):
@@ -294,6 +297,8 @@ def test_model_card_evaluates_against_the_baselines_on_the_same_seeds(tmp_path):
     small = export_agent(tmp_path / "run" / "checkpoints" / "latest.pt", "follower", tmp_path / "f.pt")
     text, data = model_card(str(small), "follower", str(tmp_path / "run"), "colorgrid train ...", episodes=3)
     assert "| astar + bayes |" in text and "| astar + f |" in text and "64 env steps" in text
+    assert "torch threads)" in text.split("**Hardware**:")[1].splitlines()[0]  # recorded by the run
+    assert load_checkpoint(small)["wall_time_s"] > 0 and "**Wall time**: 0 min (" in text
     assert [r["seed"] for r in data["reports"]] == [0] * 5 and all(r["episodes"] == 3 for r in data["reports"])
 
 

@@ -38,8 +38,8 @@ def model_card(checkpoint: str, agent: str, run_dir: str | None, command: str, e
     else:
         rows = [("astar", "idle"), (checkpoint, "idle"), (checkpoint, "bayes")]
     reports = [evaluate(config, lead, follow, episodes, seed) for lead, follow in rows]
-    wall = None
-    if run_dir:
+    wall = ckpt.get("wall_time_s")
+    if wall is None and run_dir:  # checkpoints from before wall time was recorded: the run's file times
         run = Path(run_dir)
         latest = run / "checkpoints" / "latest.pt"
         if (run / "config.json").is_file() and latest.is_file():
@@ -51,7 +51,8 @@ def model_card(checkpoint: str, agent: str, run_dir: str | None, command: str, e
         f"- **Trained with**: `{command}`",
         f"- **Steps**: {ckpt['step']:,} env steps ({ckpt.get('iteration')} PPO iterations of "
         f"{train_cfg['ppo']['num_envs']} envs x {train_cfg['ppo']['num_steps']} steps)",
-        f"- **Wall time**: {wall / 60:.0f} min" if wall else "- **Wall time**: not recorded",
+        f"- **Wall time**: {wall / 60:.0f} min ({wall:.0f} s)" if wall else "- **Wall time**: not recorded",
+        f"- **Hardware**: {ckpt['device']}" if ckpt.get("device") else
         f"- **Hardware**: {cpu_name()} ({os.cpu_count()} CPUs), {train_cfg.get('threads') or 'all'} "
         f"torch thread(s), no GPU",
         f"- **Network**: {json.dumps(net)}",

@@ -94,4 +94,5 @@ def export_agent(src: str | Path, role: str, dst: str | Path) -> Path:
     agents = {name: None for name in AGENTS}
     agents[role] = {**entry, "optimizer": None}
     return save_checkpoint(dst, {"config": ckpt["config"], "env_config": ckpt["env_config"], "step": ckpt["step"],
-                                 "iteration": ckpt.get("iteration"), "agents": agents, "trainer_state": None})
+                                 "iteration": ckpt.get("iteration"), "wall_time_s": ckpt.get("wall_time_s"),
+                                 "device": ckpt.get("device"), "agents": agents, "trainer_state": None})

@@ -158,7 +158,13 @@ class FastEncoder(nn.Module):
                                 dim=2)
             grid = coarse.reshape(coarse.shape[0], self.P, -1)
             coarse = torch.cat([coarse, goal_planes(grid[:, :self.C], g).flatten(1)], dim=1)
-        return self.mlp(torch.cat([self.local(patches), coarse, side], dim=1))
+        return self.mlp(join([self.local(patches), coarse, side], dim=1))
+
+
+def join(tensors: list[torch.Tensor], dim: int) -> torch.Tensor:
+    """``torch.cat``, skipping empty parts and the copy when only one is left (rollouts run one small step at a time)."""
+    parts = [t for t in tensors if t.shape[dim]]
+    return parts[0] if len(parts) == 1 else torch.cat(parts or tensors, dim=dim)
 
 
 def _head(n_in: int, n_out: int, gain: float) -> nn.Sequential:
@@ -234,7 +240,7 @@ class ActorCritic(nn.Module):
             side.append(goal)
         if self.net.extra_inputs:
             side.append(extras)
-        side = torch.cat(side, dim=2) if side else goal.new_zeros(T, B, 0)
+        side = join(side, dim=2) if side else goal.new_zeros(T, B, 0)
         flat = {k: v.reshape(T * B, *v.shape[2:]) for k, v in view.items()}
         goal_logits, g = None, goal
         if self.belief_core:
@@ -251,7 +257,7 @@ class ActorCritic(nn.Module):
             heads.append(goal)
         if self.net.belief_input:
             heads.append(torch.softmax(goal_logits, dim=2).detach())
-        h = torch.cat(heads, dim=2)
+        h = join(heads, dim=2)
         return self.policy(h), self.value(h)[..., 0], goal_logits, state
 
 

@@ -40,6 +40,15 @@ def pick_device(name: str) -> torch.device:
     return torch.device(name)
 
 
+def device_name(device: torch.device) -> str:
+    """What trained: the GPU's name, or the CPU's with its thread count."""
+    if device.type == "cuda":
+        return torch.cuda.get_device_name(device)
+    from colorgrid.machine import cpu_name
+
+    return f"{cpu_name()} ({torch.get_num_threads()} torch threads)"
+
+
 class Trainer:
     def __init__(self, config: TrainConfig, run_dir: str | Path, progress: bool = True, tensorboard: bool = True):
         self.config, self.run_dir, self.progress = config, Path(run_dir), progress
@@ -57,6 +66,8 @@ class Trainer:
                 self.partners[i] = make_policy(agent.policy, role=AGENTS[i])
                 self.partners[i].reset(config.env, config.ppo.num_envs, i, seed=config.seed)
         self.step, self.iteration = 0, 0
+        self.wall_time = 0.0  # wall-clock seconds of training so far, across resumes
+        self._tick = time.perf_counter()
         self._begin_episodes()
         self.tensorboard = tensorboard
         self.log: MetricsLog | None = None
@@ -101,6 +112,7 @@ class Trainer:
             from tqdm import tqdm
             bar = tqdm(total=cfg.num_iterations * cfg.batch_steps, initial=self.step, unit="step", smoothing=0.1)
         last = {}
+        self._tick = time.perf_counter()
         try:
             while self.iteration < cfg.num_iterations:
                 last = self.train_iteration()
@@ -132,12 +144,14 @@ class Trainer:
                 stats[f"{AGENTS[i]}/{key}"] = value
             stats[f"{AGENTS[i]}/rollout_goal_accuracy"] = accuracy[i]
         t2 = time.perf_counter()
+        self.wall_time += t2 - self._tick  # includes the last evaluation and save
+        self._tick = t2
         self.iteration += 1
         self.step += cfg.batch_steps
         row = {"iteration": self.iteration, "penalty_coef": self.env.penalty_coef,
                "shaping_on": float(cfg.schedule.shaping_on(self.step - cfg.batch_steps)),
                "sps": cfg.batch_steps / (t2 - t0), "rollout_sps": cfg.batch_steps / (t1 - t0),
-               "update_sps": cfg.batch_steps / max(t2 - t1, 1e-9), **episodes, **stats}
+               "update_sps": cfg.batch_steps / max(t2 - t1, 1e-9), "wall_time_s": self.wall_time, **episodes, **stats}
         self.log.write("train", self.step, row)
         return row
 
@@ -277,7 +291,8 @@ class Trainer:
             "partners": self.partners, "torch_rng": torch.get_rng_state(),
         }
         return {"config": self.config.to_dict(), "env_config": self.config.env.to_dict(), "step": self.step,
-                "iteration": self.iteration, "agents": agents, "trainer_state": pickle.dumps(state)}
+                "iteration": self.iteration, "wall_time_s": self.wall_time, "device": device_name(self.device),
+                "agents": agents, "trainer_state": pickle.dumps(state)}
 
     def save(self) -> Path:
         payload = self.checkpoint_payload()
@@ -308,3 +323,4 @@ class Trainer:
         self.partners = state["partners"]
         torch.set_rng_state(state["torch_rng"])
         self.step, self.iteration = int(ckpt["step"]), int(ckpt["iteration"])
+        self.wall_time = float(ckpt.get("wall_time_s", 0.0))
