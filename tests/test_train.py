@@ -111,6 +111,39 @@ def test_sampled_actions_follow_the_probabilities():
     assert torch.allclose(freq, probs[0], atol=0.01)  # 0.01 is over 4 standard errors at 40,000 draws
 
 
+MINIBATCHES = """
+import resource, sys, torch
+from torch import nn
+from train.memory import keep_freed_memory
+if sys.argv[1] == "keep":
+    assert keep_freed_memory()
+torch.set_num_threads(1)
+faults = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+net = nn.Sequential(nn.Conv2d(5, 32, 3), nn.LeakyReLU(), nn.Conv2d(32, 64, 3), nn.LeakyReLU(), nn.Conv2d(64, 64, 3),
+                    nn.Flatten(), nn.Linear(43264, 8))  # the paper encoder's convs: ~50 MB of activations at 256
+x = torch.rand(256, 5, 32, 32)
+per_minibatch = []
+for _ in range(5):
+    before = faults()
+    net(x).sum().backward()
+    per_minibatch.append(faults() - before)
+print(per_minibatch)
+"""
+
+
+def test_keeping_freed_memory_stops_page_faults_in_paper_sized_minibatches():
+    """glibc unmaps large freed blocks, so every minibatch faults its activations in again; kept, they are reused."""
+    def faults(mode: str) -> list[int]:
+        out = subprocess.run([sys.executable, "-c", MINIBATCHES, mode], capture_output=True, text=True, check=True)
+        return json.loads(out.stdout)
+
+    default, kept = faults("default"), faults("keep")
+    assert min(default[1:]) > 50_000  # ~200,000 a minibatch (one per 4 kB page of activations)
+    assert sorted(kept[1:])[1] < 1_000 and sum(kept[1:]) < sum(default[1:]) / 10, (default, kept)
+    with pytest.raises(TrainConfigError, match="keep_freed_memory='yes' is invalid: true or false"):
+        tiny(keep_freed_memory="yes")
+
+
 # ----------------------------------------------------------------- recurrence
 @pytest.mark.parametrize("fusion", ["early", "planes"])  # LSTM core, or LSTM belief core feeding goal planes
 def test_lstm_log_probs_recomputed_at_update_match_the_rollout(fusion):

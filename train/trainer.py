@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import pickle
 import time
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -26,6 +27,7 @@ from train.checkpoint import agent_entry, build_model, load_checkpoint, load_wei
 from train.config import TrainConfig
 from train.inputs import step_tensors
 from train.learner import Learner
+from train.memory import keep_freed_memory
 from train.metrics import MetricsLog
 from train.nets import ActorCritic
 from train.policy import NetPolicy, check_compatible
@@ -56,6 +58,8 @@ class Trainer:
             torch.set_num_threads(config.threads)
         torch.manual_seed(config.seed)
         self.device = pick_device(config.device)
+        if config.keep_freed_memory and self.device.type == "cpu" and not keep_freed_memory():
+            warnings.warn("keep_freed_memory=true needs glibc's malloc (Linux); memory is used as usual", stacklevel=2)
         self.env = BatchEnv(config.env, num_envs=config.ppo.num_envs, seed=config.seed)
         self.learners: dict[int, Learner] = {}
         self.partners: dict[int, object] = {}
