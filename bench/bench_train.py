@@ -31,8 +31,9 @@ from train.trainer import Trainer  # noqa: E402
 SETUPS = {
     "fast": {},
     "fast-lstm": {"follower": {"net": {"lstm": True, "extra_inputs": True, "belief_input": True}}},
-    # as the paper_* presets run it (keep_freed_memory: 1.6x faster for this network; see docs/PERFORMANCE.md)
+    # as the paper_* presets run it (keep_freed_memory; see docs/PERFORMANCE.md and bench/bench_memory.py)
     "paper": {"leader": {"net": {"arch": "paper"}}, "follower": {"net": {"arch": "paper"}}, "keep_freed_memory": True},
+    "paper-default-malloc": {"leader": {"net": {"arch": "paper"}}, "follower": {"net": {"arch": "paper"}}},
 }
 
 

@@ -34,6 +34,11 @@ def _check_int(name: str, value, lo: int, hi: int | None = None) -> None:
         _fail(name, value, f"an integer in [{lo}, {hi}]" if hi is not None else f"an integer >= {lo}")
 
 
+def _check_bool(name: str, value) -> None:
+    if not isinstance(value, bool):
+        _fail(name, value, "true or false")
+
+
 @dataclass(frozen=True)
 class NetConfig:
     """The actor-critic of one agent."""
@@ -62,8 +67,7 @@ class NetConfig:
         for name in ("lstm_size", "hidden"):
             _check_int(f"net.{name}", getattr(self, name), 1, 4096)
         for name in ("lstm", "extra_inputs", "belief_input"):
-            if not isinstance(getattr(self, name), bool):
-                _fail(f"net.{name}", getattr(self, name), "true or false")
+            _check_bool(f"net.{name}", getattr(self, name))
         if self.goal_fusion == "planes" and self.belief_input and not (self.lstm and self.extra_inputs):
             _fail("net.belief_input", self.belief_input, "with goal_fusion='planes' the belief comes from an LSTM "
                   "over the last-step inputs: set net.lstm=true and net.extra_inputs=true too")
@@ -214,8 +218,7 @@ class TrainConfig:
         for name, lo in (("total_steps", 1), ("seed", 0), ("eval_every", 0), ("eval_episodes", 1),
                          ("replay_episodes", 0), ("save_every", 1), ("threads", 0)):
             _check_int(name, getattr(self, name), lo)
-        if not isinstance(self.keep_freed_memory, bool):
-            _fail("keep_freed_memory", self.keep_freed_memory, "true or false")
+        _check_bool("keep_freed_memory", self.keep_freed_memory)
         if self.replay_episodes > self.eval_episodes:
             _fail("replay_episodes", self.replay_episodes, f"at most eval_episodes={self.eval_episodes}")
         if self.env.num_agents != len(AGENTS):

@@ -2,8 +2,8 @@
 
 glibc's malloc serves large blocks (the paper network's activations are ~100 MB per
 minibatch) with ``mmap`` and unmaps them when freed, so each PPO minibatch pays page faults
-for all of its activations again: measured, 40% of the paper network's update time was
-system time. With mmap off, a single arena and no trimming, freed blocks stay in the heap
+for all of its activations again: a third of a paper minibatch's time was system time
+(``bench/bench_memory.py``). With mmap off, a single arena and no trimming, freed blocks stay in the heap
 and the next minibatch reuses them. The cost is memory: the process keeps what it freed, and
 the heap can fragment (a large block freed with a small one allocated after it, repeated,
 grows the heap every time: the next aligned large request does not fit the freed block). A

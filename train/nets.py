@@ -26,13 +26,19 @@ def egocentric(obs: torch.Tensor, me: torch.Tensor, radius: int) -> torch.Tensor
 
     The extra plane is 1 on the grid and 0 beyond the walls. Works on any dtype (uint8 is fastest).
     """
+    windows = pad_board(obs, radius).unfold(2, 2 * radius + 1, 1).unfold(3, 2 * radius + 1, 1)  # a view
+    return windows[torch.arange(obs.shape[0], device=obs.device), :, me[:, 0], me[:, 1]]  # [N, P+1, 2r+1, 2r+1]
+
+
+def pad_board(obs: torch.Tensor, r: int) -> torch.Tensor:
+    """``obs [N, P, H, W]`` padded with ``r`` cells of zeros, plus a plane that is 1 on the grid.
+
+    Returns ``[N, P + 1, H + 2r, W + 2r]``."""
     N, P, H, W = obs.shape
-    r = radius
     x = obs.new_zeros(N, P + 1, H + 2 * r, W + 2 * r)
     x[:, :P, r:r + H, r:r + W] = obs
     x[:, P, r:r + H, r:r + W] = 1
-    windows = x.unfold(2, 2 * radius + 1, 1).unfold(3, 2 * radius + 1, 1)  # [N, P+1, H, W, 2r+1, 2r+1], a view
-    return windows[torch.arange(N, device=obs.device), :, me[:, 0], me[:, 1]]
+    return x
 
 
 def goal_planes(blocks: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
@@ -103,6 +109,14 @@ class FastEncoder(nn.Module):
         cols = torch.arange(out2)[None, :, None, None] * 2 + torch.arange(3)[None, None, None, :]
         self.register_buffer("gather2", (rows * self.cells + cols).reshape(-1), persistent=False)
         self.out2 = out2
+        # offsets of the first conv's patches into the flattened padded board, in [cell, plane, 3x3] order
+        height, width = env.height + 2 * self.radius, env.width + 2 * self.radius
+        cell, kernel = torch.arange(self.cells) * 3, torch.arange(3)
+        rows = cell[:, None, None, None, None] + kernel[None, None, None, :, None]  # [k, 1, 1, 3, 1]
+        cols = cell[None, :, None, None, None] + kernel[None, None, None, None, :]  # [1, k, 1, 1, 3]
+        planes = torch.arange(P + 1)[None, None, :, None, None]
+        self.register_buffer("patch_offsets", (planes * height * width + rows * width + cols).reshape(-1),
+                             persistent=False)
         coarse = (P + extra) * -(-env.height // self.pool) * -(-env.width // self.pool)
         self.mlp = nn.Sequential(nn.Linear(local + coarse + goal_in, hidden), nn.ReLU())
         self.out_size = hidden
@@ -114,30 +128,14 @@ class FastEncoder(nn.Module):
         into the first conv's 3x3 patches, gathered in one indexing op. Float, because PPO
         epochs reuse it: converting once per sample is cheaper than once per minibatch.
         """
-        N, P, H, W = obs.shape
-        r = self.radius
-        padded = obs.new_zeros(N, P + 1, H + 2 * r, W + 2 * r)
-        padded[:, :P, r:r + H, r:r + W] = obs
-        padded[:, P, r:r + H, r:r + W] = 1
+        N, P = obs.shape[:2]
+        padded = pad_board(obs, self.radius)
         # the window's top-left corner in padded coordinates is the agent's own cell
-        corner = me[:, 0] * (W + 2 * r) + me[:, 1]
-        index = corner[:, None] + self._patch_offsets(P + 1, H + 2 * r, W + 2 * r, obs.device).flatten()[None]
+        corner = me[:, 0] * padded.shape[3] + me[:, 1]
+        index = corner[:, None] + self.patch_offsets[None]
         patches = padded.reshape(N, -1).gather(1, index).reshape(N, self.cells ** 2, P + 1, 9)
         return {"patches": patches.float(),
                 "coarse": F.avg_pool2d(obs.float(), self.pool, ceil_mode=True).flatten(1)}
-
-    def _patch_offsets(self, planes: int, height: int, width: int, device) -> torch.Tensor:
-        """Offsets into a flattened ``[planes, height, width]`` padded board, in ``[cell, plane, 3x3]`` order."""
-        key = (planes, height, width, str(device))
-        if getattr(self, "_offsets_key", None) != key:
-            cell = torch.arange(self.cells) * 3
-            kernel = torch.arange(3)
-            rows = cell[:, None, None, None, None] + kernel[None, None, None, :, None]  # [k, 1, 1, 3, 1]
-            cols = cell[None, :, None, None, None] + kernel[None, None, None, None, :]  # [1, k, 1, 1, 3]
-            plane = torch.arange(planes)[None, None, :, None, None]
-            offsets = plane * height * width + rows * width + cols  # [k, k, planes, 3, 3]
-            self._offsets, self._offsets_key = offsets.reshape(-1).to(device), key
-        return self._offsets
 
     def local(self, patches: torch.Tensor) -> torch.Tensor:
         """``self.convs`` on the window, from its patches ``[N, cells^2, channels, 9]`` (float): ``[N, 32 * 3 * 3]``."""
@@ -162,7 +160,7 @@ class FastEncoder(nn.Module):
 
 
 def join(tensors: list[torch.Tensor], dim: int) -> torch.Tensor:
-    """``torch.cat``, skipping empty parts and the copy when only one is left (rollouts run one small step at a time)."""
+    """``torch.cat``, skipping empty parts and the copy when only one is left (rollouts run small steps)."""
     parts = [t for t in tensors if t.shape[dim]]
     return parts[0] if len(parts) == 1 else torch.cat(parts or tensors, dim=dim)
 
