@@ -51,6 +51,17 @@ def device_name(device: torch.device) -> str:
     return f"{cpu_name()} ({torch.get_num_threads()} torch threads)"
 
 
+def update_learner(learner: Learner, inputs: dict, threads: int | None = None) -> dict:
+    """One learner's bootstrap value and PPO update, both at ``threads`` torch threads (None: as set).
+
+    The thread count is set on the calling thread itself: OpenMP keeps it per thread, so a
+    worker thread must not inherit whatever its pool was created with.
+    """
+    if threads is not None:
+        torch.set_num_threads(threads)
+    return learner.update(learner.value(inputs))
+
+
 class Trainer:
     def __init__(self, config: TrainConfig, run_dir: str | Path, progress: bool = True, tensorboard: bool = True):
         self.config, self.run_dir, self.progress = config, Path(run_dir), progress
@@ -163,19 +174,24 @@ class Trainer:
         """Every learner's PPO update on the rollout just collected.
 
         On a CPU with two learners and two or more torch threads, the two updates run side
-        by side, each on its own thread with half the torch threads: small networks use
-        one core each far better than two cores one after the other. The learners share
-        nothing (own model, optimizer and random generator), so the result is the same.
+        by side, each on its own thread with ``threads // learners`` torch threads: small
+        networks use one core each far better than two cores one after the other. The
+        learners share nothing (own model, optimizer and random generator), and each one's
+        whole update, its bootstrap value included, runs at that thread count, so the result
+        is bit for bit the learners updated one after the other with that many threads, on
+        any CPU. (It is not bit for bit an update with all the threads: on some CPUs MKL and
+        oneDNN split a small matrix product's sum across threads; see docs/TRAINING.md.)
         """
-        bootstraps = {i: lr.value(self._tensors(i, self._inputs(i))) for i, lr in self.learners.items()}
+        inputs = {i: self._tensors(i, self._inputs(i)) for i in self.learners}
         threads = torch.get_num_threads()
         if self.device.type != "cpu" or len(self.learners) < 2 or threads < 2:
-            return {i: lr.update(bootstraps[i]) for i, lr in self.learners.items()}
+            return {i: update_learner(lr, inputs[i]) for i, lr in self.learners.items()}
         if self._pool is None:
             self._pool = ThreadPoolExecutor(len(self.learners), thread_name_prefix="learner")
-        torch.set_num_threads(threads // len(self.learners))
+        each = threads // len(self.learners)
+        torch.set_num_threads(each)
         try:
-            futures = {i: self._pool.submit(lr.update, bootstraps[i]) for i, lr in self.learners.items()}
+            futures = {i: self._pool.submit(update_learner, lr, inputs[i], each) for i, lr in self.learners.items()}
             return {i: f.result() for i, f in futures.items()}
         finally:
             torch.set_num_threads(threads)
