@@ -8,6 +8,7 @@ import json
 from pathlib import Path
 
 from colorgrid.config import EnvConfig
+from colorgrid.files import JSONFileError, read_json_object
 
 PRESETS: dict[str, dict] = {
     "default": {},
@@ -54,8 +55,8 @@ def config_from_args(args: argparse.Namespace) -> EnvConfig:
     data = dict(PRESETS[args.preset])
     if args.config is not None:
         try:
-            data.update(json.loads(Path(args.config).read_text()))
-        except json.JSONDecodeError as err:
-            raise ValueError(f"{args.config} is not valid JSON: {err}") from None
+            data.update(read_json_object(args.config, "a JSON object of EnvConfig fields"))
+        except JSONFileError as err:
+            raise ValueError(f"--config {err}") from None
     data.update(parse_overrides(args.set))
     return EnvConfig().replace(**data) if data else EnvConfig()

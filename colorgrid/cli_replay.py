@@ -7,10 +7,12 @@ import json
 from pathlib import Path
 
 from colorgrid.cli_config import add_config_arguments, config_from_args
+from colorgrid.replay.format import SUFFIX
 
 
 def _replay_files(target: Path) -> list[Path]:
-    if target.is_dir():
+    """A folder's replays, or the target itself: a path named like a replay is one, whatever it is."""
+    if target.is_dir() and not target.name.endswith(SUFFIX):
         files = sorted(target.glob("*.replay.json"))
         if not files:
             raise ValueError(f"{target} holds no *.replay.json files")

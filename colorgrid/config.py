@@ -154,7 +154,8 @@ def _validate(cfg: EnvConfig) -> None:
     if cfg.reward_mode not in REWARD_MODES:
         _fail("reward_mode", cfg.reward_mode, f"one of {list(REWARD_MODES)}")
     agents = cfg.distance_penalty_agents
-    if not isinstance(agents, tuple) or not set(agents) <= set(AGENTS) or len(set(agents)) != len(agents):
+    names_ok = isinstance(agents, tuple) and all(isinstance(a, str) for a in agents)  # strings before set()
+    if not names_ok or not set(agents) <= set(AGENTS) or len(set(agents)) != len(agents):
         _fail("distance_penalty_agents", agents, f"a tuple of distinct names from {list(AGENTS)}")
     if cfg.hemispheres and cfg.width % 2:
         _fail("width", cfg.width, "even when hemispheres=True (two equal halves)")

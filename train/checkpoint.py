@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import dataclasses
 import io
+import pickle
+import zipfile
 from pathlib import Path
 
 import torch
@@ -45,13 +47,17 @@ def save_checkpoint(path: str | Path, payload: dict) -> Path:
 
 
 def load_checkpoint(path: str | Path) -> dict:
+    """Read a checkpoint (tensors and plain containers only); every problem raises one clear line."""
     path = Path(path)
-    if not path.is_file():
+    if not path.exists():
         raise FileNotFoundError(f"checkpoint {path} does not exist")
+    if not path.is_file():
+        kind = "a directory" if path.is_dir() else "not a regular file"
+        raise ValueError(f"{path} is not a readable ColorGrid checkpoint: it is {kind}")
     try:
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except Exception as err:  # torch raises many types for a damaged file
-        raise ValueError(f"{path} is not a readable ColorGrid checkpoint ({type(err).__name__}: {err})") from None
+        raise ValueError(f"{path} is not a readable ColorGrid checkpoint: {_unreadable_reason(path, err)}") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise ValueError(f"{path} is not a ColorGrid trainer checkpoint (format {FORMAT!r})")
     if ckpt.get("version") != VERSION:
@@ -59,7 +65,25 @@ def load_checkpoint(path: str | Path) -> dict:
     for key in ("agents", "env_config", "config", "step"):
         if key not in ckpt:
             raise ValueError(f"{path} lacks {key!r}; it is not a complete checkpoint")
+    agents = ckpt["agents"]
+    if not (isinstance(agents, dict) and all(isinstance(e, dict) or e is None for e in agents.values())
+            and isinstance(ckpt["env_config"], dict) and isinstance(ckpt["config"], dict)
+            and isinstance(ckpt["step"], int)):
+        raise ValueError(f"{path} is a damaged checkpoint: agents, env_config or config is not a mapping, "
+                         f"or step is not an integer")
     return ckpt
+
+
+def _unreadable_reason(path: Path, err: Exception) -> str:
+    """Why torch could not load ``path``, in one line (torch's own messages run to many lines of advice)."""
+    if path.stat().st_size == 0:
+        return "the file is empty"
+    if not zipfile.is_zipfile(path):
+        return "it is not a file written by torch.save (truncated, corrupt, or another kind of file)"
+    if isinstance(err, pickle.UnpicklingError):
+        return "it holds objects other than tensors and plain containers, which ColorGrid checkpoints never do"
+    first_line = str(err).strip().splitlines()[0][:200] if str(err).strip() else ""
+    return f"its archive is damaged ({type(err).__name__}: {first_line})"
 
 
 def build_model(entry: dict, env: EnvConfig, what: str) -> ActorCritic:

@@ -7,6 +7,7 @@ import json
 import time
 from pathlib import Path
 
+from colorgrid.files import JSONFileError, read_json_object
 from train.config import TrainConfig, from_dict, load_preset, merge, parse_override, preset_names
 
 
@@ -32,43 +33,49 @@ def add_train_commands(sub) -> None:
     ck.add_argument("--agent", choices=["leader", "follower"], help="export: which agent to keep")
     ck.add_argument("--out", help="export: destination .pt; card: destination .md (a .json of the reports beside it)")
     ck.add_argument("--run", help="card: the run directory (for the wall time)")
-    ck.add_argument("--command", default="", help="card: the command that trained it")
+    ck.add_argument("--command", dest="train_command", default="",  # not "command": that names the sub-command
+                    help="card: the command that trained it")
     ck.set_defaults(func=cmd_checkpoint)
 
 
 def resolve_config(args: argparse.Namespace) -> TrainConfig:
     data = load_preset(args.preset)
     if args.config:
-        path = Path(args.config)
-        if not path.is_file():
-            raise FileNotFoundError(f"--config {path}: no such file")
         try:
-            data = merge(data, json.loads(path.read_text()))
-        except json.JSONDecodeError as err:
-            raise ValueError(f"--config {path} is not valid JSON: {err}") from None
+            data = merge(data, read_json_object(args.config, "a JSON object of training settings (as in a preset)"))
+        except JSONFileError as err:
+            raise ValueError(f"--config {err}") from None
     for text in args.set:
         data = merge(data, parse_override(text))
     return from_dict(data)
 
 
-def cmd_train(args: argparse.Namespace) -> int:
-    from train.trainer import Trainer
+def resumed_config(run_dir: Path, overrides: list[str]) -> TrainConfig:
+    """The config a run was started with (``RUN_DIR/config.json``), with ``--set`` overrides on top."""
+    saved = run_dir / "config.json"
+    if not saved.exists():
+        raise FileNotFoundError(f"--resume {run_dir}: no config.json there; is it a run directory?")
+    data = read_json_object(saved, "a JSON object of training settings (the run's config)")
+    for text in overrides:
+        data = merge(data, parse_override(text))
+    try:
+        return from_dict(data)
+    except ValueError as err:
+        raise ValueError(f"{saved}{' with the --set overrides' if overrides else ''}: {err}") from None
 
+
+def cmd_train(args: argparse.Namespace) -> int:
     if args.resume:
         run_dir = Path(args.resume)
-        saved = run_dir / "config.json"
-        if not saved.is_file():
-            raise FileNotFoundError(f"--resume {run_dir}: no config.json there; is it a run directory?")
-        data = json.loads(saved.read_text())
-        for text in args.set:
-            data = merge(data, parse_override(text))
-        config = from_dict(data)
+        config = resumed_config(run_dir, args.set)
     else:
         config = resolve_config(args)
         run_dir = Path(args.out or f"runs/{Path(args.preset).stem}-{time.strftime('%Y%m%d-%H%M%S')}")
     if args.print_config:
         print(json.dumps(config.to_dict(), indent=2))
         return 0
+    from train.trainer import Trainer  # torch: imported once the config is known to be good
+
     trainer = Trainer(config, run_dir, progress=not args.no_progress, tensorboard=not args.no_tensorboard)
     if args.resume:
         latest = run_dir / "checkpoints" / "latest.pt"
@@ -94,11 +101,11 @@ def cmd_checkpoint(args: argparse.Namespace) -> int:
                          indent=2))
         return 0
     if not args.agent or not args.out:
-        raise ValueError(f"checkpoint {args.action} needs --agent (leader or follower) and --out PATH")
+        raise ValueError("needs --agent (leader or follower) and --out PATH")
     if args.action == "card":
         from train.card import write_card
 
-        print(f"wrote {write_card(args.path, args.agent, args.run, args.command, args.out)}")
+        print(f"wrote {write_card(args.path, args.agent, args.run, args.train_command, args.out)}")
         return 0
     path = export_agent(args.path, args.agent, args.out)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")

@@ -10,10 +10,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.files import JSONFileError, read_json_object
 
 PRESETS_DIR = Path(__file__).parent / "presets"
 ARCHS = ("fast", "paper")
@@ -22,16 +24,44 @@ DEVICES = ("auto", "cpu", "cuda")
 
 
 class TrainConfigError(ValueError):
-    """A training setting is invalid; the message names the field, the value and what is allowed."""
+    """A training setting is invalid; the message names the field, the value and what is allowed.
+
+    ``field`` is the setting's name within the dataclass that raised it (None for errors that
+    are not about one field); ``within`` names it from the config's root.
+    """
+
+    def __init__(self, message: str, field: str | None = None, detail: str = ""):
+        super().__init__(message)
+        self.field, self.detail = field, detail
+
+    def within(self, section: str) -> "TrainConfigError":
+        """The same error with the field named from its section: ``aux_coef`` -> ``follower.aux_coef``."""
+        if self.field is None or not section:
+            return self
+        name = f"{section}.{self.field}"
+        return TrainConfigError(name + self.detail, name, self.detail)
 
 
 def _fail(name: str, value, allowed: str):
-    raise TrainConfigError(f"{name}={value!r} is invalid: {allowed}")
+    detail = f"={value!r} is invalid: {allowed}"
+    raise TrainConfigError(name + detail, name, detail)
 
 
-def _check_int(name: str, value, lo: int, hi: int | None = None) -> None:
+def _check_int(name: str, value, lo: int, hi: int | None = None, optional: bool = False) -> None:
+    """An int (not a bool) in [lo, hi]; ``optional``: or None."""
+    if optional and value is None:
+        return
     if isinstance(value, bool) or not isinstance(value, int) or value < lo or (hi is not None and value > hi):
-        _fail(name, value, f"an integer in [{lo}, {hi}]" if hi is not None else f"an integer >= {lo}")
+        allowed = f"an integer in [{lo}, {hi}]" if hi is not None else f"an integer >= {lo}"
+        _fail(name, value, allowed + (" or null" if optional else ""))
+
+
+def _check_number(name: str, value, allowed: str, within=lambda v: True, optional: bool = False) -> None:
+    """A finite int or float (not a bool) for which ``within`` holds; ``optional``: or None. ``allowed`` says which."""
+    if optional and value is None:
+        return
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or not within(value):
+        _fail(name, value, allowed)
 
 
 def _check_bool(name: str, value) -> None:
@@ -61,15 +91,15 @@ class NetConfig:
 
     def __post_init__(self):
         if self.arch not in ARCHS:
-            _fail("net.arch", self.arch, f"choose one of {list(ARCHS)}")
+            _fail("arch", self.arch, f"choose one of {list(ARCHS)}")
         if self.goal_fusion not in GOAL_FUSIONS:
-            _fail("net.goal_fusion", self.goal_fusion, f"choose one of {list(GOAL_FUSIONS)}")
+            _fail("goal_fusion", self.goal_fusion, f"choose one of {list(GOAL_FUSIONS)}")
         for name in ("lstm_size", "hidden"):
-            _check_int(f"net.{name}", getattr(self, name), 1, 4096)
+            _check_int(name, getattr(self, name), 1, 4096)
         for name in ("lstm", "extra_inputs", "belief_input"):
-            _check_bool(f"net.{name}", getattr(self, name))
+            _check_bool(name, getattr(self, name))
         if self.goal_fusion == "planes" and self.belief_input and not (self.lstm and self.extra_inputs):
-            _fail("net.belief_input", self.belief_input, "with goal_fusion='planes' the belief comes from an LSTM "
+            _fail("belief_input", self.belief_input, "with goal_fusion='planes' the belief comes from an LSTM "
                   "over the last-step inputs: set net.lstm=true and net.extra_inputs=true too")
 
 
@@ -102,14 +132,15 @@ class AgentConfig:
             from colorgrid.policies import SCRIPTED
             if self.policy not in SCRIPTED:
                 _fail("policy", self.policy, f"'learn', one of {sorted(SCRIPTED)} or a checkpoint path ending in .pt")
+        if self.init is not None and not isinstance(self.init, str):
+            _fail("init", self.init, "a checkpoint path (a string) or null")
         if self.init is not None and not self.learns:
             _fail("init", self.init, "warm-starting only applies to policy='learn'")
-        if not 0.0 <= self.aux_coef <= 100.0:
-            _fail("aux_coef", self.aux_coef, "a number in [0, 100]")
+        _check_number("aux_coef", self.aux_coef, "a number in [0, 100]", lambda v: 0.0 <= v <= 100.0)
         if self.train_reward not in ("env", "own"):
             _fail("train_reward", self.train_reward, "'env' (the env's reward) or 'own' (own block reward)")
-        if self.lr is not None and not 0.0 < self.lr < 1.0:
-            _fail("lr", self.lr, "a learning rate in (0, 1) or null")
+        _check_number("lr", self.lr, "a number in (0, 1), or null to use ppo.lr", lambda v: 0.0 < v < 1.0,
+                      optional=True)
 
 
 @dataclass(frozen=True)
@@ -134,20 +165,19 @@ class PPOConfig:
     def __post_init__(self):
         for name, lo, hi in (("num_envs", 1, 65536), ("num_steps", 1, 65536), ("num_minibatches", 1, 65536),
                              ("update_epochs", 1, 1000)):
-            _check_int(f"ppo.{name}", getattr(self, name), lo, hi)
+            _check_int(name, getattr(self, name), lo, hi)
         if self.num_envs % self.num_minibatches:
-            _fail("ppo.num_minibatches", self.num_minibatches,
+            _fail("num_minibatches", self.num_minibatches,
                   f"must divide ppo.num_envs={self.num_envs} (recurrent minibatches are whole envs)")
-        if not 0.0 < self.lr < 1.0:
-            _fail("ppo.lr", self.lr, "a learning rate in (0, 1)")
+        _check_number("lr", self.lr, "a number in (0, 1)", lambda v: 0.0 < v < 1.0)
         for name in ("gamma", "gae_lambda"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                _fail(f"ppo.{name}", getattr(self, name), "a number in [0, 1]")
+            _check_number(name, getattr(self, name), "a number in [0, 1]", lambda v: 0.0 <= v <= 1.0)
         for name in ("clip_coef", "ent_coef", "vf_coef", "max_grad_norm"):
-            if not getattr(self, name) >= 0.0:
-                _fail(f"ppo.{name}", getattr(self, name), "a non-negative number")
-        if self.target_kl is not None and not self.target_kl > 0.0:
-            _fail("ppo.target_kl", self.target_kl, "a positive number, or null to never stop early")
+            _check_number(name, getattr(self, name), "a non-negative number", lambda v: v >= 0.0)
+        _check_number("target_kl", self.target_kl, "a positive number, or null to never stop early",
+                      lambda v: v > 0.0, optional=True)
+        for name in ("clip_vloss", "norm_adv"):
+            _check_bool(name, getattr(self, name))
 
 
 @dataclass(frozen=True)
@@ -162,12 +192,13 @@ class ScheduleConfig:
     """Reward-shaping terms (set in the env config) count toward training rewards only for this many steps."""
 
     def __post_init__(self):
+        for name in ("penalty_start", "penalty_end"):
+            _check_int(name, getattr(self, name), 0, optional=True)
+        _check_int("shaping_steps", self.shaping_steps, 0, optional=True)
         if (self.penalty_start is None) != (self.penalty_end is None):
-            _fail("schedule.penalty_end", self.penalty_end, "set both penalty_start and penalty_end, or neither")
-        if self.penalty_start is not None and not 0 <= self.penalty_start <= self.penalty_end:
-            _fail("schedule.penalty_start", self.penalty_start, f"0 <= penalty_start <= penalty_end={self.penalty_end}")
-        if self.shaping_steps is not None and self.shaping_steps < 0:
-            _fail("schedule.shaping_steps", self.shaping_steps, "a non-negative step count or null (always on)")
+            _fail("penalty_end", self.penalty_end, "set both penalty_start and penalty_end, or neither")
+        if self.penalty_start is not None and not self.penalty_start <= self.penalty_end:
+            _fail("penalty_start", self.penalty_start, f"0 <= penalty_start <= penalty_end={self.penalty_end}")
 
     def penalty_coef(self, step: int, default: float) -> float:
         if self.penalty_start is None:
@@ -260,7 +291,10 @@ def _build(kind, data: dict, where: str):
     data = dict(data)
     if kind is AgentConfig and "net" in data:
         data["net"] = _build(NetConfig, data["net"], f"{where}.net")
-    return kind(**data)
+    try:
+        return kind(**data)
+    except TrainConfigError as err:
+        raise err.within(where) from None
 
 
 def from_dict(data: dict) -> TrainConfig:
@@ -298,12 +332,12 @@ def load_preset(name: str) -> dict:
     path = Path(name)
     if not path.suffix:
         path = PRESETS_DIR / f"{name}.json"
-    if not path.is_file():
+    if not path.exists():
         raise TrainConfigError(f"unknown preset {name!r}: no file {path}; presets: {preset_names()}")
     try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as err:
-        raise TrainConfigError(f"preset {path} is not valid JSON: {err}") from None
+        return read_json_object(path, "a JSON object of training settings")
+    except JSONFileError as err:
+        raise TrainConfigError(f"preset {err}") from None
 
 
 def parse_override(text: str) -> dict:

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
@@ -17,13 +18,16 @@ from pathlib import Path
 from typing import Any
 
 from colorgrid.config import AGENTS, ENV_ID, EnvConfig
-from colorgrid.files import atomic_path
+from colorgrid.files import JSONFileError, atomic_path, read_json
+from colorgrid.rng import MAX_SEED
 
 FORMAT_NAME = "colorgrid-replay"
 FORMAT_VERSION = 1
 SUFFIX = ".replay.json"
 SOURCES = ("eval", "train", "play", "import")
 KINDS = ("actions", "frames")
+MAX_DEPTH = 32
+"""Deepest JSON nesting a replay file may have (a real one has about 6 levels)."""
 
 
 class ReplayError(ValueError):
@@ -98,68 +102,152 @@ class Replay:
 
     @classmethod
     def from_document(cls, doc: Any, path=None) -> "Replay":
+        """A replay from a parsed file; a document that is not a valid replay raises ``ReplayError``."""
         if not isinstance(doc, dict) or doc.get("format") != FORMAT_NAME:
             raise ReplayError(path, f"not a ColorGrid replay (expected \"format\": \"{FORMAT_NAME}\")")
         version = doc.get("format_version")
-        if not isinstance(version, int):
+        if not _is_int(version):
             raise ReplayError(path, "format_version is missing or not an integer")
         if version > FORMAT_VERSION:
             raise ReplayError(path, f"format version {version} is newer than this colorgrid reads "
                                     f"(up to {FORMAT_VERSION}); upgrade colorgrid")
-        if doc.get("checksum") != checksum({k: v for k, v in doc.items() if k != "checksum"}):
-            raise ReplayError(path, "checksum mismatch: the file was changed or corrupted after it was written")
         try:
-            steps = doc["steps"]
+            expected = checksum({k: v for k, v in doc.items() if k != "checksum"})
+        except (TypeError, ValueError, RecursionError) as err:  # a document built in code, not parsed from a file
+            raise ReplayError(path, f"cannot be checksummed as JSON: {err}") from None
+        if doc.get("checksum") != expected:
+            raise ReplayError(path, "checksum mismatch: the file was changed or corrupted after it was written")
+        _check_field_types(doc, _DOCUMENT_FIELDS, "", path)
+        steps = doc["steps"]
+        _check_field_types(steps, _STEP_FIELDS, "steps.", path)
+        try:
             config = EnvConfig.from_dict(doc["config"])
-            replay = cls(
-                config=config, seed=doc["seed"], source=doc["source"], agents=doc["agents"],
-                actions=steps["actions"], goal=steps["goal"], block_reward=steps["block_reward"],
-                team_reward=steps["team_reward"], picked_color=steps["picked_color"],
-                goal_switched=steps["goal_switched"], goal_probs=steps.get("goal_probs") or {},
-                state_hashes=steps["state_hash"], frames=doc.get("frames"), penalty_coef=doc["penalty_coef"],
-                ended=doc["ended"], key_events=doc.get("key_events"), created=doc["created"],
-                env_id=doc["env_id"], meta=doc.get("meta") or {},
-            )
-        except KeyError as err:
-            raise ReplayError(path, f"required field {err.args[0]!r} is missing") from None
         except ValueError as err:
             raise ReplayError(path, f"invalid config: {err}") from None
+        replay = cls(
+            config=config, seed=doc["seed"], source=doc["source"], agents=doc["agents"],
+            actions=steps["actions"], goal=steps["goal"], block_reward=steps["block_reward"],
+            team_reward=steps["team_reward"], picked_color=steps["picked_color"],
+            goal_switched=steps["goal_switched"], goal_probs=steps.get("goal_probs") or {},
+            state_hashes=steps["state_hash"], frames=doc.get("frames"), penalty_coef=doc["penalty_coef"],
+            ended=doc["ended"], key_events=doc.get("key_events"), created=doc["created"],
+            env_id=doc["env_id"], meta=doc.get("meta") or {},
+        )
+        if doc.get("kind", replay.kind) != replay.kind:
+            raise ReplayError(path, f"kind is {doc['kind']!r}, but steps.actions says {replay.kind!r}")
         replay.validate(path)
         return replay
 
     def validate(self, path=None) -> None:
-        """Check shapes and values; raises ``ReplayError`` naming the first problem."""
+        """Check types, shapes and values; raises ``ReplayError`` naming the first problem."""
         T, cfg = self.num_steps, self.config
-        if self.env_id != ENV_ID:
-            raise ReplayError(path, f"env_id {self.env_id!r} is not {ENV_ID!r}, which this colorgrid simulates")
-        if self.source not in SOURCES:
-            raise ReplayError(path, f"source {self.source!r} is not one of {list(SOURCES)}")
-        if not 0 < T <= cfg.horizon:
-            raise ReplayError(path, f"episode has {T} steps; expected 1..horizon ({cfg.horizon})")
-        if any(not isinstance(g, int) or not 0 <= g < cfg.num_colors for g in self.goal):
-            raise ReplayError(path, f"steps.goal must hold colors in [0, {cfg.num_colors})")
+        A, C, cells = cfg.num_agents, cfg.num_colors, cfg.height * cfg.width
+
+        def require(ok: bool, problem: str) -> None:
+            if not ok:
+                raise ReplayError(path, problem)
+
+        def rows(value, width: int, element) -> bool:  # a [T][width] list of lists whose entries pass `element`
+            return all(isinstance(r, list) and len(r) == width and all(element(x) for x in r) for r in value)
+
+        require(self.env_id == ENV_ID, f"env_id {self.env_id!r} is not {ENV_ID!r}, which this colorgrid simulates")
+        require(self.source in SOURCES, f"source {self.source!r} is not one of {list(SOURCES)}")
+        require(0 < T <= cfg.horizon, f"episode has {T} steps; expected 1..horizon ({cfg.horizon})")
+        require(all(_is_int(g) and 0 <= g < C for g in self.goal), f"steps.goal must hold colors in [0, {C})")
+        require(_is_real(self.penalty_coef) and self.penalty_coef >= 0,
+                f"penalty_coef must be a non-negative number, got {self.penalty_coef!r}")
+        require(all(isinstance(entry, dict) for entry in self.agents.values()),
+                "agents must map each agent name to an object (its policy description)")
+        columns = ("actions", "block_reward", "team_reward", "picked_color", "goal_switched")
         if self.kind == "actions":
-            if not isinstance(self.seed, int) or self.seed < 0:
-                raise ReplayError(path, "an actions replay needs a non-negative integer seed")
-            for name in ("actions", "block_reward", "team_reward", "picked_color", "goal_switched"):
+            require(_is_int(self.seed) and 0 <= self.seed <= MAX_SEED,
+                    f"an actions replay needs an integer seed in [0, 2**63 - 1], got {self.seed!r}")
+            for name in columns:
                 value = getattr(self, name)
-                if not isinstance(value, list) or len(value) != T:
-                    raise ReplayError(path, f"steps.{name} must be a list of {T} entries (one per step)")
-            if any(not isinstance(a, list) or len(a) != cfg.num_agents
-                   or any(not isinstance(x, int) or not 0 <= x < cfg.num_actions for x in a) for a in self.actions):
-                raise ReplayError(path, f"steps.actions must be [T][2] integers in [0, {cfg.num_actions})")
-            if self.state_hashes is not None and len(self.state_hashes) != T + 1:
-                raise ReplayError(path, f"steps.state_hash must have {T + 1} entries (T + 1)")
+                require(isinstance(value, list) and len(value) == T,
+                        f"steps.{name} must be a list of {T} entries (one per step)")
+            require(rows(self.actions, A, lambda x: _is_int(x) and 0 <= x < cfg.num_actions),
+                    f"steps.actions must be [T][2] integers in [0, {cfg.num_actions})")
+            require(self.state_hashes is None or (len(self.state_hashes) == T + 1
+                                                  and all(isinstance(h, str) for h in self.state_hashes)),
+                    f"steps.state_hash must have {T + 1} entries (T + 1), each a string")
         else:
             frames = self.frames
-            if not isinstance(frames, dict) or len(frames.get("agent_cell", [])) != T + 1 \
-                    or len(frames.get("blocks", [])) != T + 1:
-                raise ReplayError(path, f"a frames replay needs frames.agent_cell and frames.blocks with {T + 1} entries")
+            require(self.seed is None or _is_int(self.seed), f"seed must be an integer or null, got {self.seed!r}")
+            require(isinstance(frames, dict) and all(isinstance(frames.get(k), list) and len(frames[k]) == T + 1
+                                                     for k in ("agent_cell", "blocks", "goal")),
+                    f"a frames replay needs frames.agent_cell, frames.blocks and frames.goal with {T + 1} entries")
+            require(rows(frames["agent_cell"], A, lambda x: _is_int(x) and 0 <= x < cells),
+                    f"frames.agent_cell must be [T+1][2] cells in [0, {cells})")
+            digits = set(".") | {str(k) for k in range(C)}
+            require(all(isinstance(b, str) and len(b) == cells and set(b) <= digits for b in frames["blocks"]),
+                    f"frames.blocks must be strings of {cells} characters, each '.' or a color digit below {C}")
+            require(all(_is_int(g) and 0 <= g < C for g in frames["goal"]), f"frames.goal must hold colors in [0, {C})")
+            present = [name for name in columns[1:4] if getattr(self, name) is not None]
+            require(len(present) in (0, 3), "steps.block_reward, team_reward and picked_color come together "
+                                            "(all three or none)")
+            for name in columns[1:]:
+                value = getattr(self, name)
+                require(value is None or len(value) == T, f"steps.{name} must be null or a list of {T} entries")
+        if self.block_reward is not None:
+            require(rows(self.block_reward, A, _is_real), "steps.block_reward must be [T][2] numbers")
+            require(all(_is_real(r) for r in self.team_reward), "steps.team_reward must be [T] numbers")
+            require(rows(self.picked_color, A, lambda x: _is_int(x) and -1 <= x < C),
+                    f"steps.picked_color must be [T][2] integers in [-1, {C})")
+        if self.goal_switched is not None:
+            require(all(isinstance(s, bool) for s in self.goal_switched), "steps.goal_switched must be [T] booleans")
         for name, probs in self.goal_probs.items():
-            if name not in AGENTS or probs is None:
-                raise ReplayError(path, f"steps.goal_probs has an unknown agent {name!r}")
-            if len(probs) != T or any(len(p) != cfg.num_colors for p in probs):
-                raise ReplayError(path, f"steps.goal_probs.{name} must be [{T}][{cfg.num_colors}]")
+            require(name in AGENTS and probs is not None, f"steps.goal_probs has an unknown agent {name!r}")
+            require(isinstance(probs, list) and len(probs) == T and rows(probs, C, _is_real),
+                    f"steps.goal_probs.{name} must be [{T}][{C}] numbers")
+        if self.key_events is not None:
+            require(all(isinstance(k, dict) and _is_real(k.get("t_server", 0)) for k in self.key_events),
+                    "key_events must be a list of objects (t_server, when present, a number)")
+        sent = self.meta.get("state_sent_ms")
+        require(sent is None or (isinstance(sent, list) and all(_is_real(x) for x in sent)),
+                "meta.state_sent_ms must be a list of numbers")
+
+
+def _is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_real(value) -> bool:
+    """A JSON number a float can hold (parsing already refused NaN and Infinity; this refuses huge integers)."""
+    if isinstance(value, float):
+        return math.isfinite(value)
+    return _is_int(value) and abs(value) <= 2**53
+
+
+_OBJECT, _LIST, _STRING, _NUMBER, _INTEGER = "an object", "a list", "a string", "a number", "an integer"
+_DOCUMENT_FIELDS = {  # field: (what it must be, may it be null, may it be absent)
+    "env_id": (_STRING, False, False), "config": (_OBJECT, False, False), "seed": (_INTEGER, True, False),
+    "source": (_STRING, False, False), "created": (_STRING, False, False), "agents": (_OBJECT, False, False),
+    "penalty_coef": (_NUMBER, False, False), "ended": (_STRING, False, False), "steps": (_OBJECT, False, False),
+    "kind": (_STRING, False, True), "frames": (_OBJECT, True, True), "key_events": (_LIST, True, True),
+    "meta": (_OBJECT, True, True),
+}
+_STEP_FIELDS = {
+    "actions": (_LIST, True, False), "goal": (_LIST, False, False), "block_reward": (_LIST, True, False),
+    "team_reward": (_LIST, True, False), "picked_color": (_LIST, True, False), "goal_switched": (_LIST, True, False),
+    "state_hash": (_LIST, True, False), "goal_probs": (_OBJECT, True, True),
+}
+_CHECKS = {_OBJECT: lambda v: isinstance(v, dict), _LIST: lambda v: isinstance(v, list),
+           _STRING: lambda v: isinstance(v, str), _NUMBER: _is_real, _INTEGER: _is_int}
+
+
+def _check_field_types(doc: dict, fields: dict, prefix: str, path) -> None:
+    """Each field present (or absent only where allowed) with the JSON type the format gives it."""
+    for name, (what, nullable, optional) in fields.items():
+        if name not in doc:
+            if optional:
+                continue
+            raise ReplayError(path, f"required field {prefix + name!r} is missing")
+        value = doc[name]
+        if not (_CHECKS[what](value) or (nullable and value is None)):
+            shown = repr(value) if isinstance(value, (int, float, str, bool)) or value is None else type(value).__name__
+            raise ReplayError(path, f"{prefix}{name} must be {what}{' or null' if nullable else ''}, "
+                                    f"got {shown[:60]}")
 
 
 def checksum(body: dict) -> str:
@@ -179,19 +267,15 @@ def save(replay: Replay, path: str | os.PathLike) -> Path:
     return Path(path)
 
 
-def load(path: str | os.PathLike) -> Replay:
-    """Read and check a replay file; every problem raises ``ReplayError`` naming the file."""
-    path = Path(path)
+def load(path: str | os.PathLike, max_bytes: int | None = None) -> Replay:
+    """Read and check a replay file; every problem raises ``ReplayError`` naming the file.
+
+    Only regular files are read; with ``max_bytes`` a larger file is refused before it is read.
+    """
     try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise ReplayError(path, "no such file") from None
-    except OSError as err:
-        raise ReplayError(path, f"cannot be read: {err.strerror}") from None
-    try:
-        doc = json.loads(raw)
-    except (json.JSONDecodeError, UnicodeDecodeError) as err:
-        raise ReplayError(path, f"not valid JSON (truncated or corrupt?): {err}") from None
+        doc = read_json(path, max_bytes=max_bytes, max_depth=MAX_DEPTH)
+    except JSONFileError as err:
+        raise ReplayError(path, err.problem) from None
     return Replay.from_document(doc, path)
 
 
