@@ -4,41 +4,58 @@ from __future__ import annotations
 
 import asyncio
 import json
-import tempfile
+import logging
 import time
 from contextlib import asynccontextmanager
-from pathlib import Path
+from urllib.parse import urlsplit
 
 from fastapi import FastAPI, HTTPException, Query, WebSocket, WebSocketDisconnect
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from pydantic import ValidationError
+from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from colorgrid import __version__
 from colorgrid.cli_config import PRESETS
 from server.hub import GameHub, ServerFull
+from server.jobs import Busy, ReplayJobs, summaries, timeline_json
+from server.limits import AddressLimits, FloodRule, TokenBucket
 from server.protocol import CLIENT_TYPES, Key, NewGame, Ping, Quit, Rejoin, client_message, error
 from server.replays import ReplayCatalogue
 from server.settings import REPO_ROOT, ServerSettings
 
 WEB_DIR = REPO_ROOT / "web"
-CLOSE_POLICY = 1008
+CLOSE_POLICY = 1008  # a flood, or a page from an origin that is not allowed
+CLOSE_GOING_AWAY = 1001  # idle without a game
+CLOSE_RESTART = 1012  # the server is stopping (after game_over)
+CLOSE_TRY_LATER = 1013  # too many connections
+FLOOD_WINDOW_S = 5.0
+log = logging.getLogger("colorgrid.server")
 
 
 def create_app(settings: ServerSettings | None = None) -> FastAPI:
     settings = settings or ServerSettings()
     hub = GameHub(settings)
     catalogue = ReplayCatalogue(settings.replays_dir, settings.released_dir)
-    export_dir = Path(tempfile.mkdtemp(prefix="colorgrid-exports-"))
+    jobs = ReplayJobs(settings.max_exports, int(settings.export_cache_mb * 1e6))
+    max_bytes = int(settings.max_replay_mb * 1e6)
+    sockets = SocketRegistry(settings)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
         hub.start()
-        yield
-        await hub.stop()
+        warm = asyncio.create_task(jobs.warm_up())
+        try:
+            yield
+        finally:
+            warm.cancel()
+            await shutdown(app)
+            jobs.close()
 
     app = FastAPI(title="ColorGrid play server", version=__version__, lifespan=lifespan)
-    app.state.hub, app.state.settings = hub, settings
+    app.state.hub, app.state.settings, app.state.sockets = hub, settings, sockets
+    # Requests naming another host are refused (a page on another site cannot reach us by DNS rebinding).
+    app.add_middleware(TrustedHostMiddleware, allowed_hosts=settings.hosts, www_redirect=False)
 
     @app.get("/", include_in_schema=False)
     async def play_page():
@@ -62,9 +79,10 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
         def pct(q):
             return round(lateness[int(q * (len(lateness) - 1))], 2) if lateness else 0.0
 
-        return {"status": "ok", "ready": hub.ready, "version": __version__, "games": len(hub.games), "max_sessions": settings.max_sessions,
-                "tick_hz": settings.tick_hz, "tick_lateness_p50_ms": pct(0.5), "tick_lateness_p99_ms": pct(0.99),
-                **hub.stats}
+        return {"status": "ok", "ready": hub.ready, "version": __version__, "games": len(hub.games),
+                "max_sessions": settings.max_sessions, "connections": len(sockets.open),
+                "follower_pools": len(hub.pools), "tick_hz": settings.tick_hz,
+                "tick_lateness_p50_ms": pct(0.5), "tick_lateness_p99_ms": pct(0.99), **hub.stats}
 
     @app.get("/api/options")
     async def options():
@@ -73,14 +91,31 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
                 "presets": sorted(PRESETS), "default_preset": settings.preset, "modes": ["turn", "realtime"],
                 "tick_hz": settings.tick_hz, "show_belief": settings.show_belief}
 
+    async def entries() -> dict:
+        """The catalogue, scanned on a thread and summarised in the worker processes."""
+        found = await asyncio.to_thread(catalogue.scan)
+        for batch in catalogue.missing(found):
+            done = await jobs.run(summaries, [(str(e.path), e.id, e.collection) for e in batch], max_bytes)
+            for entry, summary in zip(batch, done):
+                entry.summary = summary
+        return found
+
+    async def entry_or_404(replay_id: str):
+        from server.replays import ID_PATTERN
+
+        entry = (await entries()).get(replay_id) if ID_PATTERN.match(replay_id) else None
+        if entry is None:
+            raise HTTPException(404, f"no replay with id {replay_id!r}")
+        return entry
+
     @app.get("/api/replays")
     async def list_replays(source: str | None = None, follower: str | None = None, collection: str | None = None,
                            setting: str | None = None,
                            sort: str = Query("created", pattern="^(created|team_score)$"),
                            order: str = Query("desc", pattern="^(asc|desc)$"),
                            offset: int = Query(0, ge=0), limit: int = Query(50, ge=1, le=500)):
-        """Recorded and released replays, filtered, sorted and paginated."""
-        items = [e.summary for e in catalogue.entries().values()]
+        """Recorded and released replays, filtered, sorted and paginated; broken files are listed with their error."""
+        items = [e.summary for e in (await entries()).values()]
         if source:
             items = [i for i in items if i.get("source") == source]
         if follower:
@@ -99,81 +134,110 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
         items.sort(key=key, reverse=order == "desc")
         return {"total": len(items), "offset": offset, "limit": limit, "items": items[offset:offset + limit]}
 
-    @app.get("/api/replays/{replay_id}")
+    @app.get("/api/replays/{replay_id}", responses={404: {}, 422: {}})
     async def get_replay(replay_id: str):
-        """One replay file, as stored."""
-        entry = catalogue.get(replay_id)
-        if entry is None:
-            raise HTTPException(404, f"no replay with id {replay_id!r}")
-        return JSONResponse(json.loads(entry.path.read_text()))
+        """One replay file, as stored (422 with the problem for a file that does not load)."""
+        entry = await entry_or_404(replay_id)
+        if entry.problem:
+            raise HTTPException(422, f"replay {replay_id!r} cannot be used: {entry.problem}")
+        return FileResponse(entry.path, media_type="application/json")
 
-    @app.get("/api/replays/{replay_id}/timeline")
+    @app.get("/api/replays/{replay_id}/timeline", responses={404: {}, 503: {}})
     async def replay_timeline(replay_id: str):
         """What the replay player draws: verification, one board per step, belief curves, events, key log."""
-        from colorgrid.replay import ReplayError, load
-        from colorgrid.replay.timeline import timeline
+        entry = await entry_or_404(replay_id)
+        if entry.problem:
+            return {"id": replay_id, "verified": False, "problem": entry.problem}
+        body = await jobs.run(timeline_json, str(entry.path), max_bytes)
+        return Response(b'{"id":' + json.dumps(replay_id).encode() + b"," + body[1:], media_type="application/json")
 
-        entry = catalogue.get(replay_id)
-        if entry is None:
-            raise HTTPException(404, f"no replay with id {replay_id!r}")
-        try:
-            replay = load(entry.path)
-        except ReplayError as err:
-            return {"id": replay_id, "verified": False, "problem": err.problem}
-        try:
-            data = await asyncio.get_running_loop().run_in_executor(None, timeline, replay, entry.path)
-        except ReplayError as err:
-            return {"id": replay_id, "verified": False, "problem": err.problem}
-        return {"id": replay_id, **data}
-
-    @app.get("/api/replays/{replay_id}/export")
+    @app.get("/api/replays/{replay_id}/export", responses={404: {}, 422: {}, 503: {}})
     async def export_replay(replay_id: str, format: str = Query("gif", pattern="^(gif|mp4)$")):
-        """The replay as a GIF or MP4, made on the server (cached)."""
-        from colorgrid.export import export
-        from colorgrid.replay import ReplayError, load
-
-        entry = catalogue.get(replay_id)
-        if entry is None:
-            raise HTTPException(404, f"no replay with id {replay_id!r}")
-        out = export_dir / f"{replay_id}-{int(entry.mtime)}.{format}"
-        if not out.exists():
-            try:
-                replay = load(entry.path)
-                await asyncio.get_running_loop().run_in_executor(None, export, replay, out, format)
-            except ReplayError as err:
-                raise HTTPException(422, f"replay cannot be exported: {err.problem}") from None
+        """The replay as a GIF or MP4, made on the server (cached; 503 with Retry-After while busy)."""
+        entry = await entry_or_404(replay_id)
+        if entry.problem:
+            raise HTTPException(422, f"replay cannot be exported: {entry.problem}")
+        try:
+            out = await jobs.export(entry.path, replay_id, entry.mtime, format, max_bytes)
+        except ValueError as err:
+            raise HTTPException(422, f"replay cannot be exported: {err}") from None
         media = "image/gif" if format == "gif" else "video/mp4"
         return FileResponse(out, media_type=media, filename=f"{replay_id}.{format}")
 
+    @app.exception_handler(Busy)
+    async def busy(request, err: Busy):
+        return JSONResponse({"detail": str(err)}, status_code=503, headers={"Retry-After": str(err.retry_after_s)})
+
     @app.websocket("/ws/play")
     async def play_socket(ws: WebSocket):
+        refusal = sockets.refusal(ws)
+        if refusal is not None:  # before accepting: the browser sees the handshake fail
+            log.warning("refused a play socket: %s", refusal[1])
+            await ws.close(refusal[0], refusal[1])
+            return
         await ws.accept()
-        conn = Connection(ws, settings)
+        conn = Connection(ws, settings, sockets.new_games.bucket(ws.client.host if ws.client else "?"))
+        sockets.open.add(conn)
         writer = asyncio.create_task(conn.writer())
         try:
             await conn.serve(hub)
         except WebSocketDisconnect:
             pass
         finally:
+            sockets.open.discard(conn)
             conn.closed = True
             writer.cancel()
             if conn.game is not None:
-                hub.disconnect(conn.game)
+                hub.disconnect(conn.game, conn)
 
     return app
+
+
+async def shutdown(app: FastAPI) -> None:
+    """Save every live game, tell each player (``game_over``, reason ``server_shutdown``) and then
+    close its socket. Runs before the web server closes connections; calling it again does nothing."""
+    told = await app.state.hub.stop()
+    await asyncio.gather(*(conn.close_after_sending(CLOSE_RESTART, "server shutdown") for conn in told),
+                         return_exceptions=True)
+
+
+class SocketRegistry:
+    """Who may open a play socket: allowed origins, a cap on open sockets, a game-creation rate per address."""
+
+    def __init__(self, settings: ServerSettings):
+        self.settings = settings
+        self.open: set[Connection] = set()
+        rate = settings.new_games_per_minute
+        self.new_games = AddressLimits(rate / 60.0, burst=rate)
+
+    def refusal(self, ws: WebSocket) -> tuple[int, str] | None:
+        """Why this handshake is refused (close code and reason), or None."""
+        origin = ws.headers.get("origin")
+        if origin is not None and not self.origin_allowed(origin, ws.headers.get("host", "")):
+            return CLOSE_POLICY, f"origin {origin!r} is not allowed"
+        if len(self.open) >= self.settings.max_connections:
+            return CLOSE_TRY_LATER, f"too many connections ({len(self.open)}); try again later"
+        return None
+
+    def origin_allowed(self, origin: str, host: str) -> bool:
+        """The server's own pages (the origin names the host the request went to), or a configured origin."""
+        allowed = self.settings.allowed_origins
+        if "*" in allowed or origin.rstrip("/") in allowed:
+            return True
+        parts = urlsplit(origin)
+        return parts.scheme in ("http", "https") and bool(host) and parts.netloc.lower() == host.lower()
 
 
 class Connection:
     """One browser tab's WebSocket: validation, rate limits, and an outgoing queue per socket."""
 
-    def __init__(self, ws: WebSocket, settings: ServerSettings):
-        self.ws, self.settings = ws, settings
+    def __init__(self, ws: WebSocket, settings: ServerSettings, new_games: TokenBucket):
+        self.ws, self.settings, self.new_games = ws, settings, new_games
         self.game = None
         self.closed = False
         self.outbox: asyncio.Queue = asyncio.Queue(maxsize=256)
-        self.tokens = 2 * settings.max_messages_per_s
-        self.refill_at = time.monotonic()
-        self.refused = 0
+        self.messages = TokenBucket(settings.max_messages_per_s, burst=2 * settings.max_messages_per_s)
+        self.flood = FloodRule(int(FLOOD_WINDOW_S * settings.max_messages_per_s), FLOOD_WINDOW_S)
         self.last_refusal_notice = 0.0
 
     async def send(self, message: dict) -> None:
@@ -181,35 +245,52 @@ class Connection:
             raise ConnectionError("socket closed")
         if self.outbox.full():  # a slow reader: drop the oldest queued message, keep the newest state
             self.outbox.get_nowait()
+            self.outbox.task_done()
         self.outbox.put_nowait(message)
+
+    def detach(self) -> None:
+        """Another connection took this one's game over (``rejoin``): keys from here no longer move it."""
+        self.game = None
 
     async def writer(self) -> None:
         while True:
             message = await self.outbox.get()
-            await self.ws.send_text(json.dumps(message))
+            try:
+                await self.ws.send_text(json.dumps(message, allow_nan=False))
+            finally:
+                self.outbox.task_done()
 
-    def allow(self) -> bool:
-        """Token bucket: ``max_messages_per_s`` sustained, bursts of twice that."""
-        now = time.monotonic()
-        rate = self.settings.max_messages_per_s
-        self.tokens = min(2 * rate, self.tokens + (now - self.refill_at) * rate)
-        self.refill_at = now
-        if self.tokens >= 1:
-            self.tokens -= 1
-            self.refused = 0
-            return True
-        return False
+    async def close_after_sending(self, code: int, reason: str, timeout_s: float = 2.0) -> None:
+        """Close once what is queued (the ``game_over``) has gone out, or after ``timeout_s``."""
+        try:
+            await asyncio.wait_for(self.outbox.join(), timeout_s)
+        except asyncio.TimeoutError:
+            pass
+        self.closed = True
+        try:
+            await self.ws.close(code, reason)
+        except Exception:  # already closed by the client
+            pass
+
+    async def receive(self) -> dict:
+        """The next frame; a socket with no game that stays silent for ``connection_idle_s`` is closed."""
+        if self.game is not None:
+            return await self.ws.receive()
+        try:
+            return await asyncio.wait_for(self.ws.receive(), self.settings.connection_idle_s)
+        except asyncio.TimeoutError:
+            await self.ws.close(CLOSE_GOING_AWAY, "idle: no game was started")
+            raise WebSocketDisconnect(CLOSE_GOING_AWAY) from None
 
     async def serve(self, hub: GameHub) -> None:
         while True:
-            raw = await self.ws.receive()
+            raw = await self.receive()
             if raw["type"] == "websocket.disconnect":
                 raise WebSocketDisconnect(raw.get("code", 1000))
             text = raw.get("text")
             size = len(text.encode()) if text is not None else len(raw.get("bytes") or b"")
-            if not self.allow():
-                self.refused += 1
-                if self.refused > 20 * self.settings.max_messages_per_s:
+            if not self.messages.allow():
+                if self.flood.refuse():
                     await self.ws.close(CLOSE_POLICY, "message flood")
                     raise WebSocketDisconnect(CLOSE_POLICY)
                 if time.monotonic() - self.last_refusal_notice > 1.0:
@@ -224,7 +305,11 @@ class Connection:
             if text is None:
                 await self.send(error("bad_json", "binary messages are not supported; send JSON text"))
                 continue
-            await self.handle(hub, text)
+            try:
+                await self.handle(hub, text)
+            except Exception:  # a bug must cost this message, not the connection or the game
+                log.exception("could not handle a message")
+                await self.send(error("internal", "the server could not handle this message; the game goes on"))
 
     async def handle(self, hub: GameHub, text: str) -> None:
         try:
@@ -232,9 +317,13 @@ class Connection:
         except json.JSONDecodeError as err:
             await self.send(error("bad_json", f"not valid JSON: {err.msg} at position {err.pos}"))
             return
+        except RecursionError:
+            await self.send(error("bad_json", "not accepted: JSON nested too deeply"))
+            return
         if not isinstance(data, dict) or data.get("type") not in CLIENT_TYPES:
             kind = data.get("type") if isinstance(data, dict) else None
-            await self.send(error("unknown_type", f"unknown message type {kind!r}; expected one of {list(CLIENT_TYPES)}"))
+            shown = repr(kind) if isinstance(kind, str) and len(kind) <= 40 else type(kind).__name__
+            await self.send(error("unknown_type", f"unknown message type {shown}; expected one of {list(CLIENT_TYPES)}"))
             return
         try:
             msg = client_message.validate_python(data)
@@ -254,14 +343,17 @@ class Connection:
         if isinstance(msg, Ping):
             await self.send({"type": "pong", "t_server": time.time() * 1000})
         elif isinstance(msg, (NewGame, Rejoin)):
-            if self.game is not None and self.game.game_id in hub.games:
+            if self.game is not None and hub.controls(self.game, self):
                 raise ValueError("this connection already has a live game; send quit first")
             if isinstance(msg, NewGame):
-                self.game = await hub.new_game(msg.follower, msg.preset, msg.mode, msg.horizon, msg.show_belief,
-                                               self.send)
+                if not self.new_games.allow():
+                    raise ValueError(f"too many new games from this address: at most "
+                                     f"{self.settings.new_games_per_minute:g} a minute; try again in "
+                                     f"{self.new_games.retry_after():.0f} s")
+                self.game = await hub.new_game(msg.follower, msg.preset, msg.mode, msg.horizon, msg.show_belief, self)
             else:
-                self.game = await hub.rejoin(msg.game_id, msg.token, self.send)
-        elif self.game is None or self.game.game_id not in hub.games:
+                self.game = await hub.rejoin(msg.game_id, msg.token, self)
+        elif self.game is None or not hub.controls(self.game, self):
             raise ValueError("no live game on this connection: send new_game or rejoin first")
         elif isinstance(msg, Key):
             problem = await hub.key(self.game, msg.key, msg.seq, msg.t_client)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import sys
+import time
 
 import numpy as np
 
@@ -30,8 +31,10 @@ class FollowerPool:
         self.policy.reset(config, capacity, agent_index=1, seed=seed)
         self.idle = IdleFollower()
         self.idle.reset(config, capacity, agent_index=1, seed=seed + 1)
+        self.capacity = capacity
         self.free = list(range(capacity - 1, -1, -1))
         self.busy = False  # an inference call is still running (it may outlive its deadline)
+        self.last_release = time.monotonic()
 
     def warm_up(self) -> None:
         """One call on a fresh board in a free slot, and one env step (loading the compiled kernel), so that
@@ -58,6 +61,11 @@ class FollowerPool:
 
     def release(self, slot: int) -> None:
         self.free.append(slot)
+        self.last_release = time.monotonic()
+
+    def idle_for(self) -> float:
+        """Seconds since the pool last served a game; 0 while any game uses it."""
+        return time.monotonic() - self.last_release if len(self.free) == self.capacity else 0.0
 
     def act(self, inputs: list[AgentInput], slots: list[int]) -> tuple[np.ndarray, np.ndarray | None]:
         """Actions ``[n]`` and beliefs ``[n, C]`` (or None) for the games in ``slots``."""

@@ -37,6 +37,7 @@ class Game:
     token: str = field(default_factory=lambda: secrets.token_urlsafe(18))
     created: float = field(default_factory=time.time)
     pool: object = field(default=None, repr=False)  # the FollowerPool serving this game
+    max_key_log: int = 20_000  # key presses recorded; later ones still move the leader and are counted
 
     def __post_init__(self) -> None:
         self.env = BatchEnv(self.config, num_envs=1, seed=self.seed, autoreset=False)
@@ -48,6 +49,7 @@ class Game:
         self.start = True
         self.pending: dict | None = None  # the latest key not yet applied (its key-log entry)
         self.key_log: list[dict] = []
+        self.keys_dropped = 0  # key presses past ``max_key_log`` (not recorded)
         self.state_sent_ms: list[float] = [now_ms()]  # when each state t went out (reaction times)
         self.actions: list = []
         self.goals: list = []
@@ -75,16 +77,22 @@ class Game:
         action = KEY_ACTIONS.get(key)
         if action is None:
             entry["status"] = "ignored"
-            self.key_log.append(entry)
+            self._log(entry)
             return f"key {key!r} is not a move; use the arrow keys or WASD"
         entry["action"] = action
         if self.pending is not None:
             self.pending["status"] = "superseded"
         entry["status"] = "pending"
         self.pending = entry
-        self.key_log.append(entry)
+        self._log(entry)
         self.last_key_at = time.monotonic()
         return None
+
+    def _log(self, entry: dict) -> None:
+        if len(self.key_log) < self.max_key_log:
+            self.key_log.append(entry)
+        else:
+            self.keys_dropped += 1
 
     def ready(self) -> bool:
         """Whether the world should step now: always in real time, on a pending key when turn-based."""
@@ -174,5 +182,6 @@ class Game:
             goal_probs={"follower": self.beliefs} if len(self.beliefs) == len(self.actions) and self.beliefs else {},
             state_hashes=self.hashes, ended=ended, key_events=self.key_log,
             meta={"game_id": self.game_id, "mode": self.mode, "preset": self.preset,
-                  "deadline_misses": self.deadline_misses, "state_sent_ms": self.state_sent_ms},
+                  "deadline_misses": self.deadline_misses, "state_sent_ms": self.state_sent_ms,
+                  "key_events_dropped": self.keys_dropped},
         )

@@ -7,7 +7,7 @@ import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Awaitable, Callable
+from typing import Protocol
 
 import numpy as np
 
@@ -20,7 +20,16 @@ from server.game import Game
 from server.settings import ServerSettings
 
 log = logging.getLogger("colorgrid.server")
-Sender = Callable[[dict], Awaitable[None]]
+POOL_IDLE_S = 120.0  # a follower pool with no game for this long is freed (the default follower's stay)
+
+
+class Client(Protocol):
+    """What the hub needs of a player's connection."""
+
+    async def send(self, message: dict) -> None: ...
+
+    def detach(self) -> None:
+        """The connection no longer controls its game (another connection took it over)."""
 
 
 class ServerFull(Exception):
@@ -34,17 +43,20 @@ class GameHub:
     def __init__(self, settings: ServerSettings):
         self.settings = settings
         self.games: dict[str, Game] = {}
-        self.senders: dict[str, Sender | None] = {}
+        self.clients: dict[str, Client | None] = {}  # game id -> the connection playing it (None: waiting)
+        self.reserved = 0  # new games past the session check, still loading their follower
         self.pools: dict[tuple, FollowerPool] = {}
         self._loading: dict[tuple, asyncio.Future] = {}
         self.ready = False  # the default follower and the compiled env step are loaded
         self.executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="follower")
         self.saver = ThreadPoolExecutor(max_workers=1, thread_name_prefix="replay-saver")
         self.lock = asyncio.Lock()  # one step at a time: ticks and turn-based keys never interleave
-        self.stats = {"ticks": 0, "late_ticks": 0, "max_lateness_ms": 0.0, "deadline_misses": 0, "games_saved": 0}
+        self.stats = {"ticks": 0, "late_ticks": 0, "max_lateness_ms": 0.0, "deadline_misses": 0, "games_saved": 0,
+                      "save_failures": 0}
         self.lateness_ms: list[float] = []
         self._tasks: list[asyncio.Task] = []
         self._seed_counter = int(time.time())
+        self.stopped = False
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -63,13 +75,27 @@ class GameHub:
                 log.exception("could not warm up follower %s", self.settings.follower)
         self.ready = True
 
-    async def stop(self) -> None:
+    async def stop(self) -> list[Client]:
+        """Save every live game and tell its player (``game_over``, reason ``server_shutdown``).
+
+        Returns the connections that were told, so the caller can close them once the message is
+        out. Each game is saved on its own: one that fails is logged and the rest are still saved.
+        Calling it again does nothing.
+        """
+        if self.stopped:
+            return []
+        self.stopped = True
         for task in self._tasks:
             task.cancel()
+        told = [c for c in self.clients.values() if c is not None]
         for game in list(self.games.values()):
-            await self.finish(game, "server_shutdown")
+            try:
+                await self.finish(game, "server_shutdown")
+            except Exception:
+                log.exception("could not finish game %s at shutdown", game.game_id)
         self.executor.shutdown(wait=False, cancel_futures=True)
         self.saver.shutdown(wait=True)
+        return told
 
     # ------------------------------------------------------------ sessions
     def make_config(self, preset: str, mode: str, horizon: int | None) -> EnvConfig:
@@ -101,39 +127,59 @@ class GameHub:
         return self.pools[key]
 
     async def new_game(self, follower: str | None, preset: str | None, mode: str, horizon: int | None,
-                       show_belief: bool, sender: Sender) -> Game:
+                       show_belief: bool, client: Client) -> Game:
         follower = follower or self.settings.follower
         if follower not in self.settings.followers:
             raise ValueError(f"unknown follower {follower!r}; choose one of {list(self.settings.followers)}")
-        if len(self.games) >= self.settings.max_sessions:
-            raise ServerFull(f"server full: {len(self.games)} games are running (limit {self.settings.max_sessions});"
-                             " try again in a minute")
         preset = preset or self.settings.preset
         config = self.make_config(preset, mode, horizon)
-        pool = await self.pool_for(follower, config)
+        # The session is counted before the first await, so concurrent requests never overshoot the limit.
+        running = len(self.games) + self.reserved
+        if self.stopped or running >= self.settings.max_sessions:
+            raise ServerFull(f"server full: {running} games are running (limit {self.settings.max_sessions});"
+                             " try again in a minute")
+        self.reserved += 1
+        try:
+            pool = await self.pool_for(follower, config)
+        finally:
+            self.reserved -= 1
+        if self.stopped:
+            raise ServerFull("the server is shutting down; try again in a minute")
         self._seed_counter += 1
         game = Game(config=config, mode=mode, follower=follower, preset=preset, seed=self._seed_counter,
-                    show_belief=show_belief and self.settings.show_belief, slot=pool.acquire(), pool=pool)
+                    show_belief=show_belief and self.settings.show_belief, slot=pool.acquire(), pool=pool,
+                    max_key_log=self.settings.max_key_log)
         self.games[game.game_id] = game
-        self.senders[game.game_id] = sender
-        await sender(game.welcome(self.settings.tick_hz))
-        await sender(game.state_message())
+        self.clients[game.game_id] = client
+        await client.send(game.welcome(self.settings.tick_hz))
+        await client.send(game.state_message())
         return game
 
-    async def rejoin(self, game_id: str, token: str, sender: Sender) -> Game:
+    async def rejoin(self, game_id: str, token: str, client: Client) -> Game:
+        """Give the game to ``client``; a connection that still had it is told ``replaced`` and loses it."""
         game = self.games.get(game_id)
         if game is None or not secrets_equal(game.token, token):
             raise ValueError("no game with that id and token is waiting (it may have ended or the grace period passed)")
+        previous = self.clients.get(game_id)
+        if previous is not None and previous is not client:
+            previous.detach()
+            await self._send_to(previous, {"type": "replaced", "game_id": game_id,
+                                           "message": "this game was taken over by another connection"})
         game.disconnected_at = None
         game.last_key_at = time.monotonic()
-        self.senders[game_id] = sender
-        await sender(game.welcome(self.settings.tick_hz))
-        await sender(game.state_message())
+        self.clients[game_id] = client
+        await client.send(game.welcome(self.settings.tick_hz))
+        await client.send(game.state_message())
         return game
 
-    def disconnect(self, game: Game) -> None:
-        if game.game_id in self.games:
-            self.senders[game.game_id] = None
+    def controls(self, game: Game, client: Client) -> bool:
+        """Whether ``client`` plays ``game`` now (it is live and was not taken over)."""
+        return game.game_id in self.games and self.clients.get(game.game_id) is client
+
+    def disconnect(self, game: Game, client: Client) -> None:
+        """``client`` closed: its game waits for a rejoin (a connection that was replaced changes nothing)."""
+        if self.controls(game, client):
+            self.clients[game.game_id] = None
             game.disconnected_at = time.monotonic()
 
     async def key(self, game: Game, key: str, seq: int, t_client: float) -> str | None:
@@ -161,7 +207,7 @@ class GameHub:
             for g in games:
                 await self._send(g, g.state_message())
                 if g.finished:
-                    await self.finish(g, "complete")
+                    await self.finish(g, "complete")  # never raises: one game's failure is its own
 
     async def _infer(self, pool: FollowerPool, inputs, slots):
         """Run the pool within the deadline; on a miss, fall back to idle moves and say so."""
@@ -209,49 +255,67 @@ class GameHub:
     async def _sweep_loop(self) -> None:
         while True:
             await asyncio.sleep(0.5)
-            now = time.monotonic()
-            for game in list(self.games.values()):
-                if game.disconnected_at is not None and now - game.disconnected_at > self.settings.rejoin_grace_s:
-                    await self.finish(game, "disconnected")
-                elif now - game.last_key_at > self.settings.idle_timeout_s:
-                    await self.finish(game, "idle")
+            try:
+                await self.sweep()
+            except Exception:  # the sweeper must outlive any bug: later games still need saving
+                log.exception("sweep failed")
+
+    async def sweep(self) -> None:
+        """End games abandoned past the rejoin grace or idle too long, and free follower pools nobody uses."""
+        now = time.monotonic()
+        for game in list(self.games.values()):
+            if game.disconnected_at is not None and now - game.disconnected_at > self.settings.rejoin_grace_s:
+                await self.finish(game, "disconnected")
+            elif now - game.last_key_at > self.settings.idle_timeout_s:
+                await self.finish(game, "idle")
+        for key, pool in list(self.pools.items()):
+            if key[0] != self.settings.follower and pool.idle_for() > POOL_IDLE_S:
+                del self.pools[key]
 
     # ------------------------------------------------------------ ending
     async def finish(self, game: Game, reason: str) -> None:
-        """Save the game's replay (atomically) and tell the player; idempotent."""
+        """Save the game's replay (atomically) and tell the player; idempotent, and never raises:
+        a game that cannot be saved is logged and counted, and its player still gets ``game_over``."""
         if self.games.pop(game.game_id, None) is None:
             return
         game.finished = True
         game.pool.release(game.slot)
-        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime(game.created))
-        replay_id = f"play-{stamp}-{game.game_id}"
         if game.actions:
-            replay = game.to_replay("complete" if reason == "complete" else reason,
-                                    describe_agent(game.pool.policy.describe(),
-                                                   game.follower if game.follower.endswith(".pt") else None))
-            # Written (atomically, fsynced) on a worker thread so saving never stalls the tick.
-            path = Path(self.settings.replays_dir) / f"{replay_id}.replay.json"
-            await asyncio.get_running_loop().run_in_executor(self.saver, save, replay, path)
-            game.replay_id = replay_id
-            self.stats["games_saved"] += 1
-        sender = self.senders.pop(game.game_id, None)
-        if sender is not None:
+            try:
+                await self._save(game, reason)
+            except Exception:
+                self.stats["save_failures"] += 1
+                log.exception("could not save game %s (%s)", game.game_id, reason)
+        client = self.clients.pop(game.game_id, None)
+        if client is not None:
             s = game.env.state
-            await self._send_to(sender, {
+            await self._send_to(client, {
                 "type": "game_over", "reason": reason, "replay_id": game.replay_id, "steps": int(s.t[0]),
                 "scores": {"team": float(s.score[0].sum()), "leader": float(s.score[0, 0]),
                            "follower": float(s.score[0, 1])},
             })
 
+    async def _save(self, game: Game, reason: str) -> None:
+        stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime(game.created))
+        replay_id = f"play-{stamp}-{game.game_id}"
+        replay = game.to_replay("complete" if reason == "complete" else reason,
+                                describe_agent(game.pool.policy.describe(),
+                                               game.follower if game.follower.endswith(".pt") else None))
+        # Written (atomically, fsynced) on a worker thread so saving never stalls the tick.
+        path = Path(self.settings.replays_dir) / f"{replay_id}.replay.json"
+        await asyncio.get_running_loop().run_in_executor(self.saver, save, replay, path)
+        game.replay_id = replay_id
+        self.stats["games_saved"] += 1
+
     async def _send(self, game: Game, message: dict) -> None:
-        sender = self.senders.get(game.game_id)
-        if sender is not None:
-            await self._send_to(sender, message)
+        client = self.clients.get(game.game_id)
+        if client is not None:
+            await self._send_to(client, message)
 
     @staticmethod
-    async def _send_to(sender: Sender, message: dict) -> None:
+    async def _send_to(client: Client, message: dict) -> None:
         try:
-            await sender(message)
+            await client.send(message)
         except Exception:  # a closed socket: the disconnect handler takes care of the game
             pass
 

@@ -19,7 +19,8 @@ KEY_ACTIONS = {
 
 
 class _Message(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    # NaN and infinities (JSON's NaN/Infinity, or 1e400) are refused: a replay must stay valid JSON
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
 class NewGame(_Message):
@@ -46,8 +47,8 @@ class Key(_Message):
 
     type: Literal["key"]
     key: str = Field(max_length=32)
-    seq: int = Field(ge=0)
-    t_client: float = 0.0
+    seq: int = Field(ge=0, le=2**53)
+    t_client: float = Field(default=0.0, ge=-1e15, le=1e15)
 
 
 class Ping(_Message):

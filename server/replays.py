@@ -1,14 +1,23 @@
-"""The replay catalogue served under /api/replays: ids only, never paths from the request."""
+"""The replay catalogue served under /api/replays: ids only, never paths from the request.
+
+Only regular files inside the two folders are listed: symbolic links (to files or folders)
+are skipped, so nothing outside the replay folders is ever read. Summaries are made in the
+worker processes (``server.jobs``) and cached by file version.
+"""
 
 from __future__ import annotations
 
+import os
 import re
+import stat
 from dataclasses import dataclass
 from pathlib import Path
 
 from colorgrid.replay import ReplayError, load
 
 ID_PATTERN = re.compile(r"^[A-Za-z0-9_.+-]{1,200}$")
+SUFFIX = ".replay.json"
+BATCH = 200  # files summarised per worker call
 
 
 @dataclass
@@ -17,11 +26,17 @@ class Entry:
     path: Path
     collection: str  # "recorded" or "released"
     mtime: float
-    summary: dict
+    size: int
+    summary: dict | None = None
+
+    @property
+    def problem(self) -> str | None:
+        """Why the file cannot be used, or None."""
+        return None if self.summary is None else self.summary.get("error")
 
 
 class ReplayCatalogue:
-    """Scans the recordings folder and the released set; caches each file's summary by mtime."""
+    """Scans the recordings folder and the released set; caches each file's summary by version."""
 
     def __init__(self, recorded_dir: Path, released_dir: Path | None):
         self.roots = [("recorded", Path(recorded_dir))]
@@ -29,35 +44,54 @@ class ReplayCatalogue:
             self.roots.append(("released", Path(released_dir)))
         self.cache: dict[Path, Entry] = {}
 
-    def entries(self) -> dict[str, Entry]:
+    def scan(self) -> dict[str, Entry]:
+        """Every replay file by id (file system calls only: run it off the event loop). Entries whose
+        file changed since the last scan come back with ``summary`` None."""
         out: dict[str, Entry] = {}
         for collection, root in self.roots:
-            if not root.is_dir():
-                continue
-            for path in root.rglob("*.replay.json"):
-                rel = path.relative_to(root).as_posix()[: -len(".replay.json")]
-                replay_id = (("released--" if collection == "released" else "") + rel.replace("/", "--"))
+            for path, info in regular_files(root):
+                rel = path.relative_to(root).as_posix()[: -len(SUFFIX)]
+                replay_id = ("released--" if collection == "released" else "") + rel.replace("/", "--")
                 if not ID_PATTERN.match(replay_id):
                     continue
-                mtime = path.stat().st_mtime
                 cached = self.cache.get(path)
-                if cached is None or cached.mtime != mtime:
-                    cached = Entry(replay_id, path, collection, mtime, summarize(path, replay_id, collection))
+                if cached is None or (cached.mtime, cached.size) != (info.st_mtime, info.st_size):
+                    cached = Entry(replay_id, path, collection, info.st_mtime, info.st_size)
                     self.cache[path] = cached
                 out[replay_id] = cached
+        for gone in set(self.cache) - {e.path for e in out.values()}:
+            del self.cache[gone]
         return out
 
-    def get(self, replay_id: str) -> Entry | None:
-        if not ID_PATTERN.match(replay_id):
-            return None
-        return self.entries().get(replay_id)
+    def missing(self, entries: dict[str, Entry]) -> list[list[Entry]]:
+        """Entries without a summary, in batches for the workers."""
+        todo = [e for e in entries.values() if e.summary is None]
+        return [todo[i:i + BATCH] for i in range(0, len(todo), BATCH)]
 
 
-def summarize(path: Path, replay_id: str, collection: str) -> dict:
+def regular_files(root: Path):
+    """``(path, stat)`` of every ``*.replay.json`` regular file under ``root``, never following links."""
+    if not root.is_dir():
+        return
+    for folder, dirs, files in os.walk(root, followlinks=False):
+        dirs.sort()
+        for name in sorted(files):
+            if not name.endswith(SUFFIX):
+                continue
+            path = Path(folder) / name
+            try:
+                info = path.lstat()
+            except OSError:
+                continue
+            if stat.S_ISREG(info.st_mode):
+                yield path, info
+
+
+def summarize(path: Path, replay_id: str, collection: str, max_bytes: int | None = None) -> dict:
     """What the list shows for one file; a file that does not load is listed with its error."""
     base = {"id": replay_id, "collection": collection, "file": path.name}
     try:
-        replay = load(path)
+        replay = load(path, max_bytes=max_bytes)
     except ReplayError as err:
         return {**base, "error": err.problem}
     cfg = replay.config

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from colorgrid.cli_config import PRESETS
@@ -45,7 +45,29 @@ class ServerSettings:
     """Sustained client message rate; bursts up to twice this are allowed, the rest refused."""
     show_belief: bool = True
     """Send the follower's belief to the page (an experiment may turn it off for everyone)."""
-    extra: dict = field(default_factory=dict)
+    allowed_hosts: tuple[str, ...] = ("127.0.0.1", "localhost", "[::1]")
+    """``Host`` headers the server answers (against DNS rebinding); the listening host is always allowed;
+    ``"*"`` allows any (behind a proxy that checks it)."""
+    allowed_origins: tuple[str, ...] = ()
+    """Web origins (``https://study.example.org``) whose pages may open the play WebSocket besides the
+    server's own; ``"*"`` allows any. Clients that send no ``Origin`` (not browsers) are not affected."""
+    max_connections: int = 400
+    """Open play WebSockets; the next one is refused (close code 1013, try again later)."""
+    connection_idle_s: float = 60.0
+    """A play WebSocket with no game that sends nothing for this long is closed."""
+    new_games_per_minute: float = 30.0
+    """Games one client address may start per minute (bursts of the same number)."""
+    max_replay_mb: float = 50.0
+    """Replay files larger than this are listed with an error and never loaded by the server."""
+    max_exports: int = 2
+    """GIF/MP4 exports made at once; further requests get 503 with Retry-After."""
+    export_cache_mb: float = 200.0
+    """Exported files kept for repeat downloads (least recently used removed first; all removed at exit)."""
+    max_key_log: int = 20_000
+    """Key presses recorded per game; later ones still move the leader and are counted in
+    ``meta.key_events_dropped``."""
+    header_timeout_s: float = 10.0
+    """An HTTP request whose headers are not complete this long after it began is closed."""
 
     def __post_init__(self) -> None:
         if not isinstance(self.port, int) or not 0 <= self.port <= 65535:
@@ -57,9 +79,29 @@ class ServerSettings:
         if not isinstance(self.max_sessions, int) or self.max_sessions < 1:
             raise ValueError(f"max_sessions must be a positive integer, got {self.max_sessions!r}")
         for name in ("rejoin_grace_s", "idle_timeout_s", "inference_deadline_ms", "max_messages_per_s"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"{name} must be > 0, got {getattr(self, name)!r}")
+            if not 0 < getattr(self, name) < float("inf"):
+                raise ValueError(f"{name} must be a finite number > 0, got {getattr(self, name)!r}")
+        for name in ("connection_idle_s", "new_games_per_minute", "max_replay_mb", "export_cache_mb",
+                     "header_timeout_s"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < float("inf"):
+                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
+        for name in ("max_connections", "max_exports", "max_key_log"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+        for name in ("allowed_hosts", "allowed_origins"):
+            value = getattr(self, name)
+            if not isinstance(value, tuple) or not all(isinstance(v, str) and v for v in value):
+                raise ValueError(f"{name} must be a tuple of non-empty strings, got {value!r}")
         if not 256 <= self.max_message_bytes <= 1 << 20:
             raise ValueError(f"max_message_bytes must be in [256, 1048576], got {self.max_message_bytes!r}")
         if self.follower not in self.followers:
             object.__setattr__(self, "followers", (self.follower, *self.followers))
+
+    @property
+    def hosts(self) -> list[str]:
+        """Every ``Host`` the server answers: the allowed ones and the host it listens on."""
+        listen = f"[{self.host}]" if ":" in self.host else self.host
+        extra = [] if self.host in ("0.0.0.0", "::") else [listen]
+        return list(dict.fromkeys([*self.allowed_hosts, *extra]))

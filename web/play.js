@@ -28,7 +28,7 @@ function connect(firstMessage) {
   socket.onopen = () => socket.send(JSON.stringify(firstMessage));
   socket.onmessage = (event) => onMessage(JSON.parse(event.data));
   socket.onclose = () => {
-    if (game && !game.over) {
+    if (game && !game.over && !game.replaced) {
       status("connection lost: rejoining...", "warn");
       setTimeout(() => connect({ type: "rejoin", game_id: game.game_id, token: game.token }), 1000);
     }
@@ -60,6 +60,9 @@ function onMessage(msg) {
     status(msg.reason === "complete" ? "game over" : `game ended: ${msg.reason}`);
   } else if (msg.type === "error") {
     status(`${msg.code}: ${msg.message}`, "error");
+  } else if (msg.type === "replaced") {
+    game.replaced = true;  // another tab rejoined this game: it plays there now, so do not take it back
+    status("this game continues in another tab or window", "warn");
   } else if (msg.type === "full") {
     status(msg.message, "error");
     game = null;

@@ -1,0 +1,171 @@
+"""Replay work off the event loop: loading, verifying and exporting run in low-priority worker processes.
+
+Parsing a large JSON file or drawing a video holds Python's GIL for seconds; in a thread of
+the server's own process that would stall the real-time tick and the follower's inference.
+Worker processes (``nice`` 10, so the server's own threads win the CPU) do it instead, and
+hand back small results: a summary, a problem, JSON bytes, or a file written to the cache.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import multiprocessing
+import os
+import shutil
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+log = logging.getLogger("colorgrid.server")
+CACHE_PREFIX = "colorgrid-exports-"
+
+
+class Busy(Exception):
+    """Too much replay work is already running; the client should retry later."""
+
+    def __init__(self, what: str, retry_after_s: int = 5):
+        super().__init__(f"the server is busy with {what}; retry in {retry_after_s} s")
+        self.retry_after_s = retry_after_s
+
+
+# ---------------------------------------------------------------- in the worker processes
+def _lower_priority() -> None:
+    try:
+        os.nice(10)
+    except OSError:  # not allowed here: run at normal priority
+        pass
+
+
+def summaries(files: list[tuple[str, str, str]], max_bytes: int) -> list[dict]:
+    """``summarize`` for each ``(path, replay_id, collection)``."""
+    from server.replays import summarize
+
+    out = []
+    for p, replay_id, collection in files:
+        try:
+            out.append(summarize(Path(p), replay_id, collection, max_bytes))
+        except Exception as err:  # a file no check foresaw: listed as broken, the rest still summarised
+            out.append({"id": replay_id, "collection": collection, "file": Path(p).name,
+                        "error": f"cannot be read: {type(err).__name__}"})
+    return out
+
+
+def timeline_json(path: str, max_bytes: int) -> bytes:
+    """What the replay player draws, as JSON bytes (``verified: false`` with the problem if it does not load)."""
+    from colorgrid.replay import ReplayError, load
+    from colorgrid.replay.timeline import timeline
+
+    try:
+        replay = load(path, max_bytes=max_bytes)
+        data = timeline(replay, path)
+    except ReplayError as err:
+        data = {"verified": False, "problem": err.problem}
+    return json.dumps(data, separators=(",", ":"), allow_nan=False).encode()
+
+
+def export_file(path: str, out: str, fmt: str, max_bytes: int) -> str | None:
+    """Export the replay at ``path`` to ``out``; returns the problem if it cannot be exported."""
+    from colorgrid.export import export
+    from colorgrid.replay import ReplayError, load
+
+    try:
+        export(load(path, max_bytes=max_bytes), out, fmt, path=path)
+    except ReplayError as err:
+        return err.problem
+    return None
+
+
+def _ready() -> bool:
+    return True
+
+
+# ---------------------------------------------------------------- in the server
+class ReplayJobs:
+    """A small pool of worker processes, a cap on concurrent exports, and a bounded export cache."""
+
+    def __init__(self, max_exports: int, cache_bytes: int, workers: int = 2, max_queued: int = 32):
+        self.pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                        initializer=_lower_priority)
+        self.workers, self.max_exports, self.cache_bytes, self.max_queued = workers, max_exports, cache_bytes, max_queued
+        self.exporting = 0
+        self.queued = 0
+        remove_stale_caches()
+        self.cache_dir = Path(tempfile.mkdtemp(prefix=f"{CACHE_PREFIX}{os.getpid()}-"))
+        self._exports: dict[Path, asyncio.Future] = {}
+
+    async def run(self, fn, *args):
+        """``fn(*args)`` in a worker process; ``Busy`` when too much is queued already."""
+        if self.queued >= self.max_queued:
+            raise Busy("replay requests")
+        self.queued += 1
+        try:
+            return await asyncio.wrap_future(self.pool.submit(fn, *args))
+        finally:
+            self.queued -= 1
+
+    async def warm_up(self) -> None:
+        """Start the workers before anyone waits on them."""
+        await asyncio.gather(*(self.run(_ready) for _ in range(self.workers)))
+
+    async def export(self, path: Path, replay_id: str, mtime: float, fmt: str, max_bytes: int) -> Path:
+        """The exported file, from the cache or made now; ``ValueError`` with the problem; ``Busy`` past the cap."""
+        out = self.cache_dir / f"{replay_id}-{int(mtime)}.{fmt}"
+        if out.exists():
+            os.utime(out)  # recently used: evicted last
+            return out
+        running = self._exports.get(out)
+        if running is None:
+            if self.exporting >= self.max_exports:
+                raise Busy(f"{self.exporting} exports", retry_after_s=10)
+            self.exporting += 1
+            running = asyncio.ensure_future(self.run(export_file, str(path), str(out), fmt, max_bytes))
+            self._exports[out] = running
+            running.add_done_callback(lambda _: self._export_done(out))
+        problem = await asyncio.shield(running)
+        if problem is not None:
+            raise ValueError(problem)
+        return out
+
+    def _export_done(self, out: Path) -> None:
+        self.exporting -= 1
+        self._exports.pop(out, None)
+        try:
+            self.trim_cache()
+        except OSError:
+            log.exception("could not trim the export cache")
+
+    def trim_cache(self) -> None:
+        """Remove the least recently used exports until the cache fits its budget."""
+        files = [(p.stat().st_mtime, p.stat().st_size, p) for p in self.cache_dir.iterdir() if p.is_file()]
+        total = sum(size for _, size, _ in files)
+        for _, size, path in sorted(files):
+            if total <= self.cache_bytes:
+                break
+            if path not in self._exports:
+                path.unlink(missing_ok=True)
+                total -= size
+
+    def close(self) -> None:
+        self.pool.shutdown(wait=False, cancel_futures=True)
+        shutil.rmtree(self.cache_dir, ignore_errors=True)
+
+
+def remove_stale_caches() -> None:
+    """Export caches left by server processes that no longer run (killed before they could clean up)."""
+    for folder in Path(tempfile.gettempdir()).glob(f"{CACHE_PREFIX}*"):
+        pid = folder.name[len(CACHE_PREFIX):].split("-", 1)[0]
+        if pid.isdigit() and not _alive(int(pid)) and time.time() - folder.stat().st_mtime > 60:
+            shutil.rmtree(folder, ignore_errors=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True

@@ -1,0 +1,80 @@
+"""Running the play server: uvicorn with a graceful shutdown that saves games first, and slow-client timeouts."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+
+import uvicorn
+from uvicorn.protocols.http.httptools_impl import HttpToolsProtocol
+
+from server.app import create_app, shutdown
+from server.settings import ServerSettings
+
+
+class HeaderTimeoutProtocol(HttpToolsProtocol):
+    """HTTP/1.1 that closes a connection whose request headers are not complete in time.
+
+    uvicorn bounds idle keep-alive connections, but not a request that arrives a byte at a
+    time ("slowloris"): each such connection would stay open for ever.
+    """
+
+    header_timeout_s = 10.0
+
+    def connection_made(self, transport) -> None:  # type: ignore[override]
+        super().connection_made(transport)
+        self._arm()
+
+    def on_message_begin(self) -> None:
+        super().on_message_begin()
+        self._arm()
+
+    def on_headers_complete(self) -> None:
+        self._disarm()
+        super().on_headers_complete()
+
+    def connection_lost(self, exc) -> None:
+        self._disarm()
+        super().connection_lost(exc)
+
+    def _arm(self) -> None:
+        self._disarm()
+        self._header_timer = self.loop.call_later(self.header_timeout_s, self._headers_too_slow)
+
+    def _disarm(self) -> None:
+        timer = getattr(self, "_header_timer", None)
+        if timer is not None:
+            timer.cancel()
+            self._header_timer = None
+
+    def _headers_too_slow(self) -> None:
+        self._header_timer = None
+        if not self.transport.is_closing():
+            self.transport.close()
+
+
+class PlayServer(uvicorn.Server):
+    """On SIGTERM/Ctrl+C: stop accepting, save every live game and send each player its ``game_over``
+    (with the replay id), close those sockets, and only then let uvicorn close the rest."""
+
+    def __init__(self, config: uvicorn.Config, app):
+        super().__init__(config)
+        self.play_app = app
+
+    async def shutdown(self, sockets=None) -> None:
+        for server in self.servers:
+            server.close()
+        try:
+            await asyncio.wait_for(shutdown(self.play_app), 30)
+        except Exception:  # never skip uvicorn's own shutdown
+            logging.getLogger("colorgrid.server").exception("saving games at shutdown failed")
+        await super().shutdown(sockets)
+
+
+def serve(settings: ServerSettings, log_level: str = "info") -> None:
+    """Run the play server until interrupted."""
+    app = create_app(settings)
+    protocol = type("Protocol", (HeaderTimeoutProtocol,), {"header_timeout_s": settings.header_timeout_s})
+    config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=log_level, ws_max_size=65536,
+                            http=protocol, timeout_graceful_shutdown=10)
+    PlayServer(config, app).run()
