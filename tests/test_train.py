@@ -2,8 +2,11 @@
 
 import json
 import math
+import os
+import re
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 import torch
@@ -336,19 +339,70 @@ def test_model_card_evaluates_against_the_baselines_on_the_same_seeds(tmp_path):
 
 
 # --------------------------------------------------------- shipped agents
-def test_the_shipped_follower_assists_the_astar_leader():
-    """The bar for the shipped follower: net pickups clearly positive (95% interval above zero)."""
+CARDS = Path(__file__).resolve().parents[1] / "checkpoints"
+
+
+def card_report(card: str, leader: str, follower: str) -> dict:
+    """The evaluation a model card was written from (its JSON beside the card)."""
+    for report in json.loads((CARDS / f"{card}.json").read_text())["reports"]:
+        if (report["leader"].get("checkpoint") or report["leader"]["policy"]) == leader and \
+                (report["follower"].get("checkpoint") or report["follower"]["policy"]) == follower:
+            return report
+    raise AssertionError(f"{card}.json has no report for {leader} + {follower}")
+
+
+def assert_reproduces(report: dict, card: dict) -> None:
+    """Every action is the card's (so every count is), and the float32 belief log-loss within 1e-5.
+
+    Policies act on float32 network outputs, which differ in their last bits between CPU kernels
+    (ATEN_CPU_CAPABILITY, MKL/oneDNN paths, thread counts); a sampled action would only change if
+    its uniform draw fell within about 1e-7 of a boundary. The log-loss is a float32 mean of
+    12,800 terms: its rounding error is a few ulp times log2(12,800) ~ 14, well under 1e-5.
+    """
+    for agent, metrics in card["agents"].items():
+        got = dict(report["agents"][agent])
+        belief, expected = got.pop("belief", None), dict(metrics)
+        expected_belief = expected.pop("belief", None)
+        assert got == expected, agent
+        if expected_belief is not None:
+            assert belief["accuracy"] == expected_belief["accuracy"]
+            assert belief["log_loss"] == pytest.approx(expected_belief["log_loss"], rel=1e-5)
+    assert report["team_reward"] == card["team_reward"]
+
+
+def test_the_shipped_follower_reproduces_its_card_and_assists_the_astar_leader():
+    """The card's own command, and the bar: net pickups clearly positive (95% interval above zero)."""
     from colorgrid.evaluate import evaluate
 
-    report = evaluate(EnvConfig(), "astar", "ippo", episodes=100, seed=0)
+    report = evaluate(EnvConfig(), "astar", str(CARDS / "follower.pt"), episodes=100, seed=0)
+    assert_reproduces(report, card_report("follower", "astar", "checkpoints/follower.pt"))
     net = report["agents"]["follower"]["net_pickups"]
     assert net["mean"] - net["ci95"] > 0, net
     assert report["agents"]["follower"]["belief"]["accuracy"] > 0.5
 
 
-def test_the_shipped_leader_collects_goal_blocks():
+def test_the_shipped_leader_reproduces_its_card_and_collects_goal_blocks():
     from colorgrid.evaluate import evaluate
 
-    report = evaluate(EnvConfig(), "ippo-leader", "idle", episodes=50, seed=0)
+    report = evaluate(EnvConfig(), str(CARDS / "leader.pt"), "bayes", episodes=100, seed=0)
+    assert_reproduces(report, card_report("leader", "checkpoints/leader.pt", "bayes"))
     net = report["agents"]["leader"]["net_pickups"]
     assert net["mean"] - net["ci95"] > 0, net
+
+
+EXACT_TRAINING_TESTS = ["test_fast_encoder_patches", "test_lstm_log_probs_recomputed",
+                        "test_resume_continues_exactly", "test_two_learners_updating_side_by_side"]
+
+
+@pytest.mark.skipif(os.environ.get("COLORGRID_SECOND_CPU_PATH") == "1", reason="this is the second run itself")
+def test_exact_training_tests_also_hold_on_a_second_cpu_path():
+    """The float-exact training tests again in a fresh process on other CPU kernels (ATEN_CPU_CAPABILITY)
+    and one torch thread, so that a dependence on the CPU path shows up on any machine."""
+    current = torch.backends.cpu.get_cpu_capability().lower()
+    other = "default" if current != "default" else "avx2"
+    env = {**os.environ, "ATEN_CPU_CAPABILITY": other, "OMP_NUM_THREADS": "1", "COLORGRID_SECOND_CPU_PATH": "1"}
+    done = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", __file__,
+                           "-k", " or ".join(EXACT_TRAINING_TESTS)], capture_output=True, text=True, env=env,
+                          timeout=600, cwd=CARDS.parent)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]
+    assert re.search(r"\b6 passed", done.stdout) and "failed" not in done.stdout, done.stdout[-2000:]

@@ -71,7 +71,9 @@ def model_card(checkpoint: str, agent: str, run_dir: str | None, command: str, e
         *(_row(r, agent) for r in reports),
         "",
         f"Reproduce: `colorgrid eval --leader {rows[-1][0]} --follower {rows[-1][1]} --episodes {episodes} "
-        f"--seed {seed}`.",
+        f"--seed {seed}`. Every action, and so every count, reproduces on another CPU too, unless a sampled "
+        "uniform falls within about 1e-7 of a probability boundary; the log-loss's last float32 digits may differ "
+        "(docs/TRAINING.md, \"What is exact, and where\").",
     ]
     return "\n".join(lines) + "\n", {"rows": [list(r) for r in rows], "reports": reports}
 
