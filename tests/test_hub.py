@@ -1,0 +1,137 @@
+"""The game hub in-process (real games, pools, files): one game's failure is its own, the sweeper
+outlives bugs, unused follower pools are freed, the key log is capped."""
+
+import asyncio
+import time
+
+import pytest
+
+from colorgrid.replay import load, verify
+from server import hub as hub_module
+from server.hub import GameHub
+from server.settings import ServerSettings
+
+
+class Inbox:
+    """A player's connection as the hub sees it: it receives messages."""
+
+    def __init__(self):
+        self.messages, self.detached = [], False
+
+    async def send(self, message: dict) -> None:
+        self.messages.append(message)
+
+    def detach(self) -> None:
+        self.detached = True
+
+    def last(self, kind: str) -> dict:
+        return [m for m in self.messages if m["type"] == kind][-1]
+
+
+def make_hub(tmp_path, **changes) -> GameHub:
+    return GameHub(ServerSettings(replays_dir=tmp_path, follower="copy", **changes))
+
+
+async def start(hub, follower=None, horizon=20):
+    client = Inbox()
+    game = await hub.new_game(follower, None, "turn", horizon, True, client)
+    return game, client
+
+
+def test_a_game_that_cannot_be_saved_costs_no_other_game(tmp_path, caplog):
+    async def scenario():
+        hub = make_hub(tmp_path)
+        (broken, broken_client), (good, good_client) = await start(hub), await start(hub)
+        for game in (broken, good):
+            await hub.key(game, "ArrowUp", 0, 0.0)
+
+        def fail(*args, **kwargs):
+            raise RuntimeError("a bug while building the replay")
+
+        broken.to_replay = fail
+        await hub.stop()
+        return hub, broken_client, good_client
+
+    hub, broken_client, good_client = asyncio.run(scenario())
+    assert hub.stats["save_failures"] == 1 and hub.stats["games_saved"] == 1
+    assert "could not save game" in caplog.text
+    assert broken_client.last("game_over")["replay_id"] is None  # told, even though it was not saved
+    over = good_client.last("game_over")
+    assert over["reason"] == "server_shutdown"
+    assert verify(load(tmp_path / f"{over['replay_id']}.replay.json")).ok
+
+
+def test_the_sweeper_outlives_an_exception_and_still_saves_abandoned_games(tmp_path, monkeypatch):
+    async def scenario():
+        hub = make_hub(tmp_path, rejoin_grace_s=0.1)
+        game, client = await start(hub)
+        await hub.key(game, "ArrowUp", 0, 0.0)
+        hub.disconnect(game, client)
+        real, calls = hub.sweep, []
+
+        async def flaky():
+            calls.append(1)
+            if len(calls) == 1:
+                raise RuntimeError("a bug in one sweep")
+            await real()
+
+        hub.sweep = flaky
+        hub._tasks = [asyncio.create_task(hub._sweep_loop())]
+        end = time.monotonic() + 10
+        while hub.games and time.monotonic() < end:
+            await asyncio.sleep(0.1)
+        await hub.stop()
+        return hub, calls
+
+    hub, calls = asyncio.run(scenario())
+    assert len(calls) >= 2 and not hub.games
+    saved = list(tmp_path.glob("*.replay.json"))
+    assert len(saved) == 1 and load(saved[0]).ended == "disconnected"
+
+
+def test_follower_pools_nobody_uses_are_freed_but_the_default_stays(tmp_path):
+    async def scenario():
+        hub = make_hub(tmp_path)
+        for follower in ("copy", "bayes"):
+            game, _ = await start(hub, follower)
+            await hub.finish(game, "quit")
+        assert len(hub.pools) == 2
+        await hub.sweep()
+        assert len(hub.pools) == 2  # just used: kept
+        for pool in hub.pools.values():
+            pool.last_release -= hub_module.POOL_IDLE_S + 1
+        busy, _ = await start(hub, "oracle")
+        list(hub.pools.values())[-1].last_release -= hub_module.POOL_IDLE_S + 1  # idle long, but a game runs
+        await hub.sweep()
+        kept = sorted(key[0] for key in hub.pools)
+        await hub.stop()
+        return kept
+
+    assert asyncio.run(scenario()) == ["copy", "oracle"]
+
+
+def test_the_key_log_is_capped_and_the_dropped_keys_are_counted(tmp_path):
+    async def scenario():
+        hub = make_hub(tmp_path, max_key_log=3)
+        game, client = await start(hub, horizon=5)
+        for seq in range(5):
+            await hub.key(game, ["ArrowUp", "ArrowLeft"][seq % 2], seq, 0.0)
+        return client
+
+    client = asyncio.run(scenario())
+    over = client.last("game_over")
+    replay = load(tmp_path / f"{over['replay_id']}.replay.json")
+    assert verify(replay).ok and replay.num_steps == 5  # every key still moved the leader
+    assert [e["seq"] for e in replay.key_events] == [0, 1, 2]
+    assert replay.meta["key_events_dropped"] == 2
+
+
+@pytest.mark.parametrize("changes, words", [
+    ({"max_connections": 0}, "max_connections must be a positive integer"),
+    ({"connection_idle_s": float("nan")}, "connection_idle_s must be a finite number > 0"),
+    ({"allowed_origins": ("",)}, "allowed_origins must be a tuple of non-empty strings"),
+    ({"idle_timeout_s": float("inf")}, "idle_timeout_s must be a finite number > 0"),
+])
+def test_settings_refuse_what_would_break_the_server(changes, words):
+    with pytest.raises(ValueError, match=words):
+        ServerSettings(**changes)
