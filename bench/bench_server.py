@@ -1,6 +1,7 @@
 """Load on the play server: N concurrent scripted players in real time over WebSockets on loopback.
 
 Usage: python bench/bench_server.py [--players 100] [--seconds 20] [--tick-hz 5] [--follower bayes]
+                                   [--exports 8] [--large-replays]
 
 Starts ``colorgrid play`` on a free loopback port, connects N players (real-time games
 that last the whole run), each pressing a random move key about 3 times a second, then
@@ -8,6 +9,11 @@ quits them all. Prints tick lateness p50/p99 (server side), key-to-applied laten
 (client side: key sent -> first state that reports it applied), follower deadline
 misses, the server's CPU use, and whether every game was saved. Bounded: N connections,
 ``--seconds`` of play, loopback only.
+
+``--exports K`` keeps K GIF/MP4 exports of distinct replays in flight for the whole run (the
+server runs with ``--max-exports K``); ``--large-replays`` puts a 150 MB file (over the
+server's limit) and a 40 MB replay (under it) in the recordings folder and requests both,
+list, file and timeline, over and over. Both measure whether live games stay on time.
 """
 
 from __future__ import annotations
@@ -23,6 +29,7 @@ import subprocess
 import sys
 import tempfile
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 
@@ -73,14 +80,64 @@ async def player(url: str, seconds: float, latencies: list, results: list, rng: 
         await presser
 
 
+def http_status(url: str) -> int:
+    try:
+        with urllib.request.urlopen(url, timeout=120) as response:
+            response.read()
+            return response.status
+    except urllib.error.HTTPError as err:
+        return err.code
+
+
+async def exporter(base: str, ids: list[str], end: float, counts: dict) -> None:
+    """Export one replay after another (each new, so nothing comes from the cache) until ``end``."""
+    loop = asyncio.get_running_loop()
+    while time.monotonic() < end and ids:
+        replay_id, fmt = ids.pop(), random.choice(["gif", "mp4"])
+        status = await loop.run_in_executor(None, http_status, f"{base}/api/replays/{replay_id}/export?format={fmt}")
+        counts[status] = counts.get(status, 0) + 1
+        if status == 503:
+            await asyncio.sleep(1.0)
+
+
+async def large_requests(base: str, end: float, counts: dict) -> None:
+    loop = asyncio.get_running_loop()
+    while time.monotonic() < end:
+        for path in ("/api/replays?limit=5", "/api/replays/huge", "/api/replays/huge/timeline",
+                     "/api/replays/big", "/api/replays/big/timeline"):
+            status = await loop.run_in_executor(None, http_status, base + path)
+            counts[(path, status)] = counts.get((path, status), 0) + 1
+
+
+def prepare_replays(folder: Path, exports: int, large: bool) -> list[str]:
+    """Copies of a released replay to export (distinct ids), and the large files."""
+    from colorgrid.replay import load, save
+
+    source = Path(__file__).resolve().parents[1] / "replays" / "default" / "astar+bayes_seed2026.replay.json"
+    ids = []
+    if exports:
+        (folder / "exports").mkdir()
+        for i in range(40 * exports):
+            (folder / "exports" / f"copy{i}.replay.json").write_bytes(source.read_bytes())
+            ids.append(f"exports--copy{i}")
+    if large:
+        (folder / "huge.replay.json").write_bytes(b" " * 150_000_000 + source.read_bytes())
+        replay = load(source)
+        replay.meta["padding"] = "x" * 40_000_000
+        save(replay, folder / "big.replay.json")
+    return ids
+
+
 async def run(args) -> None:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     tmp = Path(tempfile.mkdtemp(prefix="colorgrid-load-"))
+    export_ids = prepare_replays(tmp, args.exports, args.large_replays)
     server = subprocess.Popen([sys.executable, "-m", "colorgrid.cli", "play", "--port", str(port), "--replays-dir",
                                str(tmp), "--tick-hz", str(args.tick_hz), "--follower", args.follower,
-                               "--max-sessions", str(args.players), "--log-level", "warning"],
+                               "--max-sessions", str(args.players), "--new-games-per-minute", str(10 * args.players),
+                               "--max-exports", str(max(1, args.exports)), "--log-level", "warning"],
                               stdout=open(tmp / "server.log", "w"), stderr=subprocess.STDOUT)
     base = f"http://127.0.0.1:{port}"
     try:
@@ -95,11 +152,17 @@ async def run(args) -> None:
         latencies: list[float] = []
         results: list[dict] = []
         rng = random.Random(0)
-        await asyncio.gather(*(player(f"ws://127.0.0.1:{port}/ws/play", args.seconds, latencies, results,
-                                      random.Random(rng.random())) for _ in range(args.players)))
+        export_counts: dict = {}
+        large_counts: dict = {}
+        end = time.monotonic() + args.seconds
+        side = [exporter(base, export_ids, end, export_counts) for _ in range(args.exports)]
+        if args.large_replays:
+            side.append(large_requests(base, end, large_counts))
+        await asyncio.gather(*side, *(player(f"ws://127.0.0.1:{port}/ws/play", args.seconds, latencies, results,
+                                             random.Random(rng.random())) for _ in range(args.players)))
         cpu, wall = cpu_seconds(server.pid) - cpu0, time.perf_counter() - wall0
         health = json.loads(urllib.request.urlopen(base + "/api/health", timeout=5).read())
-        saved = len(list(tmp.glob("*.replay.json")))
+        saved = len(list(tmp.glob("play-*.replay.json")))
         await asyncio.sleep(0)
         ended = sum(1 for r in results if r["type"] == "game_over")
         print(f"machine: {machine()}")
@@ -113,6 +176,12 @@ async def run(args) -> None:
         print(f"follower deadline misses: {health['deadline_misses']}")
         print(f"server CPU: {cpu:.1f} s over {wall:.1f} s wall ({100 * cpu / wall:.0f}% of one core)")
         print(f"games ended {ended}/{args.players}, replays saved {saved}/{args.players}; server log {tmp / 'server.log'}")
+        if args.exports:
+            print(f"exports alongside ({args.exports} in flight): {export_counts.get(200, 0)} made, "
+                  f"{export_counts.get(503, 0)} answered busy (503), other {[k for k in export_counts if k not in (200, 503)]}")
+        if args.large_replays:
+            print("large replay requests (path, status): count: "
+                  + ", ".join(f"{p} {st}: {n}" for (p, st), n in sorted(large_counts.items())))
     finally:
         server.terminate()
         server.wait(timeout=30)
@@ -124,7 +193,11 @@ def main() -> None:
     parser.add_argument("--seconds", type=float, default=20.0)
     parser.add_argument("--tick-hz", type=float, default=5.0)
     parser.add_argument("--follower", default="bayes")
+    parser.add_argument("--exports", type=int, default=0, help="exports kept in flight during the run (0..16)")
+    parser.add_argument("--large-replays", action="store_true", help="also request a 150 MB and a 40 MB replay")
     args = parser.parse_args()
+    if not 0 <= args.exports <= 16:
+        raise SystemExit("--exports must be in 0..16")
     if not 1 <= args.players <= 500 or not 1 <= args.seconds <= 300:
         raise SystemExit("--players must be in 1..500 and --seconds in 1..300 (a bounded load)")
     asyncio.run(run(args))

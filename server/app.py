@@ -10,7 +10,7 @@ from contextlib import asynccontextmanager
 from urllib.parse import urlsplit
 
 from fastapi import FastAPI, HTTPException, Query, WebSocket, WebSocketDisconnect
-from fastapi.responses import FileResponse, JSONResponse, Response
+from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from pydantic import ValidationError
 from starlette.middleware.trustedhost import TrustedHostMiddleware
@@ -18,7 +18,7 @@ from starlette.middleware.trustedhost import TrustedHostMiddleware
 from colorgrid import __version__
 from colorgrid.cli_config import PRESETS
 from server.hub import GameHub, ServerFull
-from server.jobs import Busy, ReplayJobs, summaries, timeline_json
+from server.jobs import Busy, ReplayJobs, summaries
 from server.limits import AddressLimits, FloodRule, TokenBucket
 from server.protocol import CLIENT_TYPES, Key, NewGame, Ping, Quit, Rejoin, client_message, error
 from server.replays import ReplayCatalogue
@@ -91,8 +91,17 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
                 "presets": sorted(PRESETS), "default_preset": settings.preset, "modes": ["turn", "realtime"],
                 "tick_hz": settings.tick_hz, "show_belief": settings.show_belief}
 
+    scans: dict = {"at": -1.0, "task": None}
+
     async def entries() -> dict:
-        """The catalogue, scanned on a thread and summarised in the worker processes."""
+        """The catalogue, scanned on a thread and summarised in the worker processes. Requests arriving
+        together share one scan, and a scan under a second old is reused."""
+        task = scans["task"]
+        if task is None or (task.done() and time.monotonic() - scans["at"] > 1.0):
+            scans["at"], scans["task"] = time.monotonic(), asyncio.ensure_future(scan())
+        return await asyncio.shield(scans["task"])
+
+    async def scan() -> dict:
         found = await asyncio.to_thread(catalogue.scan)
         for batch in catalogue.missing(found):
             done = await jobs.run(summaries, [(str(e.path), e.id, e.collection) for e in batch], max_bytes)
@@ -148,8 +157,8 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
         entry = await entry_or_404(replay_id)
         if entry.problem:
             return {"id": replay_id, "verified": False, "problem": entry.problem}
-        body = await jobs.run(timeline_json, str(entry.path), max_bytes)
-        return Response(b'{"id":' + json.dumps(replay_id).encode() + b"," + body[1:], media_type="application/json")
+        return FileResponse(await jobs.timeline(entry.path, replay_id, entry.mtime, max_bytes),
+                            media_type="application/json")
 
     @app.get("/api/replays/{replay_id}/export", responses={404: {}, 422: {}, 503: {}})
     async def export_replay(replay_id: str, format: str = Query("gif", pattern="^(gif|mp4)$")):

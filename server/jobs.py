@@ -53,17 +53,21 @@ def summaries(files: list[tuple[str, str, str]], max_bytes: int) -> list[dict]:
     return out
 
 
-def timeline_json(path: str, max_bytes: int) -> bytes:
-    """What the replay player draws, as JSON bytes (``verified: false`` with the problem if it does not load)."""
+def timeline_file(path: str, replay_id: str, out: str, max_bytes: int) -> None:
+    """Write what the replay player draws as JSON to ``out`` (``verified: false`` with the problem if the
+    replay does not load). A file, not a return value: a large timeline then never passes through the
+    server's own process in one piece; the server streams it."""
+    from colorgrid.files import atomic_path
     from colorgrid.replay import ReplayError, load
     from colorgrid.replay.timeline import timeline
 
     try:
         replay = load(path, max_bytes=max_bytes)
-        data = timeline(replay, path)
+        data = {"id": replay_id, **timeline(replay, path)}
     except ReplayError as err:
-        data = {"verified": False, "problem": err.problem}
-    return json.dumps(data, separators=(",", ":"), allow_nan=False).encode()
+        data = {"id": replay_id, "verified": False, "problem": err.problem}
+    with atomic_path(out) as tmp:
+        tmp.write_text(json.dumps(data, separators=(",", ":"), allow_nan=False))
 
 
 def export_file(path: str, out: str, fmt: str, max_bytes: int) -> str | None:
@@ -86,7 +90,9 @@ def _ready() -> bool:
 class ReplayJobs:
     """A small pool of worker processes, a cap on concurrent exports, and a bounded export cache."""
 
-    def __init__(self, max_exports: int, cache_bytes: int, workers: int = 2, max_queued: int = 32):
+    def __init__(self, max_exports: int, cache_bytes: int, workers: int | None = None, max_queued: int = 32):
+        # One worker on a machine of two cores or fewer: the other core stays for the tick and the follower.
+        workers = workers or (1 if (os.cpu_count() or 1) <= 2 else 2)
         self.pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
                                         initializer=_lower_priority)
         self.workers, self.max_exports, self.cache_bytes, self.max_queued = workers, max_exports, cache_bytes, max_queued
@@ -94,7 +100,7 @@ class ReplayJobs:
         self.queued = 0
         remove_stale_caches()
         self.cache_dir = Path(tempfile.mkdtemp(prefix=f"{CACHE_PREFIX}{os.getpid()}-"))
-        self._exports: dict[Path, asyncio.Future] = {}
+        self._making: dict[Path, asyncio.Future] = {}
 
     async def run(self, fn, *args):
         """``fn(*args)`` in a worker process; ``Busy`` when too much is queued already."""
@@ -112,26 +118,37 @@ class ReplayJobs:
 
     async def export(self, path: Path, replay_id: str, mtime: float, fmt: str, max_bytes: int) -> Path:
         """The exported file, from the cache or made now; ``ValueError`` with the problem; ``Busy`` past the cap."""
-        out = self.cache_dir / f"{replay_id}-{int(mtime)}.{fmt}"
-        if out.exists():
+        out = self.cache_dir / f"{replay_id}-{mtime:.6f}.{fmt}"
+        if out.exists() or out in self._making:
+            return await self._cached(out, None)
+        if self.exporting >= self.max_exports:
+            raise Busy(f"{self.exporting} exports", retry_after_s=10)
+        self.exporting += 1
+        return await self._cached(out, lambda: self.run(export_file, str(path), str(out), fmt, max_bytes), export=True)
+
+    async def timeline(self, path: Path, replay_id: str, mtime: float, max_bytes: int) -> Path:
+        """The timeline's JSON file, from the cache or made now."""
+        out = self.cache_dir / f"{replay_id}-{mtime:.6f}.timeline.json"
+        return await self._cached(out, lambda: self.run(timeline_file, str(path), replay_id, str(out), max_bytes))
+
+    async def _cached(self, out: Path, make, export: bool = False) -> Path:
+        """``out`` once made: at most one job per file, however many requests wait for it."""
+        if out.exists() and out not in self._making:
             os.utime(out)  # recently used: evicted last
             return out
-        running = self._exports.get(out)
+        running = self._making.get(out)
         if running is None:
-            if self.exporting >= self.max_exports:
-                raise Busy(f"{self.exporting} exports", retry_after_s=10)
-            self.exporting += 1
-            running = asyncio.ensure_future(self.run(export_file, str(path), str(out), fmt, max_bytes))
-            self._exports[out] = running
-            running.add_done_callback(lambda _: self._export_done(out))
+            running = asyncio.ensure_future(make())
+            self._making[out] = running
+            running.add_done_callback(lambda _: self._done(out, export))
         problem = await asyncio.shield(running)
         if problem is not None:
             raise ValueError(problem)
         return out
 
-    def _export_done(self, out: Path) -> None:
-        self.exporting -= 1
-        self._exports.pop(out, None)
+    def _done(self, out: Path, export: bool) -> None:
+        self.exporting -= export
+        self._making.pop(out, None)
         try:
             self.trim_cache()
         except OSError:
@@ -144,7 +161,7 @@ class ReplayJobs:
         for _, size, path in sorted(files):
             if total <= self.cache_bytes:
                 break
-            if path not in self._exports:
+            if path not in self._making:
                 path.unlink(missing_ok=True)
                 total -= size
 

@@ -22,6 +22,7 @@ from websockets.asyncio.client import connect as aconnect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
+from bench.fuzz_server import hostile_frames
 from colorgrid.replay import load, verify
 from tests.conftest import ROOT, start_server, stop_server
 
@@ -65,31 +66,6 @@ def assert_no_tracebacks(server):
 
 
 # --------------------------------------------------------------------------- fuzz
-def hostile_frames(rng: random.Random, n: int) -> list:
-    """A mix of what the fuzzer sent: non-finite numbers, deep nesting, binary, oversize, wrong types, junk."""
-    makers = [
-        lambda: '{"type":"key","key":"ArrowUp","seq":1,"t_client":NaN}',
-        lambda: '{"type":"key","key":"ArrowUp","seq":2,"t_client":Infinity}',
-        lambda: '{"type":"key","key":"ArrowUp","seq":3,"t_client":-Infinity}',
-        lambda: '{"type":"key","key":"ArrowUp","seq":4,"t_client":1e400}',
-        lambda: '{"type":"key","key":"ArrowUp","seq":1e400}',
-        lambda: "[" * rng.randint(1000, 2000),
-        lambda: '{"a":' * 700 + "1" + "}" * 700,
-        lambda: bytes(rng.getrandbits(8) for _ in range(rng.randint(1, 64))),
-        lambda: "x" * rng.randint(2049, 4000),
-        lambda: json.dumps(rng.choice([None, 1, -1.5, "key", [1, 2], {"type": None}, {"type": ["key"]}])),
-        lambda: json.dumps({"type": rng.choice(["new_game", "rejoin", "key", "quit", "ping", "nope"]),
-                            rng.choice(["seq", "key", "horizon", "game_id", "mode"]):
-                                rng.choice([-1, 10**20, "A" * 40, None, True, [], {}, 1.5])}),
-        lambda: json.dumps({"type": "new_game", "horizon": rng.choice([0, -5, 10**6, "10", 2.5]),
-                            "follower": rng.choice(["../../etc/passwd", "nosuch", "x" * 500])}),
-        lambda: json.dumps({"type": "rejoin", "game_id": "a" * 64, "token": "b" * 128}),
-        lambda: "".join(chr(rng.randint(1, 0xD7FF)) for _ in range(rng.randint(1, 200))),
-        lambda: '{"type":"key","key":"ArrowUp","seq":5,"t_client":1, "type":"key"}' + " " * rng.randint(0, 10),
-    ]
-    return [rng.choice(makers)() for _ in range(n)]
-
-
 async def fuzz_connection(url: str, frames: list, start_game: bool, counts: dict) -> bool:
     """Send ``frames`` (paced under the rate limit, so that they are read, not refused); True if this
     connection's own game, with at least one move, was saved after the hostile input."""
