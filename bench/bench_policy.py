@@ -18,7 +18,8 @@ import numpy as np  # noqa: E402
 
 from colorgrid import BatchEnv, EnvConfig  # noqa: E402
 from colorgrid.policies import make_policy  # noqa: E402
-from colorgrid.rollout import agent_input  # noqa: E402
+from colorgrid.config import FOLLOWER  # noqa: E402
+from colorgrid.step_inputs import StepInputs  # noqa: E402
 
 
 def main() -> None:
@@ -39,8 +40,8 @@ def main() -> None:
         env = BatchEnv(config, num_envs=n, seed=0)
         obs, _ = env.reset()
         policy.reset(config, n, 1, seed=0)
-        inp = agent_input(obs, 1, np.zeros(n, dtype=bool), np.zeros(n, dtype=np.float32), np.full((n, 2), -1),
-                          np.full((n, 2), -1), 1.0, env.state.goal)
+        inp = StepInputs.begin(config, n).agent_input(obs, FOLLOWER, 1.0, env.state.goal,
+                                                      episode_start=np.zeros(n, dtype=bool))
         times = []
         for i in range(args.repeats + 3):
             start = time.perf_counter()

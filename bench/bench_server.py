@@ -134,7 +134,7 @@ async def run(args) -> None:
         port = s.getsockname()[1]
     tmp = Path(tempfile.mkdtemp(prefix="colorgrid-load-"))
     export_ids = prepare_replays(tmp, args.exports, args.large_replays)
-    server = subprocess.Popen([sys.executable, "-m", "colorgrid.cli", "play", "--port", str(port), "--replays-dir",
+    server = subprocess.Popen([sys.executable, "-m", "colorgrid_apps", "play", "--port", str(port), "--replays-dir",
                                str(tmp), "--tick-hz", str(args.tick_hz), "--follower", args.follower,
                                "--max-sessions", str(args.players), "--new-games-per-minute", str(10 * args.players),
                                "--max-exports", str(max(1, args.exports)), "--log-level", "warning"],

@@ -108,7 +108,7 @@ async def run(args) -> None:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     tmp = Path(tempfile.mkdtemp(prefix="colorgrid-fuzz-"))
-    server = subprocess.Popen([sys.executable, "-m", "colorgrid.cli", "play", "--port", str(port), "--replays-dir",
+    server = subprocess.Popen([sys.executable, "-m", "colorgrid_apps", "play", "--port", str(port), "--replays-dir",
                                str(tmp), "--follower", args.follower, "--max-sessions", str(args.connections + args.games),
                                "--max-connections", str(2 * (args.connections + args.games)),
                                "--new-games-per-minute", str(10 * (args.connections + args.games)), "--log-level",

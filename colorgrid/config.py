@@ -12,6 +12,10 @@ ENV_ID = "colorgrid_v0"
 
 AGENTS = ("leader", "follower")
 """Agent names, in the order moves and pickups resolve (leader first)."""
+LEADER, FOLLOWER = 0, 1
+"""The agents' indices in ``AGENTS`` (and in every ``[..., A]`` array): the roles, named once."""
+SYMBOLS = ("L", "F")
+"""One letter per agent, as boards in text and pictures mark them."""
 
 COLOR_NAMES = ("red", "green", "blue", "orange", "purple", "cyan", "brown", "pink")
 REWARD_MODES = ("shared", "individual")
@@ -74,6 +78,17 @@ class EnvConfig:
     @property
     def num_blocks(self) -> int:
         return self.blocks_per_color * self.num_colors
+
+    @property
+    def agent_names(self) -> tuple[str, ...]:
+        """The agents, in index order (``AGENTS``)."""
+        return AGENTS
+
+    @property
+    def sees_goal(self) -> tuple[bool, ...]:
+        """Which agents' goal information shows the goal: the leader always, the follower only when the
+        setting is symmetric (the rule is this property; the env and its kernel read it)."""
+        return tuple(i == LEADER or not self.asymmetric for i in range(len(AGENTS)))
 
     @property
     def num_agents(self) -> int:

@@ -31,7 +31,7 @@ from typing import Sequence
 import numpy as np
 
 from colorgrid import rng
-from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.config import EnvConfig
 from colorgrid.generator import initial_layout
 from colorgrid import kernel
 from colorgrid.kernel import step_kernel
@@ -80,12 +80,8 @@ class BatchEnv:
         self._move_table = move_table(cfg)
         self._block_color = np.arange(cfg.num_blocks) // cfg.blocks_per_color
         self._obs_cells = self._obs.reshape(B, cfg.num_planes, H * W)  # a view, for the compiled step
-        self._fparams = np.array([cfg.goal_reward, cfg.wrong_penalty, self._penalty_coef, cfg.switch_prob,
-                                  cfg.distance_penalty if cfg.distance_penalty_agents else 0.0, cfg.potential_scale],
-                                 dtype=np.float64)
-        self._iparams = np.array([W, H, cfg.hemispheres, cfg.asymmetric, cfg.distance_threshold,
-                                  cfg.potential_shaping, cfg.num_actions, cfg.horizon, cfg.reward_mode == "shared",
-                                  *(name in cfg.distance_penalty_agents for name in AGENTS)], dtype=np.int64)
+        self._params = kernel.pack(cfg, self._penalty_coef)
+        self._sees_goal = np.array(cfg.sees_goal, dtype=np.uint8)
         self._needs_reset = np.ones(B, dtype=bool)
         self.state: EnvState | None = None
         self._pending_seed = seed
@@ -102,7 +98,7 @@ class BatchEnv:
         if not np.isfinite(value) or value < 0:
             raise ValueError(f"penalty_coef must be a finite number >= 0, got {value!r}")
         self._penalty_coef = value
-        self._fparams[kernel.F_PENALTY_COEF] = value
+        self._params["penalty_coef"] = value
 
     def reset(self, seed: int | Sequence[int] | None = None):
         """Start a new episode in every env; returns ``(observations, infos)``.
@@ -175,7 +171,7 @@ class BatchEnv:
         switched = np.empty(B, dtype=np.bool_)
         code = step_kernel(actions, s.agent_cell, s.block_at.reshape(B, -1), s.block_cell, self._block_color, s.goal,
                            s.t, s.seed, s.score, s.goal_pickups, s.wrong_pickups, self._obs_cells, self._goal_info,
-                           self._move_table, self._fparams, self._iparams, fout, picked_color, bout, switched)
+                           self._move_table, self._params, fout, picked_color, bout, switched)
         if code == kernel.BAD_ACTION:
             self._check_action_values(actions)
         if code == kernel.NO_FREE_CELL:
@@ -242,12 +238,7 @@ class BatchEnv:
             self._needs_reset[envs] = True
 
     def _refresh_goal_info(self, envs: np.ndarray) -> None:
-        gi = self._goal_info
-        gi[envs] = 0
-        goal = self.state.goal[envs]
-        gi[envs, 0, goal] = 1.0
-        if not self.config.asymmetric:
-            gi[envs, 1, goal] = 1.0
+        kernel.write_goal_infos(self._goal_info, envs, self.state.goal, self._sees_goal)
 
     def _observations(self) -> dict:
         return {"observation": self._obs, "goal_info": self._goal_info}

@@ -6,20 +6,10 @@ from __future__ import annotations
 import json
 import math
 import os
+import secrets
 import stat
-import tempfile
 from contextlib import contextmanager
 from pathlib import Path
-
-
-def _current_umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask
-
-
-FILE_MODE = 0o666 & ~_current_umask()
-"""Mode for written files: what ``open()`` would give (``mkstemp`` alone makes them private)."""
 
 
 @contextmanager
@@ -28,21 +18,32 @@ def atomic_path(path: str | os.PathLike):
 
     A crash at any point leaves either the old file or no file under the final name,
     never a partial one. The temporary name keeps the suffix (writers pick formats by it).
+    The file gets the mode ``open()`` would give (0o666 less the umask).
     """
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=path.suffix, dir=path.parent)
-        os.close(fd)
+        tmp = _create_temporary(path)
     except OSError as err:
         raise ValueError(f"cannot write to {path}: {err.strerror}") from None
     try:
-        yield Path(tmp)
-        os.chmod(tmp, FILE_MODE)
+        yield tmp
         os.replace(tmp, path)
     except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+        tmp.unlink(missing_ok=True)
         raise
+
+
+def _create_temporary(path: Path) -> Path:
+    """A new, empty file beside ``path`` with a name of its own (``mkstemp`` would make it private)."""
+    for _ in range(100):
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}{path.suffix}")
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+        except FileExistsError:
+            continue
+        return tmp
+    raise FileExistsError(f"no free temporary name beside {path}")
 
 
 class JSONFileError(ValueError):

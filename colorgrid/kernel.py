@@ -45,10 +45,60 @@ def hash64(seed, step, stream, attempt, index):
     return _mix(_mix(seed ^ counter) + counter)
 
 
-# Layout of the parameter arrays (one array each keeps the call cheap for a batch of one).
-F_GOAL_REWARD, F_WRONG_PENALTY, F_PENALTY_COEF, F_SWITCH_PROB, F_DISTANCE_PENALTY, F_POTENTIAL_SCALE = range(6)
-(I_WIDTH, I_HEIGHT, I_HEMISPHERES, I_ASYMMETRIC, I_DISTANCE_THRESHOLD, I_POTENTIAL, I_NUM_ACTIONS, I_HORIZON,
- I_SHARED, I_MASK) = range(10)
+PARAMS = [
+    ("width", np.int64), ("height", np.int64), ("num_actions", np.int64), ("horizon", np.int64),
+    ("distance_threshold", np.int64), ("hemispheres", np.bool_), ("shared_reward", np.bool_),
+    ("potential_shaping", np.bool_), ("goal_reward", np.float64), ("wrong_penalty", np.float64),
+    ("penalty_coef", np.float64), ("switch_prob", np.float64), ("distance_penalty", np.float64),
+    ("potential_scale", np.float64),
+]
+"""The rules' constants, named once: one record holds them (``pack``), the kernel reads them by name.
+Per-agent flags follow as ``[A]`` uint8 fields: ``distance_mask`` (the distance penalty applies to
+agent a) and ``sees_goal`` (agent a's goal information shows the goal)."""
+
+
+def params_dtype(num_agents: int) -> np.dtype:
+    return np.dtype([*PARAMS, ("distance_mask", np.uint8, (num_agents,)), ("sees_goal", np.uint8, (num_agents,))],
+                    align=True)
+
+
+def pack(config, penalty_coef: float | None = None) -> np.ndarray:
+    """The kernel's parameters for ``config`` (an ``EnvConfig``): a record array of one element.
+    ``penalty_coef`` overrides the config's (the env anneals it between steps)."""
+    params = np.zeros(1, dtype=params_dtype(config.num_agents))
+    p = params[0]
+    for name, _ in PARAMS:
+        p[name] = getattr(config, name, None) if name not in _DERIVED else _DERIVED[name](config)
+    if penalty_coef is not None:
+        p["penalty_coef"] = penalty_coef
+    p["distance_mask"] = [name in config.distance_penalty_agents for name in config.agent_names]
+    p["sees_goal"] = config.sees_goal
+    return params
+
+
+_DERIVED = {
+    "shared_reward": lambda c: c.reward_mode == "shared",
+    "distance_penalty": lambda c: c.distance_penalty if c.distance_penalty_agents else 0.0,
+}
+
+
+@njit(cache=True)
+def write_goal_info(goal_info, b, goal, sees_goal):
+    """The goal-information rule, once: env ``b``'s agents who see the goal get its one-hot, the others zeros."""
+    for a in range(goal_info.shape[1]):
+        for k in range(goal_info.shape[2]):
+            goal_info[b, a, k] = 0.0
+        if sees_goal[a]:
+            goal_info[b, a, goal] = 1.0
+
+
+@njit(cache=True)
+def write_goal_infos(goal_info, envs, goal, sees_goal):
+    """``write_goal_info`` for each env in ``envs`` (goal ``[B]`` indexed by env)."""
+    for b in envs:
+        write_goal_info(goal_info, b, goal[b], sees_goal)
+
+
 # Rows of the outputs.
 O_REWARD, O_BLOCK, O_DISTANCE, O_POTENTIAL, O_TEAM = range(5)  # fout, float32 [5, B, A]
 O_GOAL_PICKUP, O_WRONG_PICKUP, O_TRUNCATED, O_TERMINATED = range(4)  # bout, bool [4, B, A]
@@ -57,34 +107,33 @@ OK, NO_FREE_CELL, BAD_ACTION = 0, 1, 2
 
 @njit(cache=True)
 def step_kernel(actions, agent_cell, block_at, block_cell, block_color, goal, t, seed, score, goal_pickups,
-                wrong_pickups, obs, goal_info, move_table, fparams, iparams, fout, picked_color, bout, switched):
+                wrong_pickups, obs, goal_info, move_table, params, fout, picked_color, bout, switched):
     """Advance every env one step, in place. Shapes: B envs, A agents, N blocks, C colors, HW cells.
 
     actions [B, A]; agent_cell [B, A]; block_at [B, HW] (block id or -1); block_cell [B, N];
     block_color [N]; goal, t [B]; seed [B] uint64; score, goal/wrong pickups [B, A];
     obs [B, P, HW] uint8; goal_info [B, A, C]; move_table [A, HW, num_actions];
-    fparams / iparams: the ``F_*`` / ``I_*`` entries (``I_MASK + a``: distance penalty applies to agent a).
+    params: the record of ``pack`` (the rules' constants, by name).
     Writes ``fout [5, B, A]`` float32 (``O_*`` rows: reward with shaping, block reward, distance
     and potential terms, team reward), ``picked_color [B, A]`` (-1 if none), ``bout [4, B, A]``
     (goal pickup, wrong pickup, truncated, terminated) and ``switched [B]``. Returns ``OK``,
     ``BAD_ACTION`` (nothing changed) or ``NO_FREE_CELL`` (validation prevents it).
     """
-    goal_reward, wrong_penalty = fparams[F_GOAL_REWARD], fparams[F_WRONG_PENALTY]
-    penalty_coef, switch_prob = fparams[F_PENALTY_COEF], fparams[F_SWITCH_PROB]
-    distance_penalty, potential_scale = fparams[F_DISTANCE_PENALTY], fparams[F_POTENTIAL_SCALE]
-    width, height = iparams[I_WIDTH], iparams[I_HEIGHT]
-    hemispheres, asymmetric = iparams[I_HEMISPHERES] != 0, iparams[I_ASYMMETRIC] != 0
-    distance_threshold, potential_on = iparams[I_DISTANCE_THRESHOLD], iparams[I_POTENTIAL] != 0
+    p = params[0]
+    goal_reward, wrong_penalty, penalty_coef, switch_prob = p.goal_reward, p.wrong_penalty, p.penalty_coef, p.switch_prob
+    distance_penalty, potential_scale = p.distance_penalty, p.potential_scale
+    width, height, hemispheres = p.width, p.height, p.hemispheres
+    distance_threshold, potential_on = p.distance_threshold, p.potential_shaping
+    distance_mask, sees_goal = p.distance_mask, p.sees_goal
     for b in range(actions.shape[0]):
         for a in range(actions.shape[1]):
-            if actions[b, a] < 0 or actions[b, a] >= iparams[I_NUM_ACTIONS]:
+            if actions[b, a] < 0 or actions[b, a] >= p.num_actions:
                 return BAD_ACTION
-    horizon, shared = iparams[I_HORIZON], iparams[I_SHARED] != 0
-    A = actions.shape[1]
+    horizon, shared = p.horizon, p.shared_reward
+    B, A = actions.shape
     block_reward = np.zeros(A)
     distance_term = np.zeros(A)
     potential_term = np.zeros(A)
-    B, A = actions.shape
     C = goal_info.shape[2]
     N = block_cell.shape[1]
     span = width // 2 if hemispheres else width
@@ -152,7 +201,7 @@ def step_kernel(actions, agent_cell, block_at, block_cell, block_color, goal, t,
             r1, c1 = agent_cell[b, 1] // width, agent_cell[b, 1] % width
             if abs(r0 - r1) + abs(c0 - c1) <= distance_threshold:
                 for a in range(A):
-                    if iparams[I_MASK + a] != 0:
+                    if distance_mask[a] != 0:
                         distance_term[a] = -distance_penalty
         if potential_on:
             for a in range(A):
@@ -185,11 +234,5 @@ def step_kernel(actions, agent_cell, block_at, block_cell, block_color, goal, t,
                 offset = 1 + np.int64(hash64(seed[b], step_index, _STREAM_SWITCH_COLOR, 0, 0) % np.uint64(C - 1))
                 goal[b] = (goal[b] + offset) % C
                 switched[b] = True
-                for a in range(A):
-                    for k in range(C):
-                        goal_info[b, a, k] = 0.0
-                goal_info[b, 0, goal[b]] = 1.0
-                if not asymmetric:
-                    for a in range(1, A):
-                        goal_info[b, a, goal[b]] = 1.0
+                write_goal_info(goal_info, b, goal[b], sees_goal)
     return OK

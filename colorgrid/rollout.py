@@ -8,7 +8,8 @@ import numpy as np
 
 from colorgrid.config import EnvConfig
 from colorgrid.env import BatchEnv
-from colorgrid.policies.base import AgentInput, Policy
+from colorgrid.policies.base import Policy
+from colorgrid.step_inputs import StepInputs
 
 
 @dataclass
@@ -33,23 +34,6 @@ class EpisodeBatch:
         return int(self.seeds.shape[0])
 
 
-def reward_seen(config: EnvConfig, info: dict) -> np.ndarray:
-    """``[B, A]``: the unshaped reward each agent receives after a step: the team reward in ``shared``
-    mode, its own block reward otherwise (what ``AgentInput.prev_reward`` carries)."""
-    if config.reward_mode == "shared":
-        return np.repeat(info["team_reward"][:, None], config.num_agents, axis=1)
-    return info["block_reward"]
-
-
-def agent_input(obs: dict, agent: int, start: np.ndarray, prev_reward, prev_picked, prev_actions,
-                penalty_coef: float, true_goal: np.ndarray) -> AgentInput:
-    return AgentInput(
-        observation=obs["observation"], goal_info=obs["goal_info"][:, agent], episode_start=start,
-        prev_reward=prev_reward, prev_picked_color=prev_picked, prev_actions=prev_actions,
-        penalty_coef=penalty_coef, true_goal=true_goal,
-    )
-
-
 def run_episodes(config: EnvConfig, leader: Policy, follower: Policy, num_episodes: int, seed: int,
                  record_hashes: bool = False) -> EpisodeBatch:
     """Play ``num_episodes`` episodes at once (env ``i`` seeded ``seed + i``)."""
@@ -68,17 +52,13 @@ def run_episodes(config: EnvConfig, leader: Policy, follower: Policy, num_episod
     switched = np.zeros((T, B), dtype=bool)
     probs: list = [None, None]
     hashes = np.empty((T + 1, B), dtype=object) if record_hashes else None
-    prev_reward = np.zeros((B, A), dtype=np.float32)
-    prev_picked = np.full((B, A), -1, dtype=np.int64)
-    prev_actions = np.full((B, A), -1, dtype=np.int64)
-    start = np.ones(B, dtype=bool)
+    last = StepInputs.begin(config, B)
     for t in range(T):
         goal[t] = env.state.goal
         if record_hashes:
             hashes[t] = [env.state.state_hash(i) for i in range(B)]
         for i, policy in enumerate(policies):
-            out = policy.act(agent_input(obs, i, start, prev_reward[:, i], prev_picked, prev_actions,
-                                         env.penalty_coef, env.state.goal.copy()))
+            out = policy.act(last.agent_input(obs, i, env.penalty_coef, env.state.goal.copy()))
             actions[t, :, i] = out.actions
             if out.goal_probs is not None:
                 if probs[i] is None:
@@ -89,9 +69,7 @@ def run_episodes(config: EnvConfig, leader: Policy, follower: Policy, num_episod
         team_reward[t] = info["team_reward"]
         picked[t] = info["picked_color"]
         switched[t] = info["goal_switched"]
-        prev_reward = reward_seen(config, info)
-        prev_picked, prev_actions = info["picked_color"], actions[t]
-        start = np.zeros(B, dtype=bool)
+        last.record(actions[t], info)
     if record_hashes:
         hashes[T] = [env.state.state_hash(i) for i in range(B)]
     goal_hit = picked == goal[:, :, None]

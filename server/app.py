@@ -16,7 +16,7 @@ from pydantic import ValidationError
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from colorgrid import __version__
-from colorgrid.cli_config import PRESETS
+from colorgrid.presets import PRESETS
 from server.hub import GameHub, ServerFull
 from server.jobs import Busy, ReplayJobs, summaries
 from server.limits import AddressLimits, FloodRule, TokenBucket

@@ -7,9 +7,10 @@ import time
 
 import numpy as np
 
-from colorgrid.config import EnvConfig
+from colorgrid.config import FOLLOWER, EnvConfig
 from colorgrid.policies import IdleFollower, make_policy
 from colorgrid.policies.base import AgentInput
+from colorgrid.step_inputs import StepInputs
 
 
 class FollowerPool:
@@ -24,13 +25,9 @@ class FollowerPool:
         self.name = name
         self.config = config
         self.policy = make_policy(name, role="follower")
-        if "torch" in sys.modules:  # a trained follower: one inference thread, so that torch's worker
-            import torch  # threads never spin against the event loop and the replay saver
-
-            torch.set_num_threads(1)
-        self.policy.reset(config, capacity, agent_index=1, seed=seed)
+        self.policy.reset(config, capacity, agent_index=FOLLOWER, seed=seed)
         self.idle = IdleFollower()
-        self.idle.reset(config, capacity, agent_index=1, seed=seed + 1)
+        self.idle.reset(config, capacity, agent_index=FOLLOWER, seed=seed + 1)
         self.capacity = capacity
         self.free = list(range(capacity - 1, -1, -1))
         self.busy = False  # an inference call is still running (it may outlive its deadline)
@@ -43,16 +40,13 @@ class FollowerPool:
 
         env = BatchEnv(self.config, num_envs=1, seed=0)
         obs, _ = env.reset()
-        A = self.config.num_agents
         slot = self.acquire()
         try:
-            self.act([AgentInput(observation=obs["observation"].copy(), goal_info=obs["goal_info"][:, 1].copy(),
-                                 episode_start=np.ones(1, dtype=bool), prev_reward=np.zeros(1, dtype=np.float32),
-                                 prev_picked_color=np.full((1, A), -1), prev_actions=np.full((1, A), -1),
-                                 true_goal=env.state.goal.copy())], [slot])
+            inputs = StepInputs.begin(self.config, 1).agent_input(obs, FOLLOWER, env.penalty_coef, env.state.goal.copy())
+            self.act([inputs], [slot])
         finally:
             self.release(slot)
-        env.step(np.zeros((1, A), dtype=np.int64))
+        env.step(np.zeros((1, self.config.num_agents), dtype=np.int64))
 
     def acquire(self) -> int:
         if not self.free:
@@ -69,7 +63,7 @@ class FollowerPool:
 
     def act(self, inputs: list[AgentInput], slots: list[int]) -> tuple[np.ndarray, np.ndarray | None]:
         """Actions ``[n]`` and beliefs ``[n, C]`` (or None) for the games in ``slots``."""
-        batch = stack_inputs(inputs)
+        batch = AgentInput.concat(inputs)
         self.busy = True
         try:
             out = self.policy.act(batch, rows=np.asarray(slots))
@@ -78,19 +72,15 @@ class FollowerPool:
         return out.actions, out.goal_probs
 
     def fallback(self, inputs: list[AgentInput], slots: list[int]) -> np.ndarray:
-        return self.idle.act(stack_inputs(inputs), rows=np.asarray(slots)).actions
+        return self.idle.act(AgentInput.concat(inputs), rows=np.asarray(slots)).actions
 
 
-def stack_inputs(inputs: list[AgentInput]) -> AgentInput:
-    """Concatenate batch-of-one (or larger) inputs along the batch axis."""
-    first = inputs[0]
-    return AgentInput(
-        observation=np.concatenate([i.observation for i in inputs]),
-        goal_info=np.concatenate([i.goal_info for i in inputs]),
-        episode_start=np.concatenate([i.episode_start for i in inputs]),
-        prev_reward=np.concatenate([i.prev_reward for i in inputs]),
-        prev_picked_color=np.concatenate([i.prev_picked_color for i in inputs]),
-        prev_actions=np.concatenate([i.prev_actions for i in inputs]),
-        penalty_coef=first.penalty_coef,
-        true_goal=np.concatenate([i.true_goal for i in inputs]),
-    )
+def build_pool(name: str, config: EnvConfig, capacity: int) -> FollowerPool:
+    """A pool, built on the inference thread that will run it. A trained follower then runs on one torch
+    thread, so that torch's worker threads never spin against the event loop and the replay saver."""
+    pool = FollowerPool(name, config, capacity)
+    if "torch" in sys.modules:
+        import torch
+
+        torch.set_num_threads(1)
+    return pool

@@ -8,11 +8,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.config import AGENTS, FOLLOWER, LEADER, EnvConfig
 from colorgrid.env import BatchEnv
 from colorgrid.policies.base import AgentInput
 from colorgrid.replay import Replay
-from colorgrid.rollout import reward_seen
+from colorgrid.step_inputs import StepInputs
 from server.protocol import KEY_ACTIONS
 
 STAY = 4
@@ -42,11 +42,7 @@ class Game:
     def __post_init__(self) -> None:
         self.env = BatchEnv(self.config, num_envs=1, seed=self.seed, autoreset=False)
         self.obs, _ = self.env.reset()
-        A = self.config.num_agents
-        self.prev_reward = np.zeros(1, dtype=np.float32)
-        self.prev_picked = np.full((1, A), -1, dtype=np.int64)
-        self.prev_actions = np.full((1, A), -1, dtype=np.int64)
-        self.start = True
+        self.last = StepInputs.begin(self.config, 1)
         self.pending: dict | None = None  # the latest key not yet applied (its key-log entry)
         self.key_log: list[dict] = []
         self.keys_dropped = 0  # key presses past ``max_key_log`` (not recorded)
@@ -105,12 +101,9 @@ class Game:
 
     # ------------------------------------------------------------ steps
     def follower_input(self) -> AgentInput:
-        return AgentInput(
-            observation=self.obs["observation"].copy(), goal_info=self.obs["goal_info"][:, 1].copy(),
-            episode_start=np.array([self.start]), prev_reward=self.prev_reward.copy(),
-            prev_picked_color=self.prev_picked.copy(), prev_actions=self.prev_actions.copy(),
-            penalty_coef=self.env.penalty_coef, true_goal=self.env.state.goal.copy(),
-        )
+        """The follower's input now (copied: a call that missed its deadline may still be reading it)."""
+        obs = {k: v.copy() for k, v in self.obs.items()}
+        return self.last.agent_input(obs, FOLLOWER, self.env.penalty_coef, self.env.state.goal.copy())
 
     def apply(self, follower_action: int, belief: np.ndarray | None, missed_deadline: bool) -> None:
         """Step the world with the pending key (or stay) and the follower's action."""
@@ -133,8 +126,7 @@ class Game:
         self.state_sent_ms.append(now_ms())
         if missed_deadline:
             self.deadline_misses.append(t)
-        self.prev_reward = reward_seen(self.config, info)[:, 1].astype(np.float32)
-        self.prev_picked, self.prev_actions, self.start = info["picked_color"].copy(), joint, False
+        self.last.record(joint, info)
         self.last_events = [
             {"agent": AGENTS[i], "color": int(c), "goal": bool(info["goal_pickup"][0, i])}
             for i, c in enumerate(info["picked_color"][0]) if c >= 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import gc
 import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -11,11 +12,11 @@ from typing import Protocol
 
 import numpy as np
 
-from colorgrid.cli_config import PRESETS
+from colorgrid.presets import env_config
 from colorgrid.config import EnvConfig
 from colorgrid.replay import save
 from colorgrid.replay.format import describe_agent
-from server.followers import FollowerPool
+from server.followers import FollowerPool, build_pool
 from server.game import Game
 from server.settings import ServerSettings
 
@@ -73,6 +74,7 @@ class GameHub:
                 await asyncio.get_running_loop().run_in_executor(self.executor, pool.warm_up)
             except Exception:  # a bad default follower is reported when a game asks for it
                 log.exception("could not warm up follower %s", self.settings.follower)
+        gc.freeze()  # what start-up loaded (torch, the networks) is never collected: shorter pauses in games
         self.ready = True
 
     async def stop(self) -> list[Client]:
@@ -99,14 +101,12 @@ class GameHub:
 
     # ------------------------------------------------------------ sessions
     def make_config(self, preset: str, mode: str, horizon: int | None) -> EnvConfig:
-        if preset not in PRESETS:
-            raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
-        changes = dict(PRESETS[preset])
+        changes = {}
         if mode == "realtime":
             changes["allow_stay"] = True  # the leader stays when no key is pending
         if horizon is not None:
             changes["horizon"] = horizon
-        return EnvConfig().replace(**changes) if changes else EnvConfig()
+        return env_config(preset, **changes)
 
     async def pool_for(self, follower: str, config: EnvConfig) -> FollowerPool:
         """The pool for this follower and config, built on the inference thread (loading never blocks the loop)."""
@@ -116,7 +116,7 @@ class GameHub:
         loading = self._loading.get(key)
         if loading is None:  # the first game to ask builds it; games arriving meanwhile wait for the same one
             loading = asyncio.get_running_loop().run_in_executor(
-                self.executor, FollowerPool, follower, config, self.settings.max_sessions)
+                self.executor, build_pool, follower, config, self.settings.max_sessions)
             self._loading[key] = loading
         try:
             pool = await asyncio.shield(loading)

@@ -72,7 +72,7 @@ def timeline_file(path: str, replay_id: str, out: str, max_bytes: int) -> None:
 
 def export_file(path: str, out: str, fmt: str, max_bytes: int) -> str | None:
     """Export the replay at ``path`` to ``out``; returns the problem if it cannot be exported."""
-    from colorgrid.export import export
+    from colorgrid_apps.export import export
     from colorgrid.replay import ReplayError, load
 
     try:
@@ -166,7 +166,7 @@ class ReplayJobs:
                 total -= size
 
     def close(self) -> None:
-        self.pool.shutdown(wait=False, cancel_futures=True)
+        self.pool.shutdown(wait=True, cancel_futures=True)  # a running job finishes (seconds at most)
         shutil.rmtree(self.cache_dir, ignore_errors=True)
 
 

@@ -5,9 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from colorgrid.cli_config import PRESETS
+from colorgrid.presets import PRESETS
 
-TICK_MODES = ("turn", "realtime")
 REPO_ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -24,7 +23,7 @@ class ServerSettings:
     followers: tuple[str, ...] = ("ippo", "bayes", "copy", "oracle", "idle", "random")
     """Followers a player may choose from (the default is always allowed)."""
     preset: str = "default"
-    """Default environment preset (see ``colorgrid.cli_config.PRESETS``)."""
+    """Default environment preset (see ``colorgrid.presets.PRESETS``)."""
     tick_hz: float = 5.0
     """Real-time mode: world steps per second."""
     replays_dir: Path = Path("recordings")

@@ -40,7 +40,7 @@ def start_server(tmp: Path, *flags: str) -> RunningServer:
     log_path = tmp / "server.log"
     log = open(log_path, "w")
     process = subprocess.Popen(
-        [sys.executable, "-m", "colorgrid.cli", "play", "--port", str(port), "--replays-dir", str(replays_dir),
+        [sys.executable, "-m", "colorgrid_apps", "play", "--port", str(port), "--replays-dir", str(replays_dir),
          "--log-level", "warning", *flags],
         cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )

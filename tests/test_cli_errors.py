@@ -84,7 +84,7 @@ def bad(tmp_path_factory) -> dict[str, Path]:
 
 
 def run_cli(*args) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "colorgrid.cli", *map(str, args)], cwd=ROOT, capture_output=True,
+    return subprocess.run([sys.executable, "-m", "colorgrid_apps", *map(str, args)], cwd=ROOT, capture_output=True,
                           text=True, timeout=120)
 
 

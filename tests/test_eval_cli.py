@@ -6,7 +6,7 @@ import sys
 
 
 def run_cli(*args):
-    return subprocess.run([sys.executable, "-m", "colorgrid.cli", *args], capture_output=True, text=True, timeout=300)
+    return subprocess.run([sys.executable, "-m", "colorgrid_apps", *args], capture_output=True, text=True, timeout=300)
 
 
 def test_eval_prints_a_table_and_writes_documented_json(tmp_path):

@@ -8,7 +8,7 @@ import pytest
 from colorgrid import EnvConfig
 from colorgrid.policies import AgentInput, BayesConfig, make_policy
 from colorgrid.policies.bayes import move_likelihood, reward_likelihood, transition
-from colorgrid.evaluate import switch_lags
+from colorgrid_apps.evaluate import switch_lags
 from colorgrid.rollout import run_episodes
 from tests.helpers import env_from_text
 
@@ -152,7 +152,8 @@ def test_astar_refuses_to_play_without_the_goal():
 def test_acting_on_subsets_of_rows_matches_the_whole_batch():
     """The play server serves many games from one policy by passing ``rows``; beliefs must not mix."""
     from colorgrid import BatchEnv
-    from colorgrid.rollout import agent_input
+    from colorgrid.config import FOLLOWER, LEADER
+    from colorgrid.step_inputs import StepInputs
 
     cfg = EnvConfig()
     env = BatchEnv(cfg, num_envs=4, seed=21)
@@ -162,19 +163,15 @@ def test_acting_on_subsets_of_rows_matches_the_whole_batch():
     split.reset(cfg, 4, 1)
     leader = make_policy("astar")
     leader.reset(cfg, 4, 0)
-    start = np.ones(4, dtype=bool)
-    prev_reward, prev_picked, prev_actions = np.zeros(4, np.float32), np.full((4, 2), -1), np.full((4, 2), -1)
+    last = StepInputs.begin(cfg, 4)
     for _ in range(40):
-        inp = agent_input(obs, 1, start, prev_reward, prev_picked, prev_actions, 1.0, env.state.goal.copy())
+        inp = last.agent_input(obs, FOLLOWER, 1.0, env.state.goal.copy())
         full = whole.act(inp)
         parts = np.zeros((4, 3), dtype=np.float32)
         for rows in ([2, 0], [3, 1]):
-            sub = agent_input({"observation": obs["observation"][rows], "goal_info": obs["goal_info"][rows]}, 1,
-                              start[rows], prev_reward[rows], prev_picked[rows], prev_actions[rows], 1.0,
-                              env.state.goal[rows].copy())
-            parts[rows] = split.act(sub, rows=np.array(rows)).goal_probs
+            parts[rows] = split.act(inp.select(rows), rows=np.array(rows)).goal_probs
         assert np.allclose(full.goal_probs, parts, atol=1e-6)
-        lead = leader.act(agent_input(obs, 0, start, prev_reward, prev_picked, prev_actions, 1.0, None)).actions
-        obs, _, _, _, info = env.step(np.stack([lead, full.actions], axis=1))
-        prev_reward, prev_picked = info["team_reward"].copy(), info["picked_color"].copy()
-        prev_actions, start = np.stack([lead, full.actions], axis=1), np.zeros(4, dtype=bool)
+        lead = leader.act(last.agent_input(obs, LEADER, 1.0, None)).actions
+        actions = np.stack([lead, full.actions], axis=1)
+        obs, _, _, _, info = env.step(actions)
+        last.record(actions, info)

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from colorgrid import BatchEnv, EnvConfig
-from colorgrid.evaluate import record_batch
-from colorgrid.export import export
+from colorgrid_apps.evaluate import record_batch
+from colorgrid_apps.export import export
 from colorgrid.policies import make_policy
 from colorgrid.render import PALETTE
 from colorgrid.replay import ReplayError, import_frames, load, replay_states, save, verify
@@ -144,7 +144,7 @@ def test_import_of_a_frames_only_trajectory(tmp_path):
     np.save(tmp_path / "trajectory_0.npy", np.stack(planes))
     np.save(tmp_path / "goal_info_0.npy", np.stack(goals))
     out = tmp_path / "imported.replay.json"
-    result = subprocess.run([sys.executable, "-m", "colorgrid.cli", "replay", "import", str(tmp_path / "trajectory_0.npy"),
+    result = subprocess.run([sys.executable, "-m", "colorgrid_apps", "replay", "import", str(tmp_path / "trajectory_0.npy"),
                              str(tmp_path / "goal_info_0.npy"), "--out", str(out), "--set", "horizon=40"],
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stderr
@@ -194,7 +194,7 @@ def test_cli_verify_names_bad_files_and_exits_nonzero(recorded, tmp_path):
     _, paths = recorded
     bad = tmp_path / "bad.replay.json"
     bad.write_bytes(paths[0].read_bytes()[:-20])
-    result = subprocess.run([sys.executable, "-m", "colorgrid.cli", "replay", "verify", str(paths[1]), str(bad)],
+    result = subprocess.run([sys.executable, "-m", "colorgrid_apps", "replay", "verify", str(paths[1]), str(bad)],
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 1
     assert f"{paths[1]}: ok" in result.stdout

@@ -427,7 +427,7 @@ def test_play_refuses_to_start_with_a_clear_line(tmp_path, flags, words):
     flags = [f.replace("IS_A_FILE", str(afile)) for f in flags]
     if "--replays-dir" not in flags:
         flags += ["--replays-dir", str(tmp_path / "rec")]
-    done = subprocess.run([sys.executable, "-m", "colorgrid.cli", "play", "--port", "0", *flags],
+    done = subprocess.run([sys.executable, "-m", "colorgrid_apps", "play", "--port", "0", *flags],
                           capture_output=True, text=True, timeout=120, cwd=ROOT)
     lines = done.stderr.strip().splitlines()
     assert done.returncode == 2 and len(lines) == 1, done.stderr

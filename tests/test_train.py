@@ -304,7 +304,7 @@ def test_checkpoint_errors_are_clear(tmp_path):
 
 def test_cli_trains_exports_and_evaluates_a_checkpoint(tmp_path):
     run = tmp_path / "run"
-    cmd = [sys.executable, "-m", "colorgrid.cli", "train", "--preset", "leader_solo", "--out", str(run),
+    cmd = [sys.executable, "-m", "colorgrid_apps", "train", "--preset", "leader_solo", "--out", str(run),
            "--no-progress", "--set", "total_steps=64", "--set", "ppo.num_envs=4", "--set", "ppo.num_steps=16",
            "--set", "eval_every=1", "--set", "eval_episodes=2", "--set", "replay_episodes=1"]
     done = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
@@ -312,15 +312,15 @@ def test_cli_trains_exports_and_evaluates_a_checkpoint(tmp_path):
     assert (run / "train.csv").read_text().startswith("step,")
     assert list((run / "tb").iterdir())
     small = tmp_path / "leader.pt"
-    done = subprocess.run([sys.executable, "-m", "colorgrid.cli", "checkpoint", "export",
+    done = subprocess.run([sys.executable, "-m", "colorgrid_apps", "checkpoint", "export",
                            str(run / "checkpoints" / "latest.pt"), "--agent", "leader", "--out", str(small)],
                           capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
-    done = subprocess.run([sys.executable, "-m", "colorgrid.cli", "eval", "--leader", str(small), "--follower",
+    done = subprocess.run([sys.executable, "-m", "colorgrid_apps", "eval", "--leader", str(small), "--follower",
                            "idle", "--episodes", "2"], capture_output=True, text=True, timeout=120)
     assert done.returncode == 0, done.stderr
     assert "leader net pickups" in done.stdout
-    bad = subprocess.run([sys.executable, "-m", "colorgrid.cli", "train", "--set", "ppo.clip_coef=-1"],
+    bad = subprocess.run([sys.executable, "-m", "colorgrid_apps", "train", "--set", "ppo.clip_coef=-1"],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "ppo.clip_coef=-1 is invalid" in bad.stderr
 
@@ -372,7 +372,7 @@ def assert_reproduces(report: dict, card: dict) -> None:
 
 def test_the_shipped_follower_reproduces_its_card_and_assists_the_astar_leader():
     """The card's own command, and the bar: net pickups clearly positive (95% interval above zero)."""
-    from colorgrid.evaluate import evaluate
+    from colorgrid_apps.evaluate import evaluate
 
     report = evaluate(EnvConfig(), "astar", str(CARDS / "follower.pt"), episodes=100, seed=0)
     assert_reproduces(report, card_report("follower", "astar", "checkpoints/follower.pt"))
@@ -382,7 +382,7 @@ def test_the_shipped_follower_reproduces_its_card_and_assists_the_astar_leader()
 
 
 def test_the_shipped_leader_reproduces_its_card_and_collects_goal_blocks():
-    from colorgrid.evaluate import evaluate
+    from colorgrid_apps.evaluate import evaluate
 
     report = evaluate(EnvConfig(), str(CARDS / "leader.pt"), "bayes", episodes=100, seed=0)
     assert_reproduces(report, card_report("leader", "checkpoints/leader.pt", "bayes"))

@@ -12,7 +12,7 @@ import pytest
 
 from colorgrid.replay import load, save
 from colorgrid.replay.timeline import timeline
-from colorgrid.viewer import ReplayViewer, TabView, block_capacity, export_html, frame_at
+from colorgrid_apps.viewer import ReplayViewer, TabView, block_capacity, export_html, frame_at
 
 ROOT = Path(__file__).resolve().parents[1]
 BAYES = sorted(glob.glob(str(ROOT / "replays/default/astar+bayes*.replay.json")))[0]
@@ -109,7 +109,7 @@ def test_standalone_html_export_plays_offline(tmp_path, browser):
 
 
 def test_view_command_serves_a_page_a_browser_connects_to(tmp_path, browser):
-    proc = subprocess.Popen([sys.executable, "-m", "colorgrid.cli", "view", str(ROOT / "replays"), "--port", "0"],
+    proc = subprocess.Popen([sys.executable, "-m", "colorgrid_apps", "view", str(ROOT / "replays"), "--port", "0"],
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, cwd=ROOT)
     try:
         url = None

@@ -13,8 +13,8 @@ import os
 from pathlib import Path
 
 from colorgrid.config import EnvConfig
-from colorgrid.evaluate import evaluate
-from colorgrid.machine import cpu_name
+from colorgrid_apps.evaluate import evaluate
+from colorgrid_apps.machine import cpu_name
 from train.checkpoint import load_checkpoint
 
 

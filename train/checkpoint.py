@@ -19,6 +19,7 @@ import pickle
 import zipfile
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from colorgrid.config import AGENTS, EnvConfig
@@ -120,3 +121,25 @@ def export_agent(src: str | Path, role: str, dst: str | Path) -> Path:
     return save_checkpoint(dst, {"config": ckpt["config"], "env_config": ckpt["env_config"], "step": ckpt["step"],
                                  "iteration": ckpt.get("iteration"), "wall_time_s": ckpt.get("wall_time_s"),
                                  "device": ckpt.get("device"), "agents": agents, "trainer_state": None})
+
+
+def to_tensors(obj):
+    """``obj`` with every numpy array a tensor, so that it saves and loads with ``weights_only=True``."""
+    if isinstance(obj, np.ndarray):
+        return torch.from_numpy(np.ascontiguousarray(obj))
+    if isinstance(obj, dict):
+        return {k: to_tensors(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_tensors(v) for v in obj]
+    return obj
+
+
+def to_arrays(obj):
+    """``to_tensors`` undone: every tensor a numpy array."""
+    if isinstance(obj, torch.Tensor):
+        return obj.numpy()
+    if isinstance(obj, dict):
+        return {k: to_arrays(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [to_arrays(v) for v in obj]
+    return obj

@@ -113,6 +113,6 @@ def cmd_checkpoint(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from colorgrid.cli import main as colorgrid_main
+    from colorgrid_apps.cli import main as colorgrid_main
 
     return colorgrid_main(["train", *(argv if argv is not None else __import__("sys").argv[1:])])

@@ -20,8 +20,6 @@ class NetPolicy(Policy):
     as trained). Keeps one recurrent state per env row, cleared at episode starts.
     """
 
-    has_belief = True
-
     def __init__(self, model: ActorCritic, name: str = "net", greedy: bool = False, source: str | None = None):
         self.model = model
         self.name = name
@@ -37,6 +35,16 @@ class NetPolicy(Policy):
                              f"not the {AGENTS[agent_index]}")
         self.state = self.model.initial_state(num_envs, self.device)
         self.generator = torch.Generator().manual_seed(int(seed) * 2 + agent_index)
+
+    def state_dict(self) -> dict:
+        """The recurrent state and the sampling generator (the weights come from the checkpoint)."""
+        return {"recurrent": None if self.state is None else [s.clone() for s in self.state],
+                "generator": self.generator.get_state()}
+
+    def load_state_dict(self, state: dict) -> None:
+        if state["recurrent"] is not None:
+            self.state = tuple(torch.as_tensor(s, device=self.device).clone() for s in state["recurrent"])
+        self.generator.set_state(torch.as_tensor(state["generator"], dtype=torch.uint8))
 
     @torch.inference_mode()
     def act(self, inp: AgentInput, rows: np.ndarray | None = None) -> PolicyOutput:
@@ -81,23 +89,18 @@ def check_compatible(trained: EnvConfig, wanted: EnvConfig, what: str) -> None:
                          f"shapes depend on these fields")
 
 
-_MODELS: dict[tuple, ActorCritic] = {}
-
-
-def load_policy(path: str | Path, role: str | None = None, greedy: bool = False) -> NetPolicy:
+def load_policy(path: str | Path, role: str | None = None, greedy: bool = False,
+                cache: "ModelCache | None" = None) -> NetPolicy:
     """A ``NetPolicy`` from a checkpoint: the agent named ``role`` (default: the only trained one).
 
-    Networks are loaded once per file version and shared (read-only) by every policy made from
-    them; each policy keeps its own recurrent state and random generator.
+    With a ``cache`` the network comes from it (shared with other policies of the same file);
+    each policy keeps its own recurrent state and random generator.
     """
-    file = Path(path)
-    key = (str(file.resolve()), file.stat().st_mtime_ns if file.is_file() else None, role)
-    if key not in _MODELS:
-        _MODELS[key] = _load_model(path, role)
-    return NetPolicy(_MODELS[key], name=f"{file.stem}", greedy=greedy, source=str(path))
+    model = cache.get(path, role) if cache is not None else load_model(path, role)
+    return NetPolicy(model, name=f"{Path(path).stem}", greedy=greedy, source=str(path))
 
 
-def _load_model(path: str | Path, role: str | None) -> ActorCritic:
+def load_model(path: str | Path, role: str | None) -> ActorCritic:
     from train.checkpoint import build_model, load_checkpoint
 
     ckpt = load_checkpoint(path)

@@ -8,8 +8,8 @@ RNGs) is saved in checkpoints, so a resumed run continues exactly as if never st
 
 from __future__ import annotations
 
+import dataclasses
 import json
-import pickle
 import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
@@ -20,10 +20,14 @@ import torch
 
 from colorgrid.config import AGENTS, EnvConfig
 from colorgrid.env import BatchEnv
-from colorgrid.evaluate import evaluate, record_batch
 from colorgrid.policies import make_policy
-from colorgrid.rollout import agent_input, reward_seen, run_episodes
-from train.checkpoint import agent_entry, build_model, load_checkpoint, load_weights, save_checkpoint
+from colorgrid.replay import describe_agent
+from colorgrid.rollout import run_episodes
+from colorgrid.state import EnvState
+from colorgrid.step_inputs import StepInputs
+from colorgrid_apps.evaluate import evaluate, record_batch
+from train.checkpoint import (agent_entry, build_model, load_checkpoint, load_weights, save_checkpoint,
+                              to_arrays, to_tensors)
 from train.config import TrainConfig
 from train.inputs import step_tensors
 from train.learner import Learner
@@ -32,6 +36,10 @@ from train.metrics import MetricsLog
 from train.nets import ActorCritic
 from train.policy import NetPolicy, check_compatible
 from train.ppo import LossWeights
+
+
+TRAINER_STATE_FORMAT = 2
+"""Version of the resumable trainer state in checkpoints (1 was a pickle, which ``--resume`` no longer reads)."""
 
 
 def pick_device(name: str) -> torch.device:
@@ -46,7 +54,7 @@ def device_name(device: torch.device) -> str:
     """What trained: the GPU's name, or the CPU's with its thread count."""
     if device.type == "cuda":
         return torch.cuda.get_device_name(device)
-    from colorgrid.machine import cpu_name
+    from colorgrid_apps.machine import cpu_name
 
     return f"{cpu_name()} ({torch.get_num_threads()} torch threads)"
 
@@ -110,10 +118,7 @@ class Trainer:
     def _begin_episodes(self) -> None:
         B, A = self.config.ppo.num_envs, self.config.env.num_agents
         self.obs, _ = self.env.reset()
-        self.prev_reward = np.zeros((B, A), dtype=np.float32)
-        self.prev_picked = np.full((B, A), -1, dtype=np.int64)
-        self.prev_actions = np.full((B, A), -1, dtype=np.int64)
-        self.start = np.ones(B, dtype=bool)
+        self.last = StepInputs.begin(self.config.env, B)
         self.shaped_sum = np.zeros((B, A))  # each env's training reward so far this episode
 
     # ------------------------------------------------------------------ loop
@@ -220,11 +225,10 @@ class Trainer:
             rewards = self._training_rewards(rewards, infos, shaping)
             shaped_sum += rewards
             done = terms[:, 0] | truncs[:, 0]
-            final = self._final_values(infos, actions, done) if done.any() else {}
+            self.last.record(actions, infos, done)
+            final = self._final_values(infos, done) if done.any() else {}
             for i, learner in self.learners.items():
                 learner.record(rewards[:, i], done, true_goal, final.get(i))
-            self.prev_reward = reward_seen(cfg.env, infos)
-            self.prev_picked, self.prev_actions, self.start = infos["picked_color"], actions, done
             if done.any():
                 fi = infos["final_info"]
                 for a, name in enumerate(AGENTS):
@@ -249,19 +253,18 @@ class Trainer:
         return out + shaped if shaping else out
 
     def _inputs(self, i: int, true_goal: np.ndarray | None = None):
-        return agent_input(self.obs, i, self.start, self.prev_reward[:, i], self.prev_picked, self.prev_actions,
-                           self.env.penalty_coef, self.env.state.goal.copy() if true_goal is None else true_goal)
+        return self.last.agent_input(self.obs, i, self.env.penalty_coef,
+                                     self.env.state.goal.copy() if true_goal is None else true_goal)
 
     def _tensors(self, i: int, inp) -> dict:
         return step_tensors(inp, self.config.env, i, self.device)
 
-    def _final_values(self, infos: dict, actions: np.ndarray, done: np.ndarray) -> dict[int, torch.Tensor]:
+    def _final_values(self, infos: dict, done: np.ndarray) -> dict[int, torch.Tensor]:
         """V(final observation) of ended episodes, so that time-limit truncation is bootstrapped."""
         out = {}
-        prev_reward = reward_seen(self.config.env, infos)
         for i, learner in self.learners.items():
-            inp = agent_input(infos["final_obs"], i, np.zeros_like(done), prev_reward[:, i], infos["picked_color"],
-                              actions, self.env.penalty_coef, self.env.state.goal)
+            inp = self.last.agent_input(infos["final_obs"], i, self.env.penalty_coef, self.env.state.goal,
+                                        episode_start=np.zeros_like(done))
             value = learner.value(self._tensors(i, inp))
             out[i] = torch.where(torch.as_tensor(done, device=self.device), value, torch.zeros_like(value))
         return out
@@ -303,16 +306,18 @@ class Trainer:
         for i, learner in self.learners.items():
             agents[AGENTS[i]] = agent_entry(learner.model, learner.optimizer)
         state = {
-            "env_state": self.env.state, "penalty_coef": self.env.penalty_coef,
-            "prev": (self.prev_reward, self.prev_picked, self.prev_actions, self.start),
-            "shaped_sum": self.shaped_sum,
-            "recurrent": {i: l.state for i, l in self.learners.items()},
-            "generators": {i: l.generator.get_state() for i, l in self.learners.items()},
-            "partners": self.partners, "torch_rng": torch.get_rng_state(),
+            "format": TRAINER_STATE_FORMAT,
+            "env_state": {f.name: getattr(self.env.state, f.name) for f in dataclasses.fields(self.env.state)},
+            "penalty_coef": self.env.penalty_coef, "last_step": self.last.state_dict(), "shaped_sum": self.shaped_sum,
+            "learners": {AGENTS[i]: {"recurrent": None if lr.state is None else list(lr.state),
+                                     "generator": lr.generator.get_state()} for i, lr in self.learners.items()},
+            "partners": {AGENTS[i]: {"describe": describe_agent(p.describe()), "state": p.state_dict()}
+                         for i, p in self.partners.items()},
+            "torch_rng": torch.get_rng_state(),
         }
         return {"config": self.config.to_dict(), "env_config": self.config.env.to_dict(), "step": self.step,
                 "iteration": self.iteration, "wall_time_s": self.wall_time, "device": device_name(self.device),
-                "agents": agents, "trainer_state": pickle.dumps(state)}
+                "agents": agents, "trainer_state": to_tensors(state)}
 
     def save(self) -> Path:
         payload = self.checkpoint_payload()
@@ -332,15 +337,24 @@ class Trainer:
                 raise ValueError(f"{path} holds no trained {AGENTS[i]}, but this run trains one")
             load_weights(learner.model, entry["state_dict"], str(path))
             learner.optimizer.load_state_dict(entry["optimizer"])
-        state = pickle.loads(ckpt["trainer_state"])
-        self.obs = self.env.load_state(state["env_state"])
-        self.env.penalty_coef = state["penalty_coef"]
-        self.prev_reward, self.prev_picked, self.prev_actions, self.start = state["prev"]
-        self.shaped_sum = state["shaped_sum"]
+        state = ckpt["trainer_state"]
+        if not isinstance(state, dict) or state.get("format") != TRAINER_STATE_FORMAT:
+            raise ValueError(f"{path} holds a trainer state this colorgrid cannot resume (written by an older version, "
+                             f"as a pickle); start a new run with its weights: --set follower.init={path}")
+        self.obs = self.env.load_state(EnvState(**to_arrays(state["env_state"])))
+        self.env.penalty_coef = float(state["penalty_coef"])
+        self.last.load_state_dict(to_arrays(state["last_step"]))
+        self.shaped_sum = to_arrays(state["shaped_sum"])
         for i, learner in self.learners.items():
-            learner.state = state["recurrent"][i]
-            learner.generator.set_state(state["generators"][i])
-        self.partners = state["partners"]
+            saved = state["learners"][AGENTS[i]]
+            learner.state = None if saved["recurrent"] is None else tuple(t.to(self.device) for t in saved["recurrent"])
+            learner.generator.set_state(saved["generator"])
+        for i, partner in self.partners.items():
+            saved = state["partners"][AGENTS[i]]
+            if saved["describe"] != describe_agent(partner.describe()):
+                raise ValueError(f"{path}: the {AGENTS[i]} partner was {saved['describe']}, now it is "
+                                 f"{describe_agent(partner.describe())}; resume with the same partner")
+            partner.load_state_dict(saved["state"])
         torch.set_rng_state(state["torch_rng"])
         self.step, self.iteration = int(ckpt["step"]), int(ckpt["iteration"])
         self.wall_time = float(ckpt.get("wall_time_s", 0.0))

@@ -27,6 +27,27 @@ class AgentInput:
     penalty_coef: float = 1.0  # the env's current penalty coefficient
     true_goal: np.ndarray | None = None  # [B] privileged ground truth; only the oracle reads it
 
+    def select(self, rows) -> "AgentInput":
+        """The input of the envs ``rows`` only."""
+        def take(name):
+            value = getattr(self, name)
+            return None if value is None else value[rows]
+
+        return AgentInput(**{f: take(f) for f in _BATCHED}, penalty_coef=self.penalty_coef)
+
+    @classmethod
+    def concat(cls, inputs: list["AgentInput"]) -> "AgentInput":
+        """Inputs of several batches as one, along the batch axis (their ``penalty_coef`` is the first's)."""
+        def cat(name):
+            values = [getattr(i, name) for i in inputs]
+            return None if values[0] is None else np.concatenate(values)
+
+        return cls(**{f: cat(f) for f in _BATCHED}, penalty_coef=inputs[0].penalty_coef)
+
+
+_BATCHED = ("observation", "goal_info", "episode_start", "prev_reward", "prev_picked_color", "prev_actions",
+            "true_goal")
+
 
 @dataclass
 class PolicyOutput:
@@ -44,7 +65,8 @@ class Policy:
     """
 
     name = "policy"
-    has_belief = False
+    state_fields: tuple[str, ...] = ()
+    """Array attributes that change while acting (beliefs, targets): what ``state_dict`` saves besides ``rng``."""
 
     def reset(self, config: EnvConfig, num_envs: int, agent_index: int, seed: int = 0) -> None:
         self.config = config
@@ -61,3 +83,22 @@ class Policy:
     def describe(self) -> dict:
         """How replays and reports name this agent."""
         return {"policy": self.name}
+
+    def state_dict(self) -> dict:
+        """What changes while acting, as arrays and plain values, so that a resumed run continues exactly:
+        the ``state_fields`` and the random generator's state (``rng``) if the policy has one."""
+        out = {name: np.array(getattr(self, name)) for name in self.state_fields}
+        if hasattr(self, "rng"):
+            out["rng"] = self.rng.bit_generator.state
+        return out
+
+    def load_state_dict(self, state: dict) -> None:
+        """Restore what ``state_dict`` saved, on a policy ``reset`` with the same config and batch size."""
+        for name in self.state_fields:
+            current = getattr(self, name)
+            value = np.asarray(state[name], dtype=current.dtype)
+            if value.shape != current.shape:
+                raise ValueError(f"{self.name}: saved {name} has shape {value.shape}, expected {current.shape}")
+            setattr(self, name, value.copy())
+        if "rng" in state:
+            self.rng.bit_generator.state = state["rng"]

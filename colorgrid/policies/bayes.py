@@ -89,7 +89,7 @@ class BayesFollower(Seeker):
     """
 
     name = "bayes"
-    has_belief = True
+    state_fields = ("belief", "prev_blocks", "prev_cells", "has_prev")
 
     def __init__(self, params: BayesConfig | None = None):
         self.params = params or BayesConfig()

@@ -81,7 +81,6 @@ class OracleFollower(Seeker):
     """A* with the true goal, read from privileged ground truth: an upper bound for followers."""
 
     name = "oracle"
-    has_belief = True
 
     def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
         if inp.true_goal is None:
@@ -113,6 +112,7 @@ class CopyFollower(Seeker):
     """
 
     name = "copy"
+    state_fields = ("target",)
 
     def reset(self, config: EnvConfig, num_envs: int, agent_index: int, seed: int = 0) -> None:
         super().reset(config, num_envs, agent_index, seed)

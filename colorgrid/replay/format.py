@@ -25,7 +25,6 @@ FORMAT_NAME = "colorgrid-replay"
 FORMAT_VERSION = 1
 SUFFIX = ".replay.json"
 SOURCES = ("eval", "train", "play", "import")
-KINDS = ("actions", "frames")
 MAX_DEPTH = 32
 """Deepest JSON nesting a replay file may have (a real one has about 6 levels)."""
 

@@ -6,8 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
-from colorgrid.cli_config import add_config_arguments, config_from_args
 from colorgrid.replay.format import SUFFIX
+from colorgrid_apps.cli_env import add_config_arguments, config_from_args
 
 
 def _replay_files(target: Path) -> list[Path]:
@@ -65,7 +65,7 @@ def cmd_import(args: argparse.Namespace) -> int:
 
 
 def cmd_release(args: argparse.Namespace) -> int:
-    from colorgrid.replay.release import build_release
+    from colorgrid_apps.release import build_release
 
     index = build_release(Path(args.out), episodes=args.episodes, gifs=Path(args.gifs) if args.gifs else None)
     print(f"wrote {len(index['replays'])} replays and {args.out}/index.json")
@@ -75,7 +75,7 @@ def cmd_release(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from colorgrid.export import default_output, export
+    from colorgrid_apps.export import default_output, export
     from colorgrid.replay import load
 
     files = _replay_files(Path(args.target))

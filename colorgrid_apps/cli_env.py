@@ -9,17 +9,7 @@ from pathlib import Path
 
 from colorgrid.config import EnvConfig
 from colorgrid.files import JSONFileError, read_json_object
-
-PRESETS: dict[str, dict] = {
-    "default": {},
-    "symmetric": {"asymmetric": False},
-    "stationary": {"switch_prob": 0.0},
-    "reward_4_1": {"goal_reward": 4.0},
-    "hemispheres": {"hemispheres": True},
-    "sparse": {"block_density": 0.05},
-}
-"""Named settings from the paper's experiments (changes from the default EnvConfig)."""
-
+from colorgrid.presets import PRESETS, env_config
 
 def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("environment")
@@ -52,11 +42,11 @@ def parse_overrides(items: list[str]) -> dict:
 
 
 def config_from_args(args: argparse.Namespace) -> EnvConfig:
-    data = dict(PRESETS[args.preset])
+    changes = {}
     if args.config is not None:
         try:
-            data.update(read_json_object(args.config, "a JSON object of EnvConfig fields"))
+            changes.update(read_json_object(args.config, "a JSON object of EnvConfig fields"))
         except JSONFileError as err:
             raise ValueError(f"--config {err}") from None
-    data.update(parse_overrides(args.set))
-    return EnvConfig().replace(**data) if data else EnvConfig()
+    changes.update(parse_overrides(args.set))
+    return env_config(args.preset, **changes)

@@ -14,8 +14,8 @@ from PIL import Image, ImageDraw
 
 from colorgrid.config import AGENTS
 from colorgrid.render import PALETTE, _font, render_rgb
-from colorgrid.replay import Replay, replay_states
 from colorgrid.files import atomic_path
+from colorgrid.replay import Replay, replay_states
 
 FORMATS = ("gif", "mp4")
 PANEL_WIDTH = 230

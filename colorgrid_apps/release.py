@@ -5,12 +5,11 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from colorgrid.cli_config import PRESETS
-from colorgrid.config import EnvConfig
-from colorgrid.evaluate import record_batch
 from colorgrid.policies import make_policy
+from colorgrid.presets import env_config
 from colorgrid.replay import load
 from colorgrid.rollout import run_episodes
+from colorgrid_apps.evaluate import record_batch
 
 SETTINGS = {
     "default": "asymmetric, +1/-1, goal switches about 2% a step",
@@ -32,7 +31,7 @@ def build_release(out: Path, episodes: int = 2, gifs: Path | None = None) -> dic
     out.mkdir(parents=True, exist_ok=True)
     entries = []
     for setting, setting_text in SETTINGS.items():
-        config = EnvConfig().replace(**PRESETS[setting]) if PRESETS[setting] else EnvConfig()
+        config = env_config(setting)
         for follower, follower_text in FOLLOWERS.items():
             leader_policy, follower_policy = make_policy("astar"), make_policy(follower)
             batch = run_episodes(config, leader_policy, follower_policy, episodes, RELEASE_SEED, record_hashes=True)
@@ -47,7 +46,7 @@ def build_release(out: Path, episodes: int = 2, gifs: Path | None = None) -> dic
                     "description": f"A* leader with the {follower} follower ({follower_text}); {setting_text}.",
                 })
             if gifs is not None and follower == "bayes" and setting in GIF_SETTINGS:
-                from colorgrid.export import export
+                from colorgrid_apps.export import export
 
                 export(load(paths[0]), gifs / f"{setting}_astar+bayes.gif", "gif", cell=8)
     index = {"generated_by": f"colorgrid replay release --out {out} --episodes {episodes}", "replays": entries}

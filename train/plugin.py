@@ -1,0 +1,42 @@
+"""What the trainer adds to the core: its shipped agents by name and checkpoint files as policies.
+
+Registered through the ``colorgrid.policies`` entry point (``pyproject.toml``); torch is
+imported only when one of these policies is asked for.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from train.model_cache import ModelCache
+
+CHECKPOINTS_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
+SHIPPED = {"ippo": "follower.pt", "ippo-leader": "leader.pt"}
+"""Trained agents that ship in ``checkpoints/``, by name: the IPPO follower and leader (see their model cards)."""
+
+
+def shipped_policy(name: str, role: str | None, cache: ModelCache | None = None):
+    path = CHECKPOINTS_DIR / SHIPPED[name]
+    if not path.is_file():
+        raise ValueError(f"the shipped checkpoint for {name!r} is missing: {path} (it is part of the repository)")
+    from train.policy import load_policy
+
+    policy = load_policy(path, role=role, cache=cache)
+    policy.name = name
+    return policy
+
+
+def checkpoint_policy(path: str, role: str | None, cache: ModelCache | None = None):
+    from train.policy import load_policy
+
+    return load_policy(path, role=role, cache=cache)
+
+
+def register_policies() -> None:
+    """The ``colorgrid.policies`` entry point: the loaders it registers share one ``ModelCache``."""
+    from colorgrid.policies.registry import register_loader, register_policy
+
+    cache = ModelCache()
+    for name in SHIPPED:
+        register_policy(name, lambda role, name=name: shipped_policy(name, role, cache))
+    register_loader(".pt", lambda path, role: checkpoint_policy(path, role, cache), "a checkpoint path ending in .pt")
