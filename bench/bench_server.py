@@ -12,7 +12,7 @@ misses, the server's CPU use, and whether every game was saved. Bounded: N conne
 
 ``--exports K`` keeps K GIF/MP4 exports of distinct replays in flight for the whole run (the
 server runs with ``--max-exports K``); ``--large-replays`` puts a 150 MB file (over the
-server's limit) and a 40 MB replay (under it) in the recordings folder and requests both,
+server's limit) and a 40 MB replay (under it) among the server's replays and requests both,
 list, file and timeline, over and over. Both measure whether live games stay on time.
 """
 
@@ -23,9 +23,7 @@ import asyncio
 import json
 import os
 import random
-import socket
 import statistics
-import subprocess
 import sys
 import tempfile
 import time
@@ -36,7 +34,7 @@ from pathlib import Path
 from websockets.asyncio.client import connect
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import machine  # noqa: E402
+from common import machine, start_play_server  # noqa: E402
 
 KEYS = ["ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight"]
 
@@ -103,8 +101,8 @@ async def exporter(base: str, ids: list[str], end: float, counts: dict) -> None:
 async def large_requests(base: str, end: float, counts: dict) -> None:
     loop = asyncio.get_running_loop()
     while time.monotonic() < end:
-        for path in ("/api/replays?limit=5", "/api/replays/huge", "/api/replays/huge/timeline",
-                     "/api/replays/big", "/api/replays/big/timeline"):
+        for path in ("/api/replays?limit=5", "/api/replays/released--huge", "/api/replays/released--huge/timeline",
+                     "/api/replays/released--big", "/api/replays/released--big/timeline"):
             status = await loop.run_in_executor(None, http_status, base + path)
             counts[(path, status)] = counts.get((path, status), 0) + 1
 
@@ -119,7 +117,7 @@ def prepare_replays(folder: Path, exports: int, large: bool) -> list[str]:
         (folder / "exports").mkdir()
         for i in range(40 * exports):
             (folder / "exports" / f"copy{i}.replay.json").write_bytes(source.read_bytes())
-            ids.append(f"exports--copy{i}")
+            ids.append(f"released--exports--copy{i}")
     if large:
         (folder / "huge.replay.json").write_bytes(b" " * 150_000_000 + source.read_bytes())
         replay = load(source)
@@ -129,25 +127,14 @@ def prepare_replays(folder: Path, exports: int, large: bool) -> list[str]:
 
 
 async def run(args) -> None:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    tmp = Path(tempfile.mkdtemp(prefix="colorgrid-load-"))
-    export_ids = prepare_replays(tmp, args.exports, args.large_replays)
-    server = subprocess.Popen([sys.executable, "-m", "colorgrid_apps", "play", "--port", str(port), "--replays-dir",
-                               str(tmp), "--tick-hz", str(args.tick_hz), "--follower", args.follower,
-                               "--max-sessions", str(args.players), "--new-games-per-minute", str(10 * args.players),
-                               "--max-exports", str(max(1, args.exports)), "--log-level", "warning"],
-                              stdout=open(tmp / "server.log", "w"), stderr=subprocess.STDOUT)
-    base = f"http://127.0.0.1:{port}"
+    folder = Path(tempfile.mkdtemp(prefix="colorgrid-replays-"))
+    export_ids = prepare_replays(folder, args.exports, args.large_replays)
+    server, base, tmp = start_play_server("colorgrid-load-", "--tick-hz", str(args.tick_hz), "--follower",
+                                          args.follower, "--max-sessions", str(args.players), "--new-games-per-minute",
+                                          str(10 * args.players), "--max-exports", str(max(1, args.exports)),
+                                          "--released-dir", str(folder))
+    port = base.rsplit(":", 1)[1]
     try:
-        for _ in range(600):  # until the server has loaded its follower and the compiled env step
-            try:
-                if json.loads(urllib.request.urlopen(base + "/api/health", timeout=2).read()).get("ready"):
-                    break
-            except OSError:
-                pass
-            await asyncio.sleep(0.2)
         cpu0, wall0 = cpu_seconds(server.pid), time.perf_counter()
         latencies: list[float] = []
         results: list[dict] = []

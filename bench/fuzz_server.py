@@ -18,10 +18,7 @@ import argparse
 import asyncio
 import json
 import random
-import socket
-import subprocess
 import sys
-import tempfile
 import time
 import urllib.request
 from pathlib import Path
@@ -30,7 +27,7 @@ from websockets.asyncio.client import connect
 from websockets.exceptions import ConnectionClosed
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from common import machine  # noqa: E402
+from common import machine, start_play_server  # noqa: E402
 
 MOVES = ["ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight"]
 
@@ -104,24 +101,11 @@ async def legit(url: str, horizon: int) -> dict:
 async def run(args) -> None:
     from colorgrid.replay import load, verify
 
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        port = s.getsockname()[1]
-    tmp = Path(tempfile.mkdtemp(prefix="colorgrid-fuzz-"))
-    server = subprocess.Popen([sys.executable, "-m", "colorgrid_apps", "play", "--port", str(port), "--replays-dir",
-                               str(tmp), "--follower", args.follower, "--max-sessions", str(args.connections + args.games),
-                               "--max-connections", str(2 * (args.connections + args.games)),
-                               "--new-games-per-minute", str(10 * (args.connections + args.games)), "--log-level",
-                               "warning"], stdout=open(tmp / "server.log", "w"), stderr=subprocess.STDOUT)
-    base, url = f"http://127.0.0.1:{port}", f"ws://127.0.0.1:{port}/ws/play"
+    total = args.connections + args.games
+    server, base, tmp = start_play_server("colorgrid-fuzz-", "--follower", args.follower, "--max-sessions", str(total),
+                                          "--max-connections", str(2 * total), "--new-games-per-minute", str(10 * total))
+    url = base.replace("http://", "ws://") + "/ws/play"
     try:
-        for _ in range(600):
-            try:
-                if json.loads(urllib.request.urlopen(base + "/api/health", timeout=2).read()).get("ready"):
-                    break
-            except OSError:
-                pass
-            await asyncio.sleep(0.2)
         rng = random.Random(args.seed)
         counts = {"sent": 0, "replies": 0, "errors": 0, "closed": {}}
         start = time.perf_counter()

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
-import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
+
+from colorgrid.configkit import (check_bool, check_choice, check_int, check_number, check_strings, fail, from_dict,
+                                 to_dict)
 
 ENV_ID = "colorgrid_v0"
 """Versioned id: bumped whenever dynamics, rewards or observations change."""
@@ -29,6 +31,9 @@ class EnvConfig:
     Invalid values raise ``ValueError`` naming the field, the value and what is
     allowed. Use ``dataclasses.replace`` or :meth:`replace` to derive variants.
     """
+
+    ERROR_STYLE: ClassVar[str] = "EnvConfig.{name} must be {allowed}, got {value!r}"
+    CONFIG_NAME: ClassVar[str] = "EnvConfig"
 
     height: int = 32
     """Grid rows (4..1024)."""
@@ -113,74 +118,40 @@ class EnvConfig:
         return EnvConfig.from_dict({**self.to_dict(), **changes})
 
     def to_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d["distance_penalty_agents"] = list(self.distance_penalty_agents)
-        return d
+        return to_dict(self)
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "EnvConfig":
         """Build from a plain dict (e.g. JSON); unknown keys raise ``ValueError`` listing allowed ones."""
-        if not isinstance(data, dict):
-            raise ValueError(f"EnvConfig must be built from a dict, got {type(data).__name__}")
-        names = [f.name for f in dataclasses.fields(cls)]
-        unknown = sorted(set(data) - set(names))
-        if unknown:
-            raise ValueError(f"unknown EnvConfig field(s) {unknown}; allowed: {names}")
-        data = dict(data)
-        if isinstance(data.get("distance_penalty_agents"), list):
-            data["distance_penalty_agents"] = tuple(data["distance_penalty_agents"])
-        return cls(**data)
+        return from_dict(cls, data)
 
 
-def _fail(name: str, value: Any, allowed: str) -> None:
-    raise ValueError(f"EnvConfig.{name} must be {allowed}, got {value!r}")
+def _real(low: float, high: float = math.inf):
+    return lambda v: low <= v <= high
 
 
-def _check_int(cfg: EnvConfig, name: str, lo: int, hi: int) -> None:
-    v = getattr(cfg, name)
-    if isinstance(v, bool) or not isinstance(v, int) or not lo <= v <= hi:
-        _fail(name, v, f"an integer in [{lo}, {hi}]")
-
-
-def _check_real(cfg: EnvConfig, name: str, lo: float, hi: float = math.inf, what: str = "") -> None:
-    v = getattr(cfg, name)
-    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not lo <= v <= hi:
-        _fail(name, v, what or (f"a finite number >= {lo:g}" if hi == math.inf else f"a number in [{lo:g}, {hi:g}]"))
-
-
-def _check_bool(cfg: EnvConfig, name: str) -> None:
-    v = getattr(cfg, name)
-    if not isinstance(v, bool):
-        _fail(name, v, "a bool (True or False)")
+MAGNITUDE = "a finite non-negative magnitude (the sign is applied by the rules)"
 
 
 def _validate(cfg: EnvConfig) -> None:
-    _check_int(cfg, "height", 4, 1024)
-    _check_int(cfg, "width", 4, 1024)
-    _check_int(cfg, "num_colors", 2, len(COLOR_NAMES))
-    _check_real(cfg, "block_density", 0.0, 1.0, "a number in (0, 1)")
+    check_int(cfg, "height", 4, 1024)
+    check_int(cfg, "width", 4, 1024)
+    check_int(cfg, "num_colors", 2, len(COLOR_NAMES))
+    check_number(cfg, "block_density", "a number in (0, 1)", _real(0.0, 1.0))
     for name in ("goal_reward", "wrong_penalty", "penalty_coef", "distance_penalty", "potential_scale"):
-        _check_real(cfg, name, 0.0, what="a finite non-negative magnitude (the sign is applied by the rules)")
-    _check_real(cfg, "switch_prob", 0.0, 1.0)
-    _check_int(cfg, "horizon", 1, 1_000_000)
-    _check_int(cfg, "distance_threshold", 0, 2048)
+        check_number(cfg, name, MAGNITUDE, _real(0.0))
+    check_number(cfg, "switch_prob", "a number in [0, 1]", _real(0.0, 1.0))
+    check_int(cfg, "horizon", 1, 1_000_000)
+    check_int(cfg, "distance_threshold", 0, 2048)
     for name in ("asymmetric", "hemispheres", "allow_stay", "potential_shaping"):
-        _check_bool(cfg, name)
-    if cfg.reward_mode not in REWARD_MODES:
-        _fail("reward_mode", cfg.reward_mode, f"one of {list(REWARD_MODES)}")
-    agents = cfg.distance_penalty_agents
-    names_ok = isinstance(agents, tuple) and all(isinstance(a, str) for a in agents)  # strings before set()
-    if not names_ok or not set(agents) <= set(AGENTS) or len(set(agents)) != len(agents):
-        _fail("distance_penalty_agents", agents, f"a tuple of distinct names from {list(AGENTS)}")
+        check_bool(cfg, name, "a bool (True or False)")
+    check_choice(cfg, "reward_mode", REWARD_MODES)
+    check_strings(cfg, "distance_penalty_agents", AGENTS, distinct=True)
     if cfg.hemispheres and cfg.width % 2:
-        _fail("width", cfg.width, "even when hemispheres=True (two equal halves)")
+        fail(cfg, "width", "even when hemispheres=True (two equal halves)")
     if cfg.blocks_per_color < 1:
-        _fail(
-            "block_density",
-            cfg.block_density,
-            f"large enough for at least one block per color on a {cfg.height}x{cfg.width} grid "
-            f"(>= {cfg.num_colors / (cfg.height * cfg.width):.4g})",
-        )
+        fail(cfg, "block_density", f"large enough for at least one block per color on a {cfg.height}x{cfg.width} "
+                                   f"grid (>= {cfg.num_colors / (cfg.height * cfg.width):.4g})")
     # Room to place everything and to respawn a collected block: at least one free cell.
     halves = 2 if cfg.hemispheres else 1
     cells = cfg.height * cfg.width // halves
@@ -188,9 +159,5 @@ def _validate(cfg: EnvConfig) -> None:
     agents_per_half = cfg.num_agents // halves
     if blocks + agents_per_half >= cells:
         where = "each half of the grid" if halves == 2 else "the grid"
-        _fail(
-            "block_density",
-            cfg.block_density,
-            f"small enough that {where} ({cells} cells) keeps a free cell after {blocks} blocks and "
-            f"{agents_per_half} agent(s)",
-        )
+        fail(cfg, "block_density", f"small enough that {where} ({cells} cells) keeps a free cell after {blocks} "
+                                   f"blocks and {agents_per_half} agent(s)")

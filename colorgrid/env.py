@@ -35,6 +35,7 @@ from colorgrid.config import EnvConfig
 from colorgrid.generator import initial_layout
 from colorgrid import kernel
 from colorgrid.kernel import step_kernel
+from colorgrid.roles import columns
 from colorgrid.state import EnvState
 
 # Row and column change per action: up, down, left, right, stay.
@@ -179,7 +180,7 @@ class BatchEnv:
         rewards, truncations, terminations = fout[kernel.O_REWARD], bout[kernel.O_TRUNCATED], bout[kernel.O_TERMINATED]
         infos = {
             "block_reward": fout[kernel.O_BLOCK],  # [B, A] float32, unshaped
-            "team_reward": fout[kernel.O_TEAM, :, 0],  # [B], unshaped
+            "team_reward": fout[kernel.O_TEAM, :, 0],  # [B], unshaped (the same in every agent's column)
             "picked_color": picked_color,  # [B, A] int64, -1 if nothing collected
             "goal_pickup": bout[kernel.O_GOAL_PICKUP],  # [B, A] bool
             "wrong_pickup": bout[kernel.O_WRONG_PICKUP],  # [B, A] bool
@@ -190,7 +191,7 @@ class BatchEnv:
             "penalty_coef": self._penalty_coef,
             "step": s.t.copy(),  # [B]
         }
-        done = truncations[:, 0]
+        done = truncations[:, 0]  # every agent's episode ends at once: any agent's column tells
         if done[0] if B == 1 else done.any():
             self._end_episodes(done, infos)
         return self._observations(), rewards, terminations, truncations, infos
@@ -286,7 +287,7 @@ def move_table(config: EnvConfig) -> np.ndarray:
     rows, cols = np.divmod(np.arange(H * W), W)
     table = np.empty((config.num_agents, H * W, config.num_actions), dtype=np.int64)
     for a in range(config.num_agents):
-        lo, hi = (0, W) if not config.hemispheres else ((0, W // 2) if a == 0 else (W // 2, W))
+        lo, hi = columns(config, a)
         for k in range(config.num_actions):
             r, c = rows + ACTION_DELTAS[k, 0], cols + ACTION_DELTAS[k, 1]
             inside = (r >= 0) & (r < H) & (c >= lo) & (c < hi)

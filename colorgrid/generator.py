@@ -6,11 +6,12 @@ import numpy as np
 from numba import njit
 
 from colorgrid import rng
-from colorgrid.config import EnvConfig
+from colorgrid.config import FOLLOWER, LEADER, EnvConfig
+from colorgrid.roles import columns
 
 
 def block_goes_left(config: EnvConfig) -> np.ndarray:
-    """[N] bool: in hemisphere mode, blocks with even index start in the left half.
+    """[N] bool: in hemisphere mode, blocks with even index start in the leader's (left) half.
 
     Alternating by index spreads every color evenly over both halves.
     """
@@ -47,7 +48,7 @@ def initial_layout(config: EnvConfig, seeds: np.ndarray):
     cells ``row * W + col``, all distinct) and ``goal [n]``. Without hemispheres
     agents and blocks take the first cells of a random permutation of the grid;
     with them, the leader and the even-indexed blocks come from the left half's
-    permutation, the follower and the odd-indexed blocks from the right half's.
+    permutation, the follower and the odd-indexed blocks from the right half's (``roles.columns``).
     """
     H, W = config.height, config.width
     A, N = config.num_agents, config.num_blocks
@@ -57,11 +58,19 @@ def initial_layout(config: EnvConfig, seeds: np.ndarray):
         agent_cell, block_cell = order[:, :A], order[:, A:]
     else:
         goes_left = block_goes_left(config)
-        left = _shuffled_prefix(seeds, cells[cells % W < W // 2], 1 + goes_left.sum(), 0)
-        right = _shuffled_prefix(seeds, cells[cells % W >= W // 2], 1 + (~goes_left).sum(), H * W)
-        agent_cell = np.stack([left[:, 0], right[:, 0]], axis=1)
+        left = _shuffled_prefix(seeds, _half(config, cells, LEADER), 1 + goes_left.sum(), 0)
+        right = _shuffled_prefix(seeds, _half(config, cells, FOLLOWER), 1 + (~goes_left).sum(), H * W)
+        agent_cell = np.empty((seeds.shape[0], A), dtype=np.int64)
+        agent_cell[:, LEADER], agent_cell[:, FOLLOWER] = left[:, 0], right[:, 0]
         block_cell = np.empty((seeds.shape[0], N), dtype=np.int64)
         block_cell[:, goes_left] = left[:, 1:]
         block_cell[:, ~goes_left] = right[:, 1:]
     goal = rng.below(seeds, config.num_colors, 0, rng.STREAM_GOAL)
     return agent_cell.astype(np.int64), block_cell.astype(np.int64), goal
+
+
+def _half(config: EnvConfig, cells: np.ndarray, agent: int) -> np.ndarray:
+    """The ``cells`` (flat indices) in the columns agent ``agent`` may stand on."""
+    first, stop = columns(config, agent)
+    col = cells % config.width
+    return cells[(col >= first) & (col < stop)]

@@ -13,6 +13,7 @@ import numpy as np
 from numba import njit
 
 from colorgrid import rng
+from colorgrid.config import FOLLOWER, LEADER  # module-level ints: numba compiles them in as constants
 
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
@@ -196,10 +197,10 @@ def step_kernel(actions, agent_cell, block_at, block_cell, block_color, goal, t,
         for a in range(A):
             distance_term[a] = 0.0
             potential_term[a] = 0.0
-        if distance_penalty != 0.0:
-            r0, c0 = agent_cell[b, 0] // width, agent_cell[b, 0] % width
-            r1, c1 = agent_cell[b, 1] // width, agent_cell[b, 1] % width
-            if abs(r0 - r1) + abs(c0 - c1) <= distance_threshold:
+        if distance_penalty != 0.0:  # the leader and the follower within the threshold of each other
+            lr, lc = agent_cell[b, LEADER] // width, agent_cell[b, LEADER] % width
+            fr, fc = agent_cell[b, FOLLOWER] // width, agent_cell[b, FOLLOWER] % width
+            if abs(lr - fr) + abs(lc - fc) <= distance_threshold:
                 for a in range(A):
                     if distance_mask[a] != 0:
                         distance_term[a] = -distance_penalty

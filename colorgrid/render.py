@@ -13,7 +13,8 @@ from functools import lru_cache
 import numpy as np
 from PIL import Image, ImageDraw, ImageFont
 
-from colorgrid.config import EnvConfig
+from colorgrid.config import AGENTS, FOLLOWER, LEADER, SYMBOLS, EnvConfig
+from colorgrid.roles import scores
 from colorgrid.state import EnvState
 
 # RGB per block color, in the order of ``config.COLOR_NAMES``.
@@ -24,15 +25,36 @@ FLOOR = np.array([236, 236, 232], dtype=np.uint8)
 GRID_LINE = np.array([210, 210, 204], dtype=np.uint8)
 LEADER_RGB = np.array([25, 25, 25], dtype=np.uint8)
 FOLLOWER_RGB = np.array([255, 255, 255], dtype=np.uint8)
+AGENT_COLORS = {LEADER: (LEADER_RGB, FOLLOWER_RGB), FOLLOWER: (FOLLOWER_RGB, LEADER_RGB)}
+"""``(body, ink)`` per agent index: a dark leader with a light letter, a light follower with a dark one."""
 HEADER_BG = np.array([40, 44, 52], dtype=np.uint8)
 HEADER_HEIGHT = 22
 GOAL_BORDER = 4
 
 
+def hex_color(rgb) -> str:
+    """``[r, g, b]`` -> ``"#rrggbb"``."""
+    return "#%02x%02x%02x" % tuple(int(v) for v in rgb)
+
+
+def look(config: EnvConfig | None = None) -> dict:
+    """How the pictures look, as hex colors for pages that draw boards themselves (the play server's and
+    the replay player's): ``palette`` (one per block color: the config's colors, or every color),
+    ``floor``, ``grid`` (cell lines) and ``agents``, in index order: ``{name, symbol, body, ink}``."""
+    num_colors = len(PALETTE) if config is None else config.num_colors
+    names = AGENTS if config is None else config.agent_names
+    return {
+        "palette": [hex_color(rgb) for rgb in PALETTE[:num_colors]],
+        "floor": hex_color(FLOOR), "grid": hex_color(GRID_LINE),
+        "agents": [{"name": name, "symbol": SYMBOLS[i], "body": hex_color(AGENT_COLORS[i][0]),
+                    "ink": hex_color(AGENT_COLORS[i][1])} for i, name in enumerate(names)],
+    }
+
+
 @lru_cache(maxsize=16)
 def tiles(num_colors: int, cell: int) -> np.ndarray:
-    """[num_colors + 3, cell, cell, 3] uint8 tiles: floor, one per block color, leader, follower."""
-    out = np.empty((num_colors + 3, cell, cell, 3), dtype=np.uint8)
+    """[1 + num_colors + A, cell, cell, 3] uint8 tiles: floor, one per block color, one per agent."""
+    out = np.empty((1 + num_colors + len(SYMBOLS), cell, cell, 3), dtype=np.uint8)
     out[:] = FLOOR
     out[:, -1, :] = GRID_LINE
     out[:, :, -1] = GRID_LINE
@@ -40,7 +62,8 @@ def tiles(num_colors: int, cell: int) -> np.ndarray:
     for k in range(num_colors):
         out[1 + k, margin:cell - margin - 1, margin:cell - margin - 1] = PALETTE[k]
     font = _font(max(8, cell - 4))
-    for i, (letter, body, ink) in enumerate((("L", LEADER_RGB, FOLLOWER_RGB), ("F", FOLLOWER_RGB, LEADER_RGB))):
+    for i, letter in enumerate(SYMBOLS):
+        body, ink = AGENT_COLORS[i]
         img = Image.fromarray(out[num_colors + 1 + i])
         draw = ImageDraw.Draw(img)
         draw.ellipse([0, 0, cell - 2, cell - 2], fill=tuple(int(v) for v in body), outline=(0, 0, 0))
@@ -90,7 +113,7 @@ def render_rgb(state: EnvState, config: EnvConfig, index: int = 0, cell: int = 1
     draw = ImageDraw.Draw(img)
     font = _font(13)
     draw.rectangle([6, 5, 18, 17], fill=tuple(int(v) for v in PALETTE[goal]))
-    team = float(state.score[index].sum())
+    team = scores(state, index)["team"]
     text = f"goal {config.color_names[goal]}   step {int(state.t[index])}/{config.horizon}   team {team:+g}"
     draw.text((24, 4), text, fill=(255, 255, 255), font=font)
     frame[:HEADER_HEIGHT] = np.asarray(img)
@@ -101,15 +124,16 @@ _ANSI_COLOR = ("31", "32", "34", "33", "35", "36", "33", "95")
 
 
 def render_ansi(state: EnvState, config: EnvConfig, index: int = 0, color: bool = True) -> str:
-    """Text view: one character per cell (``.`` floor, color initial for blocks, ``L``/``F`` agents)."""
+    """Text view: one character per cell (``.`` floor, color initial for blocks, ``SYMBOLS`` for agents)."""
     ids = cell_ids(state, config, index)
-    symbols = ["."] + [name[0] for name in config.color_names] + ["L", "F"]
+    symbols = ["."] + [name[0] for name in config.color_names] + list(SYMBOLS)
     if color:
         symbols = (["\x1b[2m.\x1b[0m"]
                    + [f"\x1b[{_ANSI_COLOR[k]}m{symbols[1 + k]}\x1b[0m" for k in range(config.num_colors)]
-                   + ["\x1b[1;7mL\x1b[0m", "\x1b[1;7mF\x1b[0m"])
+                   + [f"\x1b[1;7m{letter}\x1b[0m" for letter in SYMBOLS])
     goal = config.color_names[int(state.goal[index])]
-    scores = " ".join(f"{name} {float(v):+g}" for name, v in zip(("leader", "follower"), state.score[index]))
-    lines = [f"step {int(state.t[index])}/{config.horizon}  goal {goal}  {scores}"]
+    score = scores(state, index)
+    agents = " ".join(f"{name} {score[name]:+g}" for name in config.agent_names)
+    lines = [f"step {int(state.t[index])}/{config.horizon}  goal {goal}  {agents}"]
     lines += [" ".join(symbols[v] for v in row) for row in ids]
     return "\n".join(lines)

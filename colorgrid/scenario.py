@@ -1,6 +1,7 @@
 """Hand-built states from text maps, for tests and experiments.
 
-A map has one line per row; ``.`` is floor, ``L``/``F`` the leader/follower and
+A map has one line per row; ``.`` is floor, an agent's symbol (``config.SYMBOLS``: ``L`` the
+leader, ``F`` the follower) marks it and
 a color's initial (``r``, ``g``, ``b``, ...) a block of that color::
 
     state = state_from_text(config, '''
@@ -16,7 +17,7 @@ import textwrap
 
 import numpy as np
 
-from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.config import AGENTS, SYMBOLS, EnvConfig
 from colorgrid.state import EnvState
 
 
@@ -39,15 +40,15 @@ def state_from_text(config: EnvConfig, text: str, goal: int | str = 0, seed: int
     for r, row in enumerate(rows):
         for c, ch in enumerate(row):
             cell = r * config.width + c
-            if ch in "LF":
-                agent_cell[0 if ch == "L" else 1] = cell
+            if ch in SYMBOLS:
+                agent_cell[SYMBOLS.index(ch)] = cell
             elif ch in initials:
                 cells_by_color[initials[ch]].append(cell)
             elif ch != ".":
-                raise ValueError(f"unknown map character {ch!r} at row {r}, col {c}; allowed: . L F "
-                                 + " ".join(initials))
+                raise ValueError(f"unknown map character {ch!r} at row {r}, col {c}; allowed: . "
+                                 + " ".join([*SYMBOLS, *initials]))
     if (agent_cell < 0).any():
-        raise ValueError(f"map must place both agents {list(AGENTS)} (L and F)")
+        raise ValueError(f"map must place both agents {list(AGENTS)} ({' and '.join(SYMBOLS)})")
     for k, cells in enumerate(cells_by_color):
         if len(cells) != config.blocks_per_color:
             raise ValueError(f"map has {len(cells)} {config.color_names[k]} blocks; the config needs "

@@ -81,9 +81,16 @@ def cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """A parser whose usage errors are one line (``colorgrid play: error: ...``, exit code 2); ``-h`` has the rest."""
+
+    def error(self, message: str):
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} -h)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="colorgrid", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
+    parser = OneLineParser(prog="colorgrid", description="The colorgrid command line: one sub-command per job.")
+    sub = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
     demo = sub.add_parser("demo", help="draw an episode of random agents in the terminal")
     demo.add_argument("--seed", type=int, default=0)
     demo.add_argument("--fps", type=float, default=10.0)

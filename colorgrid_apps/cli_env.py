@@ -3,11 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
 from pathlib import Path
 
 from colorgrid.config import EnvConfig
+from colorgrid.configkit import apply_overrides
 from colorgrid.files import JSONFileError, read_json_object
 from colorgrid.presets import PRESETS, env_config
 
@@ -20,25 +19,9 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def parse_overrides(items: list[str]) -> dict:
-    """``["a=1", "b=true"]`` -> ``{"a": 1, "b": True}``; values are parsed as JSON when they can be."""
-    fields = {f.name: f for f in dataclasses.fields(EnvConfig)}
-    out = {}
-    for item in items:
-        key, sep, raw = item.partition("=")
-        if not sep:
-            raise ValueError(f"--set expects KEY=VALUE, got {item!r}")
-        if key not in fields:
-            raise ValueError(f"unknown EnvConfig field {key!r}; allowed: {sorted(fields)}")
-        try:
-            value = json.loads(raw)
-        except json.JSONDecodeError:
-            value = raw
-        if fields[key].type in ("float",) and isinstance(value, int) and not isinstance(value, bool):
-            value = float(value)
-        if key == "distance_penalty_agents" and isinstance(value, str):
-            value = tuple(v for v in value.split(",") if v)
-        out[key] = value
-    return out
+    """``["a=1", "b=true"]`` -> ``{"a": 1, "b": True}``: EnvConfig fields, values parsed as JSON when they can be
+    (the same parser as the trainer's ``--set``; ``distance_penalty_agents=leader,follower`` gives a tuple)."""
+    return apply_overrides({}, items, EnvConfig, example="goal_reward=4")
 
 
 def config_from_args(args: argparse.Namespace) -> EnvConfig:

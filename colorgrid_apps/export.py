@@ -14,6 +14,7 @@ from PIL import Image, ImageDraw
 
 from colorgrid.config import AGENTS
 from colorgrid.render import PALETTE, _font, render_rgb
+from colorgrid.roles import scores
 from colorgrid.files import atomic_path
 from colorgrid.replay import Replay, replay_states
 
@@ -38,11 +39,11 @@ def draw_panel(replay: Replay, t: int, state, height: int) -> np.ndarray:
     draw.text((x, y), f"step {t} / {cfg.horizon}", fill=INK, font=font)
     y += 22
     if replay.block_reward is not None:
-        team = float(state.score[0].sum())
-        draw.text((x, y), f"team {team:+g}", fill=INK, font=font)
+        score = scores(state)
+        draw.text((x, y), f"team {score['team']:+g}", fill=INK, font=font)
         y += 18
-        for i, name in enumerate(AGENTS):
-            draw.text((x, y), f"{name} {float(state.score[0, i]):+g}", fill=INK, font=small)
+        for name in AGENTS:
+            draw.text((x, y), f"{name} {score[name]:+g}", fill=INK, font=small)
             y += 15
     goal = int(state.goal[0])
     y += 6
@@ -86,7 +87,7 @@ def _draw_timeline(draw: ImageDraw.ImageDraw, replay: Replay, t: int, height: in
         xa, xb = x0 + span * s // T, x0 + span * (s + 1) // T
         draw.rectangle([xa, y0 + 10, max(xa, xb - 1), y0 + 18], fill=_rgb(replay.goal[s]))
         if replay.picked_color is not None:
-            for i in range(2):
+            for i in range(replay.config.num_agents):  # one row of ticks per agent, the leader's on top
                 c = replay.picked_color[s][i]
                 if c >= 0:
                     color = GOOD if c == replay.goal[s] else BAD

@@ -20,13 +20,15 @@ import numpy as np
 import viser
 import viser.uplot
 
-from colorgrid.render import FLOOR, FOLLOWER_RGB, LEADER_RGB, PALETTE
+from colorgrid.config import AGENTS, FOLLOWER, SYMBOLS
+from colorgrid.render import AGENT_COLORS, FLOOR, PALETTE
 from colorgrid.replay import ReplayError, load
 from colorgrid.replay.timeline import timeline
 
 SPEEDS = ("0.25", "0.5", "1", "2", "4", "8")
 BASE_FPS = 8.0
 HIDDEN_Z = -50.0  # where unused block instances wait
+BELIEVER = AGENTS[FOLLOWER]  # whose goal probabilities the panel shows
 
 
 def unit_cube() -> tuple[np.ndarray, np.ndarray]:
@@ -41,8 +43,7 @@ class Frame:
     """The scene at one step, as arrays: what the meshes are set to (pure data, easy to test)."""
 
     block_positions: list  # per color: [N_k, 3] float32 (unused instances below the floor)
-    leader: np.ndarray  # [3]
-    follower: np.ndarray  # [3]
+    agents: np.ndarray  # [A, 3] float32, in index order (``AGENTS``)
     goal: int
 
 
@@ -66,8 +67,8 @@ def frame_at(data: dict, t: int, capacity: list[int]) -> Frame:
         pos[: len(mine), 1] = H - mine // W - 0.5
         pos[: len(mine), 2] = 0.4
         positions.append(pos)
-    return Frame(positions, cell_xyz(board["leader"], W, H, 0.45), cell_xyz(board["follower"], W, H, 0.45),
-                 board["goal"])
+    agents = np.stack([cell_xyz(board[name], W, H, 0.45) for name in AGENTS])
+    return Frame(positions, agents, board["goal"])
 
 
 def block_capacity(data: dict) -> list[int]:
@@ -100,12 +101,12 @@ class GridScene:
                 f"{root}/blocks/{data['colors'][k]}", verts * 0.8, faces,
                 batched_wxyzs=np.tile(np.array([1.0, 0, 0, 0], dtype=np.float32), (n, 1)),
                 batched_positions=pos, batched_colors=tuple(int(x) for x in PALETTE[k])))
-        self.leader = scene.add_icosphere(f"{root}/leader", radius=0.45, color=tuple(int(x) for x in LEADER_RGB),
-                                          position=first.leader)
-        self.follower = scene.add_icosphere(f"{root}/follower", radius=0.45, position=first.follower,
-                                            color=tuple(int(x) for x in np.minimum(FOLLOWER_RGB, 235)))
-        scene.add_label(f"{root}/leader/label", "L (leader)", position=(0.0, 0.0, 0.8))
-        scene.add_label(f"{root}/follower/label", "F (follower)", position=(0.0, 0.0, 0.8))
+        self.agents = {}  # name -> sphere, in index order
+        for i, name in enumerate(AGENTS):
+            body = np.minimum(AGENT_COLORS[i][0], 235)  # pure white glares under the scene's light
+            self.agents[name] = scene.add_icosphere(f"{root}/{name}", radius=0.45, position=first.agents[i],
+                                                    color=tuple(int(x) for x in body))
+            scene.add_label(f"{root}/{name}/label", f"{SYMBOLS[i]} ({name})", position=(0.0, 0.0, 0.8))
         self.show(0)
 
     def show(self, t: int) -> Frame:
@@ -113,13 +114,13 @@ class GridScene:
         for k, handle in enumerate(self.blocks):
             if self.capacity[k]:
                 handle.batched_positions = frame.block_positions[k]
-        self.leader.position = frame.leader
-        self.follower.position = frame.follower
+        for handle, position in zip(self.agents.values(), frame.agents):
+            handle.position = position
         self.goal_plate.color = tuple(int(x) for x in PALETTE[frame.goal])
         return frame
 
     def remove(self) -> None:
-        for handle in (self.goal_plate, *self.blocks, self.leader, self.follower):
+        for handle in (self.goal_plate, *self.blocks, *self.agents.values()):
             handle.remove()
 
 
@@ -136,13 +137,13 @@ def load_timeline(path: Path) -> dict:
 
 def belief_series(data: dict) -> tuple[tuple[np.ndarray, ...], tuple]:
     """uPlot data (steps, then one probability curve per color) of the follower's beliefs; None if it has none."""
-    probs = data.get("goal_probs", {}).get("follower")
+    probs = data.get("goal_probs", {}).get(BELIEVER)
     if not probs:
         return None, ()
     arr = np.asarray(probs, dtype=np.float64)
     x = np.arange(arr.shape[0], dtype=np.float64)
     series = (viser.uplot.Series(label="step"),
-              *(viser.uplot.Series(label=name, stroke="#%02x%02x%02x" % tuple(int(v) for v in PALETTE[k]), width=2)
+              *(viser.uplot.Series(label=name, stroke=data["look"]["palette"][k], width=2)
                 for k, name in enumerate(data["colors"])))
     return (x, *(arr[:, k] for k in range(arr.shape[1]))), series
 
@@ -192,7 +193,7 @@ class TabView:
         self.slider.max = data["steps"]
         series_data, series = belief_series(data)
         if series_data is not None:
-            self.chart = self.target.gui.add_uplot(series_data, series, title="follower's goal probabilities",
+            self.chart = self.target.gui.add_uplot(series_data, series, title=f"{BELIEVER}'s goal probabilities",
                                                    scales={"y": viser.uplot.Scale(range=(0.0, 1.0))}, aspect=2.0)
         self.slider.value = 0
         self.show(0)
@@ -207,11 +208,12 @@ class TabView:
         scores = board["scores"]
         lines = [f"**{self.name}**", f"step **{t}** / {self.data['steps']}", f"goal: **{goal}**"]
         if scores is not None:
-            lines.append(f"team **{scores[0] + scores[1]:+.0f}** (leader {scores[0]:+.0f}, follower {scores[1]:+.0f})")
-        probs = self.data.get("goal_probs", {}).get("follower")
+            each = ", ".join(f"{name} {score:+.0f}" for name, score in zip(AGENTS, scores))
+            lines.append(f"team **{sum(scores):+.0f}** ({each})")
+        probs = self.data.get("goal_probs", {}).get(BELIEVER)
         if probs:
             row = probs[min(t, len(probs) - 1)]
-            lines.append("follower believes: " + ", ".join(f"{c} {p:.2f}" for c, p in zip(self.data["colors"], row)))
+            lines.append(f"{BELIEVER} believes: " + ", ".join(f"{c} {p:.2f}" for c, p in zip(self.data["colors"], row)))
         self.info.content = "  \n".join(lines)
         self.step = t
 

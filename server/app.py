@@ -16,11 +16,13 @@ from pydantic import ValidationError
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from colorgrid import __version__
-from colorgrid.presets import PRESETS
+from colorgrid.presets import PRESETS, env_config
+from colorgrid.render import look
 from server.hub import GameHub, ServerFull
 from server.jobs import Busy, ReplayJobs, summaries
 from server.limits import AddressLimits, FloodRule, TokenBucket
-from server.protocol import CLIENT_TYPES, Key, NewGame, Ping, Quit, Rejoin, client_message, error
+from server.protocol import (CLIENT_TYPES, KEY_ACTIONS, MAX_HORIZON, Key, Mode, NewGame, Ping, Quit, Rejoin,
+                             client_message, error)
 from server.replays import ReplayCatalogue
 from server.settings import REPO_ROOT, ServerSettings
 
@@ -86,9 +88,16 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
 
     @app.get("/api/options")
     async def options():
-        """What a new game may choose: followers, presets, modes, and the defaults."""
-        return {"followers": list(settings.followers), "default_follower": settings.follower,
-                "presets": sorted(PRESETS), "default_preset": settings.preset, "modes": ["turn", "realtime"],
+        """What a new game may choose (followers, presets with their rewards, modes, the horizon's limit) and
+        the defaults, plus what the page needs to draw and play: the look of boards and the move keys."""
+        presets = {name: env_config(name) for name in sorted(PRESETS)}
+        return {"followers": list(settings.follower_choices), "default_follower": settings.follower,
+                "presets": list(presets), "default_preset": settings.preset,
+                "preset_settings": {name: {"goal_reward": c.goal_reward, "wrong_penalty": c.wrong_penalty,
+                                           "horizon": c.horizon} for name, c in presets.items()},
+                "modes": [{"value": m.value, "label": m.label} for m in Mode],
+                "horizon": {"default": presets[settings.preset].horizon, "max": MAX_HORIZON},
+                "keys": KEY_ACTIONS, "look": look(),
                 "tick_hz": settings.tick_hz, "show_belief": settings.show_belief}
 
     scans: dict = {"at": -1.0, "task": None}

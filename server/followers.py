@@ -7,7 +7,7 @@ import time
 
 import numpy as np
 
-from colorgrid.config import FOLLOWER, EnvConfig
+from colorgrid.config import AGENTS, FOLLOWER, EnvConfig
 from colorgrid.policies import IdleFollower, make_policy
 from colorgrid.policies.base import AgentInput
 from colorgrid.step_inputs import StepInputs
@@ -24,7 +24,7 @@ class FollowerPool:
     def __init__(self, name: str, config: EnvConfig, capacity: int, seed: int = 0):
         self.name = name
         self.config = config
-        self.policy = make_policy(name, role="follower")
+        self.policy = make_policy(name, role=AGENTS[FOLLOWER])
         self.policy.reset(config, capacity, agent_index=FOLLOWER, seed=seed)
         self.idle = IdleFollower()
         self.idle.reset(config, capacity, agent_index=FOLLOWER, seed=seed + 1)

@@ -9,13 +9,15 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from colorgrid.config import AGENTS, FOLLOWER, LEADER, EnvConfig
-from colorgrid.env import BatchEnv
+from colorgrid.env import ACTION_NAMES, BatchEnv
 from colorgrid.policies.base import AgentInput
+from colorgrid.render import look
 from colorgrid.replay import Replay
+from colorgrid.roles import scores
 from colorgrid.step_inputs import StepInputs
-from server.protocol import KEY_ACTIONS
+from server.protocol import KEY_ACTIONS, Mode
 
-STAY = 4
+STAY = ACTION_NAMES.index("stay")
 
 
 def now_ms() -> float:
@@ -24,10 +26,10 @@ def now_ms() -> float:
 
 @dataclass
 class Game:
-    """State of one live game. ``mode`` is ``"turn"`` or ``"realtime"``."""
+    """State of one live game."""
 
     config: EnvConfig
-    mode: str
+    mode: Mode  # a plain string is taken too ("turn", "realtime")
     follower: str
     preset: str
     seed: int
@@ -40,6 +42,7 @@ class Game:
     max_key_log: int = 20_000  # key presses recorded; later ones still move the leader and are counted
 
     def __post_init__(self) -> None:
+        self.mode = Mode(self.mode)
         self.env = BatchEnv(self.config, num_envs=1, seed=self.seed, autoreset=False)
         self.obs, _ = self.env.reset()
         self.last = StepInputs.begin(self.config, 1)
@@ -92,7 +95,7 @@ class Game:
 
     def ready(self) -> bool:
         """Whether the world should step now: always in real time, on a pending key when turn-based."""
-        return not self.finished and (self.mode == "realtime" or self.pending is not None)
+        return not self.finished and (self.mode == Mode.REALTIME or self.pending is not None)
 
     def leader_action(self) -> int:
         if self.pending is None:
@@ -113,9 +116,10 @@ class Game:
             self.pending["status"], self.pending["applied_step"] = "applied", t
             self.pending = None
         self.goals.append(int(self.env.state.goal[0]))
-        joint = np.array([[leader, int(follower_action)]], dtype=np.int64)
+        joint = np.empty((1, self.config.num_agents), dtype=np.int64)
+        joint[0, LEADER], joint[0, FOLLOWER] = leader, follower_action
         self.obs, _, _, truncs, info = self.env.step(joint)
-        self.actions.append([leader, int(follower_action)])
+        self.actions.append(joint[0].tolist())
         self.block_reward.append([float(x) for x in info["block_reward"][0]])
         self.team_reward.append(float(info["team_reward"][0]))
         self.picked.append([int(x) for x in info["picked_color"][0]])
@@ -140,10 +144,11 @@ class Game:
     def welcome(self, tick_hz: float) -> dict:
         cfg = self.config
         return {
-            "type": "welcome", "game_id": self.game_id, "token": self.token, "mode": self.mode,
-            "follower": self.follower, "preset": self.preset, "tick_hz": tick_hz if self.mode == "realtime" else None,
+            "type": "welcome", "game_id": self.game_id, "token": self.token, "mode": self.mode.value,
+            "follower": self.follower, "preset": self.preset,
+            "tick_hz": tick_hz if self.mode == Mode.REALTIME else None,
             "height": cfg.height, "width": cfg.width, "colors": list(cfg.color_names), "horizon": cfg.horizon,
-            "show_belief": self.show_belief, "keys": sorted(KEY_ACTIONS),
+            "show_belief": self.show_belief, "keys": sorted(KEY_ACTIONS), "look": look(cfg),
         }
 
     def state_message(self) -> dict:
@@ -153,11 +158,10 @@ class Game:
         last_seq = max((e["seq"] for e in self.key_log if e["status"] == "applied"), default=None)
         return {
             "type": "state", "step": int(s.t[0]), "horizon": cfg.horizon,
-            "leader": int(s.agent_cell[0, 0]), "follower": int(s.agent_cell[0, 1]),
+            **{name: int(s.agent_cell[0, i]) for i, name in enumerate(AGENTS)},
             "blocks": blocks,
             "goal": int(s.goal[0]),
-            "scores": {"team": float(s.score[0].sum()), "leader": float(s.score[0, 0]),
-                       "follower": float(s.score[0, 1])},
+            "scores": scores(s),
             "belief": self.beliefs[-1] if (self.show_belief and self.beliefs) else None,
             "events": self.last_events, "last_applied_seq": last_seq,
         }
@@ -168,12 +172,13 @@ class Game:
                 entry["status"] = "unapplied"  # pressed after the last step the game made
         return Replay(
             config=self.config, seed=self.seed, source="play",
-            agents={"leader": {"policy": "human"}, "follower": follower_description},
+            agents={AGENTS[LEADER]: {"policy": "human"}, AGENTS[FOLLOWER]: follower_description},
             actions=self.actions, goal=self.goals, block_reward=self.block_reward, team_reward=self.team_reward,
             picked_color=self.picked, goal_switched=self.switched,
-            goal_probs={"follower": self.beliefs} if len(self.beliefs) == len(self.actions) and self.beliefs else {},
+            goal_probs={AGENTS[FOLLOWER]: self.beliefs} if self.beliefs and len(self.beliefs) == len(self.actions)
+            else {},
             state_hashes=self.hashes, ended=ended, key_events=self.key_log,
-            meta={"game_id": self.game_id, "mode": self.mode, "preset": self.preset,
+            meta={"game_id": self.game_id, "mode": self.mode.value, "preset": self.preset,
                   "deadline_misses": self.deadline_misses, "state_sent_ms": self.state_sent_ms,
                   "key_events_dropped": self.keys_dropped},
         )

@@ -16,8 +16,10 @@ from colorgrid.presets import env_config
 from colorgrid.config import EnvConfig
 from colorgrid.replay import save
 from colorgrid.replay.format import describe_agent
+from colorgrid.roles import scores
 from server.followers import FollowerPool, build_pool
 from server.game import Game
+from server.protocol import Mode
 from server.settings import ServerSettings
 
 log = logging.getLogger("colorgrid.server")
@@ -68,7 +70,7 @@ class GameHub:
     async def _warm_up(self) -> None:
         """Load the default follower for both modes before the first player waits on it (a trained
         network's first call pays for loading torch and the weights; games must not)."""
-        for mode in ("turn", "realtime"):
+        for mode in Mode:
             try:
                 pool = await self.pool_for(self.settings.follower, self.make_config(self.settings.preset, mode, None))
                 await asyncio.get_running_loop().run_in_executor(self.executor, pool.warm_up)
@@ -100,9 +102,9 @@ class GameHub:
         return told
 
     # ------------------------------------------------------------ sessions
-    def make_config(self, preset: str, mode: str, horizon: int | None) -> EnvConfig:
+    def make_config(self, preset: str, mode: Mode, horizon: int | None) -> EnvConfig:
         changes = {}
-        if mode == "realtime":
+        if mode == Mode.REALTIME:
             changes["allow_stay"] = True  # the leader stays when no key is pending
         if horizon is not None:
             changes["horizon"] = horizon
@@ -126,11 +128,11 @@ class GameHub:
         self.pools.setdefault(key, pool)
         return self.pools[key]
 
-    async def new_game(self, follower: str | None, preset: str | None, mode: str, horizon: int | None,
+    async def new_game(self, follower: str | None, preset: str | None, mode: Mode, horizon: int | None,
                        show_belief: bool, client: Client) -> Game:
         follower = follower or self.settings.follower
-        if follower not in self.settings.followers:
-            raise ValueError(f"unknown follower {follower!r}; choose one of {list(self.settings.followers)}")
+        if follower not in self.settings.follower_choices:
+            raise ValueError(f"unknown follower {follower!r}; choose one of {list(self.settings.follower_choices)}")
         preset = preset or self.settings.preset
         config = self.make_config(preset, mode, horizon)
         # The session is counted before the first await, so concurrent requests never overshoot the limit.
@@ -184,7 +186,7 @@ class GameHub:
 
     async def key(self, game: Game, key: str, seq: int, t_client: float) -> str | None:
         problem = game.press(key, seq, t_client)
-        if problem is None and game.mode == "turn":
+        if problem is None and game.mode == Mode.TURN:
             await self.step_games([game])
         return problem
 
@@ -230,7 +232,7 @@ class GameHub:
         while True:
             await asyncio.sleep(max(0.0, next_tick - time.perf_counter()))
             lateness = (time.perf_counter() - next_tick) * 1000.0
-            live = [g for g in self.games.values() if g.mode == "realtime" and g.disconnected_at is None]
+            live = [g for g in self.games.values() if g.mode == Mode.REALTIME and g.disconnected_at is None]
             if live:  # lateness matters to games: ticks with none to step are not counted
                 self._record_lateness(lateness)
             if live and lateness > 50:
@@ -291,8 +293,7 @@ class GameHub:
             s = game.env.state
             await self._send_to(client, {
                 "type": "game_over", "reason": reason, "replay_id": game.replay_id, "steps": int(s.t[0]),
-                "scores": {"team": float(s.score[0].sum()), "leader": float(s.score[0, 0]),
-                           "follower": float(s.score[0, 1])},
+                "scores": scores(s),
             })
 
     async def _save(self, game: Game, reason: str) -> None:

@@ -5,17 +5,31 @@ Every message is an object with a ``type``. See ``docs/SERVER_PROTOCOL.md``.
 
 from __future__ import annotations
 
+from enum import Enum
 from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
-KEY_ACTIONS = {
-    "ArrowUp": 0, "w": 0, "W": 0,
-    "ArrowDown": 1, "s": 1, "S": 1,
-    "ArrowLeft": 2, "a": 2, "A": 2,
-    "ArrowRight": 3, "d": 3, "D": 3,
-}
-"""Keys the leader may press and the action each one means (up, down, left, right)."""
+from colorgrid.env import ACTION_NAMES
+
+_KEYS = {"up": ("ArrowUp", "w", "W"), "down": ("ArrowDown", "s", "S"), "left": ("ArrowLeft", "a", "A"),
+         "right": ("ArrowRight", "d", "D")}
+KEY_ACTIONS = {key: ACTION_NAMES.index(action) for action, keys in _KEYS.items() for key in keys}
+"""Keys the leader may press and the action index each one means (up, down, left, right)."""
+MAX_HORIZON = 1000
+"""The longest game a player may ask for (``NewGame.horizon``)."""
+
+
+class Mode(str, Enum):
+    """How a game advances: once per move key of the leader, or on the server's clock."""
+
+    TURN = "turn"
+    REALTIME = "realtime"
+
+    @property
+    def label(self) -> str:
+        """How a page names the mode."""
+        return {Mode.TURN: "turn-based", Mode.REALTIME: "real time"}[self]
 
 
 class _Message(BaseModel):
@@ -29,8 +43,8 @@ class NewGame(_Message):
     type: Literal["new_game"]
     follower: str | None = None
     preset: str | None = None
-    mode: Literal["turn", "realtime"] = "turn"
-    horizon: int | None = Field(default=None, ge=1, le=1000)
+    mode: Mode = Mode.TURN
+    horizon: int | None = Field(default=None, ge=1, le=MAX_HORIZON)
     show_belief: bool = True
 
 

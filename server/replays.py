@@ -13,6 +13,7 @@ import stat
 from dataclasses import dataclass
 from pathlib import Path
 
+from colorgrid.config import AGENTS
 from colorgrid.replay import ReplayError, load
 
 ID_PATTERN = re.compile(r"^[A-Za-z0-9_.+-]{1,200}$")
@@ -97,8 +98,8 @@ def summarize(path: Path, replay_id: str, collection: str, max_bytes: int | None
     cfg = replay.config
     return {
         **base, "source": replay.source, "created": replay.created, "kind": replay.kind, "ended": replay.ended,
-        "steps": replay.num_steps, "leader": replay.agents.get("leader", {}).get("policy"),
-        "follower": replay.agents.get("follower", {}).get("policy"), "final": replay.final(),
+        "steps": replay.num_steps, **{name: replay.agents.get(name, {}).get("policy") for name in AGENTS},
+        "final": replay.final(),
         "config": {"asymmetric": cfg.asymmetric, "goal_reward": cfg.goal_reward, "wrong_penalty": cfg.wrong_penalty,
                    "switch_prob": cfg.switch_prob, "horizon": cfg.horizon},
         "setting": replay.meta.get("setting") or replay.meta.get("preset"),

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
+from colorgrid.configkit import check_bool, check_choice, check_int, check_number, check_strings, fail
 from colorgrid.presets import PRESETS
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -12,7 +14,10 @@ REPO_ROOT = Path(__file__).resolve().parents[1]
 
 @dataclass(frozen=True)
 class ServerSettings:
-    """What the play server runs with. Invalid values raise ``ValueError`` saying what is allowed."""
+    """What the play server runs with. Invalid values raise ``ValueError`` saying what is allowed.
+    ``colorgrid play`` has one flag per field (``server/cli.py``)."""
+
+    ERROR_STYLE: ClassVar[str] = "{name} must be {allowed}, got {value!r}"
 
     host: str = "127.0.0.1"
     """Interface to listen on (loopback by default)."""
@@ -69,34 +74,31 @@ class ServerSettings:
     """An HTTP request whose headers are not complete this long after it began is closed."""
 
     def __post_init__(self) -> None:
-        if not isinstance(self.port, int) or not 0 <= self.port <= 65535:
-            raise ValueError(f"port must be an integer in [0, 65535], got {self.port!r}")
-        if self.preset not in PRESETS:
-            raise ValueError(f"preset must be one of {sorted(PRESETS)}, got {self.preset!r}")
-        if not 0.5 <= self.tick_hz <= 60:
-            raise ValueError(f"tick_hz must be in [0.5, 60], got {self.tick_hz!r}")
-        if not isinstance(self.max_sessions, int) or self.max_sessions < 1:
-            raise ValueError(f"max_sessions must be a positive integer, got {self.max_sessions!r}")
-        for name in ("rejoin_grace_s", "idle_timeout_s", "inference_deadline_ms", "max_messages_per_s"):
-            if not 0 < getattr(self, name) < float("inf"):
-                raise ValueError(f"{name} must be a finite number > 0, got {getattr(self, name)!r}")
-        for name in ("connection_idle_s", "new_games_per_minute", "max_replay_mb", "export_cache_mb",
+        check_strings(self, "followers", allowed="a tuple of follower names")
+        for name in ("host", "follower"):
+            if not isinstance(getattr(self, name), str) or not getattr(self, name):
+                fail(self, name, "a non-empty string")
+        check_int(self, "port", 0, 65535)
+        check_choice(self, "preset", PRESETS, f"one of {sorted(PRESETS)}")
+        check_number(self, "tick_hz", "a number in [0.5, 60]", lambda v: 0.5 <= v <= 60)
+        for name in ("replays_dir", "released_dir"):
+            if not isinstance(getattr(self, name), Path):
+                fail(self, name, "a folder (a Path)")
+        for name in ("max_sessions", "max_connections", "max_exports", "max_key_log"):
+            check_int(self, name, 1, allowed="a positive integer")
+        for name in ("rejoin_grace_s", "idle_timeout_s", "inference_deadline_ms", "max_messages_per_s",
+                     "connection_idle_s", "new_games_per_minute", "max_replay_mb", "export_cache_mb",
                      "header_timeout_s"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 < value < float("inf"):
-                raise ValueError(f"{name} must be a finite number > 0, got {value!r}")
-        for name in ("max_connections", "max_exports", "max_key_log"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise ValueError(f"{name} must be a positive integer, got {value!r}")
+            check_number(self, name, "a finite number > 0", lambda v: v > 0)
+        check_int(self, "max_message_bytes", 256, 1 << 20)
+        check_bool(self, "show_belief")
         for name in ("allowed_hosts", "allowed_origins"):
-            value = getattr(self, name)
-            if not isinstance(value, tuple) or not all(isinstance(v, str) and v for v in value):
-                raise ValueError(f"{name} must be a tuple of non-empty strings, got {value!r}")
-        if not 256 <= self.max_message_bytes <= 1 << 20:
-            raise ValueError(f"max_message_bytes must be in [256, 1048576], got {self.max_message_bytes!r}")
-        if self.follower not in self.followers:
-            object.__setattr__(self, "followers", (self.follower, *self.followers))
+            check_strings(self, name)
+
+    @property
+    def follower_choices(self) -> tuple[str, ...]:
+        """Followers a player may choose: the default first, then the others allowed."""
+        return tuple(dict.fromkeys((self.follower, *self.followers)))
 
     @property
     def hosts(self) -> list[str]:

@@ -1,7 +1,25 @@
 """A real browser (Debian chromium, driven by playwright) plays a short game and finds its replay."""
 
+from urllib.parse import quote
+
 from playwright.sync_api import expect
 
+from colorgrid.config import COLOR_NAMES
+
+
+BAR_COLORS = "els => els.map(e => getComputedStyle(e).backgroundColor)"
+
+
+def pixel(page, x: int, y: int, canvas: str = "#board") -> str:
+    """The ``#rrggbb`` color of one canvas pixel."""
+    return page.locator(canvas).evaluate(
+        f"c => '#' + [...c.getContext('2d').getImageData({x}, {y}, 1, 1).data.slice(0, 3)]"
+        ".map(v => v.toString(16).padStart(2, '0')).join('')")
+
+
+def css_rgb(hex_color: str) -> str:
+    """``#rrggbb`` as the browser's computed style writes it."""
+    return "rgb({}, {}, {})".format(*(int(hex_color[i:i + 2], 16) for i in (1, 3, 5)))
 
 
 def test_play_a_short_game_in_the_browser(server, browser):
@@ -9,8 +27,19 @@ def test_play_a_short_game_in_the_browser(server, browser):
     errors = []
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.goto(server.url + "/")
+    options = server.get("/api/options")[0]
     expect(page.locator("#follower option")).to_have_count(6)
     expect(page.locator("#follower")).to_have_value("ippo")
+    # the setup form is the server's: its modes, the horizon's limits, the chosen preset's rewards, the letters
+    assert page.locator("#mode option").all_text_contents() == [m["label"] for m in options["modes"]]
+    expect(page.locator("#horizon")).to_have_attribute("max", str(options["horizon"]["max"]))
+    expect(page.locator("#horizon")).to_have_attribute("placeholder", str(options["horizon"]["default"]))
+    expect(page.locator("#goal-reward")).to_have_text("+1")
+    expect(page.locator("#wrong-penalty")).to_have_text("\u22121")
+    page.select_option("#preset", "reward_4_1")
+    expect(page.locator("#goal-reward")).to_have_text("+4")
+    page.select_option("#preset", "default")
+    assert page.locator("[data-symbol]").all_text_contents() == ["L", "F"]
     page.select_option("#mode", "turn")
     page.fill("#horizon", "6")
     page.click("#start")
@@ -18,6 +47,10 @@ def test_play_a_short_game_in_the_browser(server, browser):
     board = page.locator("#board")
     expect(board).to_have_attribute("data-step", "0")
     expect(page.locator("#step")).to_have_text("0 / 6")
+    palette = options["look"]["palette"]
+    goal = COLOR_NAMES.index(page.locator("#goal-name").text_content())
+    assert pixel(page, 1, 1) == palette[goal], "the frame around the board is the goal color, in the server's palette"
+    expect(page.locator("#goal-swatch")).to_have_css("background-color", css_rgb(palette[goal]))
     for t in range(6):
         before = int(board.get_attribute("data-leader"))
         follower = int(board.get_attribute("data-follower"))
@@ -31,6 +64,8 @@ def test_play_a_short_game_in_the_browser(server, browser):
             expect(page.locator(".belief-row")).to_have_count(3)
             widths = page.locator(".belief-fill").evaluate_all("els => els.map(e => parseFloat(e.style.width))")
             assert abs(sum(widths) - 100) < 1.0, "belief bars add up to 100%"
+            fills = page.locator(".belief-fill").evaluate_all(BAR_COLORS)
+            assert fills == [css_rgb(c) for c in palette[:3]], "bar k is drawn in the server's color k"
     expect(page.locator("#over")).to_be_visible()
     expect(page.locator("#over-scores")).to_contain_text("after 6 steps")
     link = page.locator("#replay-link")
@@ -168,4 +203,37 @@ def test_a_replay_that_fails_verification_is_shown_as_such(server, browser):
     page.goto(server.url + "/replays?id=garbled")
     page.select_option("#collection", "recorded")
     expect(page.locator("tr[data-id='garbled'] td").nth(7)).to_contain_text("invalid")
+    page.close()
+
+
+def test_the_replay_player_draws_in_the_colors_its_timeline_sends(server, browser):
+    """The timeline's ``look`` is swapped for colors no page could know: the board, the bars and the goal
+    swatch come out in those."""
+    listed = server.get("/api/replays?collection=released&setting=default&follower=bayes&limit=1")[0]
+    replay_id = listed["items"][0]["id"]
+    timeline = server.get(f"/api/replays/{replay_id}/timeline")[0]
+    swapped = ["#010203", "#405060", "#708090"]
+
+    def recolor(route):
+        response = route.fetch()
+        data = response.json()
+        data["look"]["palette"] = swapped
+        route.fulfill(response=response, json=data)
+
+    page = browser.new_page()
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.route("**/timeline", recolor)
+    page.goto(server.url + f"/replay?id={quote(replay_id)}")
+    expect(page.locator("#board")).to_have_attribute("data-step", "0")
+    first = timeline["boards"][0]
+    assert pixel(page, 1, 1) == swapped[first["goal"]]
+    cell = next(i for i, ch in enumerate(first["blocks"]) if ch != ".")
+    r, c = divmod(cell, timeline["width"])
+    size = (520 - 8) // timeline["width"]
+    assert pixel(page, 4 + c * size + size // 2, 4 + r * size + size // 2) == swapped[int(first["blocks"][cell])]
+    fills = page.locator(".belief-fill").evaluate_all(BAR_COLORS)
+    assert fills == [css_rgb(c) for c in swapped]
+    expect(page.locator("#goal-swatch")).to_have_css("background-color", css_rgb(swapped[first["goal"]]))
+    assert errors == []
     page.close()

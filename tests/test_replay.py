@@ -199,3 +199,20 @@ def test_cli_verify_names_bad_files_and_exits_nonzero(recorded, tmp_path):
     assert result.returncode == 1
     assert f"{paths[1]}: ok" in result.stdout
     assert f"{bad}: error: not valid JSON" in result.stdout
+
+
+def test_look_names_the_pictures_colors_and_the_timeline_carries_it(recorded):
+    from colorgrid.config import AGENTS, SYMBOLS
+    from colorgrid.render import AGENT_COLORS, FLOOR, GRID_LINE, hex_color, look
+    from colorgrid.replay.timeline import timeline
+
+    full = look()
+    assert full["palette"] == [hex_color(rgb) for rgb in PALETTE] and full["palette"][0] == "#dc322f"
+    assert (full["floor"], full["grid"]) == (hex_color(FLOOR), hex_color(GRID_LINE))
+    assert full["agents"] == [{"name": name, "symbol": SYMBOLS[i], "body": hex_color(AGENT_COLORS[i][0]),
+                               "ink": hex_color(AGENT_COLORS[i][1])} for i, name in enumerate(AGENTS)]
+    assert full["agents"][0] == {"name": "leader", "symbol": "L", "body": "#191919", "ink": "#ffffff"}
+    _, paths = recorded
+    data = timeline(load(paths[0]))
+    assert data["look"] == look(CONFIG) and data["look"]["palette"] == full["palette"][:CONFIG.num_colors]
+    assert all(set(board) >= set(AGENTS) for board in data["boards"])

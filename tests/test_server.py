@@ -7,7 +7,10 @@ import time
 import pytest
 from websockets.sync.client import connect
 
+from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.render import look
 from colorgrid.replay import load, verify
+from server.protocol import KEY_ACTIONS
 from tests.conftest import ROOT
 
 MOVES = ["ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight"]
@@ -56,7 +59,12 @@ def test_health_options_and_openapi(server):
     health, status, _ = server.get("/api/health")
     assert status == 200 and health["status"] == "ok" and health["max_sessions"] == 4
     options = server.get("/api/options")[0]
-    assert options["default_follower"] == "ippo" and "turn" in options["modes"]  # the shipped trained follower
+    assert options["default_follower"] == "ippo"  # the shipped trained follower
+    assert options["modes"] == [{"value": "turn", "label": "turn-based"}, {"value": "realtime", "label": "real time"}]
+    assert options["keys"] == KEY_ACTIONS and options["horizon"] == {"default": 128, "max": 1000}
+    assert options["preset_settings"]["reward_4_1"] == {"goal_reward": 4.0, "wrong_penalty": 1.0, "horizon": 128}
+    assert set(options["preset_settings"]) == set(options["presets"])
+    assert options["look"] == look()
     docs, status, kind = server.get("/docs")
     assert status == 200 and "html" in kind
     assert "/ws/play" not in server.get("/openapi.json")[0]["paths"]  # websockets are documented in docs/
@@ -66,6 +74,8 @@ def test_turn_based_game_end_to_end_and_its_replay(server):
     client = Client(server)
     welcome, state = client.new_game(mode="turn", horizon=16, follower="ippo")
     assert welcome["mode"] == "turn" and welcome["horizon"] == 16 and state["step"] == 0
+    assert welcome["look"] == look(EnvConfig(horizon=16))  # this game's three colors and the two agents
+    assert len(welcome["look"]["palette"]) == 3 and [a["name"] for a in welcome["look"]["agents"]] == list(AGENTS)
     keys, seen = [], [state]
     for t in range(16):
         key = MOVES[t % 4]
@@ -244,3 +254,12 @@ def test_a_follower_that_misses_its_deadline_falls_back_and_the_miss_is_recorded
         client.close()
     finally:
         stop_server(slow)
+
+
+def test_the_pages_repeat_no_color_the_server_sends():
+    full = look()
+    colors = [*full["palette"], full["floor"], full["grid"], *(a[k] for a in full["agents"] for k in ("body", "ink"))]
+    for page in sorted((ROOT / "web").glob("*.*")):
+        if page.suffix in (".js", ".html"):
+            text = page.read_text().lower()
+            assert not [c for c in colors if c in text], f"{page.name} repeats a color of /api/options' look"

@@ -22,7 +22,7 @@ from websockets.asyncio.client import connect as aconnect
 from websockets.exceptions import ConnectionClosed, InvalidStatus
 from websockets.sync.client import connect
 
-from bench.fuzz_server import hostile_frames
+from bench.fuzz_server import hostile, hostile_frames
 from colorgrid.replay import load, verify
 from tests.conftest import ROOT, start_server, stop_server
 
@@ -66,43 +66,19 @@ def assert_no_tracebacks(server):
 
 
 # --------------------------------------------------------------------------- fuzz
-async def fuzz_connection(url: str, frames: list, start_game: bool, counts: dict) -> bool:
-    """Send ``frames`` (paced under the rate limit, so that they are read, not refused); True if this
-    connection's own game, with at least one move, was saved after the hostile input."""
-    async with aconnect(url, max_size=2**22, open_timeout=30) as ws:
-        async def read():
-            async for raw in ws:
-                msg = json.loads(raw)
-                counts["replies"] += 1
-                counts["errors"] += msg["type"] == "error"
-                if msg["type"] == "game_over":
-                    return msg
-
-        reader = asyncio.create_task(read())
-        if start_game:  # hostile input inside a live game of its own
-            await ws.send(json.dumps({"type": "new_game", "mode": "turn", "horizon": 500, "follower": "copy"}))
-            await ws.send(json.dumps({"type": "key", "key": "ArrowUp", "seq": 0}))
-        for frame in frames:
-            await ws.send(frame)
-            counts["sent"] += 1
-            await asyncio.sleep(0.03)
-        await ws.send(json.dumps({"type": "quit"}))
-        over = await asyncio.wait_for(reader, 20) if start_game else None
-        return over is not None and over["replay_id"] is not None
-
-
 def test_fuzzing_costs_no_game_and_a_game_played_alongside_verifies(tmp_path):
     srv = start_server(tmp_path, "--follower", "copy", "--new-games-per-minute", "1000")
     try:
         rng = random.Random(7)
-        counts = {"sent": 0, "replies": 0, "errors": 0}
+        counts = {"sent": 0, "replies": 0, "errors": 0, "closed": {}}
         saved = []
 
-        async def hostile():
-            saved.extend(await asyncio.gather(*(fuzz_connection(srv.ws_url, hostile_frames(rng, 250), i % 2 == 0,
-                                                                counts) for i in range(12))))
+        async def fuzz():  # hostile input, half of it inside games of its own; paced so it is read, not refused
+            overs = await asyncio.gather(*(hostile(srv.ws_url, hostile_frames(rng, 250), i % 2 == 0, counts)
+                                           for i in range(12)))
+            saved.extend(o is not None and o["replay_id"] is not None for o in overs)
 
-        fuzzer = background(lambda: asyncio.run(hostile()))
+        fuzzer = background(lambda: asyncio.run(fuzz()))
         with connect(srv.ws_url, open_timeout=20, max_size=2**22) as ws:  # the legitimate player
             ws.send(json.dumps({"type": "new_game", "mode": "turn", "horizon": 60, "follower": "copy"}))
             recv(ws, "welcome")

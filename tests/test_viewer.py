@@ -41,9 +41,9 @@ def test_scene_follows_the_slider_and_the_chart_holds_the_beliefs(viewer):
         tab.slider.value = t
         board = data["boards"][t]
         r, c = divmod(board["leader"], data["width"])
-        assert np.allclose(tab.grid.leader.position, (c + 0.5, data["height"] - r - 0.5, 0.45))
+        assert np.allclose(tab.grid.agents["leader"].position, (c + 0.5, data["height"] - r - 0.5, 0.45))
         r, c = divmod(board["follower"], data["width"])
-        assert np.allclose(tab.grid.follower.position, (c + 0.5, data["height"] - r - 0.5, 0.45))
+        assert np.allclose(tab.grid.agents["follower"].position, (c + 0.5, data["height"] - r - 0.5, 0.45))
         for k, handle in enumerate(tab.grid.blocks):  # every block of color k sits on a cell of color k
             visible = handle.batched_positions[handle.batched_positions[:, 2] > 0]
             cells = [(data["height"] - 1 - int(y)) * data["width"] + int(x) for x, y, _ in visible]
@@ -69,7 +69,7 @@ def test_tabs_scrub_independently(viewer):
     one.slider.value = 10
     two.slider.value = 90
     assert (one.step, two.step) == (10, 90)
-    assert not np.allclose(one.grid.leader.position, two.grid.leader.position)
+    assert not np.allclose(one.grid.agents["leader"].position, two.grid.agents["leader"].position)
 
 
 def test_playback_advances_at_the_chosen_speed(viewer):

@@ -12,7 +12,7 @@ import json
 import os
 from pathlib import Path
 
-from colorgrid.config import EnvConfig
+from colorgrid.config import AGENTS, FOLLOWER, LEADER, EnvConfig
 from colorgrid_apps.evaluate import evaluate
 from colorgrid_apps.machine import cpu_name
 from train.checkpoint import load_checkpoint
@@ -23,7 +23,8 @@ def _row(report: dict, agent: str) -> str:
     belief = a.get("belief")
     acc = f"{belief['accuracy']:.1%}" if belief else "-"
     ci = lambda m: f"{m['mean']:+.2f} ± {m['ci95']:.2f}"  # noqa: E731
-    return (f"| {report['leader']['policy']} + {report['follower']['policy']} | {ci(report['team_reward'])} | "
+    team = " + ".join(report[name]["policy"] for name in AGENTS)
+    return (f"| {team} | {ci(report['team_reward'])} | "
             f"{a['goal_pickups']['mean']:.2f} | {a['wrong_pickups']['mean']:.2f} | {ci(a['net_pickups'])} | {acc} |")
 
 
@@ -32,8 +33,9 @@ def model_card(checkpoint: str, agent: str, run_dir: str | None, command: str, e
     ckpt = load_checkpoint(checkpoint)
     config = EnvConfig.from_dict(ckpt["env_config"])
     train_cfg = ckpt["config"]
-    if agent == "follower":
-        leader = train_cfg["leader"]["policy"] if train_cfg["leader"]["policy"] != "learn" else "astar"
+    if agent == AGENTS[FOLLOWER]:
+        partner = train_cfg[AGENTS[LEADER]]["policy"]
+        leader = partner if partner != "learn" else "astar"
         rows = [(leader, f) for f in ("idle", "copy", "bayes", "oracle")] + [(leader, checkpoint)]
     else:
         rows = [("astar", "idle"), (checkpoint, "idle"), (checkpoint, "bayes")]
@@ -56,8 +58,7 @@ def model_card(checkpoint: str, agent: str, run_dir: str | None, command: str, e
         f"- **Hardware**: {cpu_name()} ({os.cpu_count()} CPUs), {train_cfg.get('threads') or 'all'} "
         f"torch thread(s), no GPU",
         f"- **Network**: {json.dumps(net)}",
-        f"- **Partner during training**: leader `{train_cfg['leader']['policy']}`, follower "
-        f"`{train_cfg['follower']['policy']}`",
+        "- **Partner during training**: " + ", ".join(f"{name} `{train_cfg[name]['policy']}`" for name in AGENTS),
         f"- **Training settings**: PPO {json.dumps(train_cfg['ppo'])}; schedule {json.dumps(train_cfg['schedule'])}; "
         f"aux_coef {train_cfg[agent]['aux_coef']}; train_reward `{train_cfg[agent].get('train_reward', 'env')}`",
         f"- **Environment**: {json.dumps(ckpt['env_config'])}",
@@ -66,7 +67,8 @@ def model_card(checkpoint: str, agent: str, run_dir: str | None, command: str, e
         "",
         f"Figures are the {agent}'s; ± is the half-width of a 95% normal interval over episodes.",
         "",
-        "| leader + follower | team reward | goal pickups | wrong pickups | net pickups | goal-prediction accuracy |",
+        f"| {' + '.join(AGENTS)} | team reward | goal pickups | wrong pickups | net pickups "
+        "| goal-prediction accuracy |",
         "|---|---:|---:|---:|---:|---:|",
         *(_row(r, agent) for r in reports),
         "",

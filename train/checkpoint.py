@@ -24,7 +24,8 @@ import torch
 
 from colorgrid.config import AGENTS, EnvConfig
 from colorgrid.files import atomic_path
-from train.config import NetConfig, TrainConfigError, _build
+from colorgrid.configkit import from_dict
+from train.config import NetConfig, TrainConfigError
 from train.nets import ActorCritic
 
 FORMAT, VERSION = "colorgrid-ippo", 1
@@ -90,7 +91,7 @@ def _unreadable_reason(path: Path, err: Exception) -> str:
 def build_model(entry: dict, env: EnvConfig, what: str) -> ActorCritic:
     """Rebuild a network from a checkpoint entry, with a clear error when the weights do not fit."""
     try:
-        net = _build(NetConfig, entry["net"], "net")
+        net = from_dict(NetConfig, entry["net"], "net")
     except TrainConfigError as err:
         raise ValueError(f"{what}: {err}") from None
     model = ActorCritic(net, env, int(entry["agent_index"]))

@@ -8,14 +8,15 @@ Presets in ``train/presets/*.json`` hold only the fields that differ from these 
 
 from __future__ import annotations
 
-import dataclasses
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from colorgrid import configkit
 from colorgrid.config import AGENTS, EnvConfig
-from colorgrid.files import JSONFileError, read_json_object
+from colorgrid.configkit import (ConfigError, Presets, check_bool, check_choice, check_int, check_number, fail, merge,
+                                 override_dict)
+from colorgrid.policies import SCRIPTED, registry
 
 PRESETS_DIR = Path(__file__).parent / "presets"
 ARCHS = ("fast", "paper")
@@ -23,50 +24,13 @@ GOAL_FUSIONS = ("early", "late", "planes")
 DEVICES = ("auto", "cpu", "cuda")
 
 
-class TrainConfigError(ValueError):
-    """A training setting is invalid; the message names the field, the value and what is allowed.
-
-    ``field`` is the setting's name within the dataclass that raised it (None for errors that
-    are not about one field); ``within`` names it from the config's root.
-    """
-
-    def __init__(self, message: str, field: str | None = None, detail: str = ""):
-        super().__init__(message)
-        self.field, self.detail = field, detail
-
-    def within(self, section: str) -> "TrainConfigError":
-        """The same error with the field named from its section: ``aux_coef`` -> ``follower.aux_coef``."""
-        if self.field is None or not section:
-            return self
-        name = f"{section}.{self.field}"
-        return TrainConfigError(name + self.detail, name, self.detail)
+TrainConfigError = ConfigError
+"""A training setting is invalid (the toolkit's ``ConfigError``): the message names the field from the
+config's root (``ppo.lr=-1 is invalid: ...``), the value and what is allowed."""
 
 
-def _fail(name: str, value, allowed: str):
-    detail = f"={value!r} is invalid: {allowed}"
-    raise TrainConfigError(name + detail, name, detail)
-
-
-def _check_int(name: str, value, lo: int, hi: int | None = None, optional: bool = False) -> None:
-    """An int (not a bool) in [lo, hi]; ``optional``: or None."""
-    if optional and value is None:
-        return
-    if isinstance(value, bool) or not isinstance(value, int) or value < lo or (hi is not None and value > hi):
-        allowed = f"an integer in [{lo}, {hi}]" if hi is not None else f"an integer >= {lo}"
-        _fail(name, value, allowed + (" or null" if optional else ""))
-
-
-def _check_number(name: str, value, allowed: str, within=lambda v: True, optional: bool = False) -> None:
-    """A finite int or float (not a bool) for which ``within`` holds; ``optional``: or None. ``allowed`` says which."""
-    if optional and value is None:
-        return
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or not within(value):
-        _fail(name, value, allowed)
-
-
-def _check_bool(name: str, value) -> None:
-    if not isinstance(value, bool):
-        _fail(name, value, "true or false")
+def _between(low: float, high: float, low_open: bool = False, high_open: bool = False):
+    return lambda v: (low < v if low_open else low <= v) and (v < high if high_open else v <= high)
 
 
 @dataclass(frozen=True)
@@ -90,17 +54,15 @@ class NetConfig:
     """Feed the agent's own goal prediction (detached softmax of the auxiliary head) to its policy and value heads."""
 
     def __post_init__(self):
-        if self.arch not in ARCHS:
-            _fail("arch", self.arch, f"choose one of {list(ARCHS)}")
-        if self.goal_fusion not in GOAL_FUSIONS:
-            _fail("goal_fusion", self.goal_fusion, f"choose one of {list(GOAL_FUSIONS)}")
+        check_choice(self, "arch", ARCHS, f"choose one of {list(ARCHS)}")
+        check_choice(self, "goal_fusion", GOAL_FUSIONS, f"choose one of {list(GOAL_FUSIONS)}")
         for name in ("lstm_size", "hidden"):
-            _check_int(name, getattr(self, name), 1, 4096)
+            check_int(self, name, 1, 4096)
         for name in ("lstm", "extra_inputs", "belief_input"):
-            _check_bool(name, getattr(self, name))
+            check_bool(self, name)
         if self.goal_fusion == "planes" and self.belief_input and not (self.lstm and self.extra_inputs):
-            _fail("belief_input", self.belief_input, "with goal_fusion='planes' the belief comes from an LSTM "
-                  "over the last-step inputs: set net.lstm=true and net.extra_inputs=true too")
+            fail(self, "belief_input", "with goal_fusion='planes' the belief comes from an LSTM over the last-step "
+                 "inputs: set net.lstm=true and net.extra_inputs=true too")
 
 
 @dataclass(frozen=True)
@@ -127,20 +89,18 @@ class AgentConfig:
 
     def __post_init__(self):
         if not isinstance(self.policy, str) or not self.policy:
-            _fail("policy", self.policy, "'learn', a scripted policy name or a checkpoint path ending in .pt")
-        if not self.learns and not self.policy.endswith(".pt"):
-            from colorgrid.policies import SCRIPTED
-            if self.policy not in SCRIPTED:
-                _fail("policy", self.policy, f"'learn', one of {sorted(SCRIPTED)} or a checkpoint path ending in .pt")
+            fail(self, "policy", "'learn', a scripted policy name or a checkpoint path ending in .pt")
+        names = sorted(SCRIPTED) + registry.registered_names()
+        if not self.learns and not self.policy.endswith(".pt") and self.policy not in names:
+            fail(self, "policy", f"'learn', one of {names} or a checkpoint path ending in .pt")
         if self.init is not None and not isinstance(self.init, str):
-            _fail("init", self.init, "a checkpoint path (a string) or null")
+            fail(self, "init", "a checkpoint path (a string) or null")
         if self.init is not None and not self.learns:
-            _fail("init", self.init, "warm-starting only applies to policy='learn'")
-        _check_number("aux_coef", self.aux_coef, "a number in [0, 100]", lambda v: 0.0 <= v <= 100.0)
-        if self.train_reward not in ("env", "own"):
-            _fail("train_reward", self.train_reward, "'env' (the env's reward) or 'own' (own block reward)")
-        _check_number("lr", self.lr, "a number in (0, 1), or null to use ppo.lr", lambda v: 0.0 < v < 1.0,
-                      optional=True)
+            fail(self, "init", "warm-starting only applies to policy='learn'")
+        check_number(self, "aux_coef", "a number in [0, 100]", _between(0.0, 100.0))
+        check_choice(self, "train_reward", ("env", "own"), "'env' (the env's reward) or 'own' (own block reward)")
+        check_number(self, "lr", "a number in (0, 1), or null to use ppo.lr", _between(0.0, 1.0, True, True),
+                     optional=True)
 
 
 @dataclass(frozen=True)
@@ -148,36 +108,56 @@ class PPOConfig:
     """PPO settings; defaults are the paper's table."""
 
     lr: float = 1e-4
+    """Adam's learning rate (every learner; ``AgentConfig.lr`` overrides it for one)."""
     num_envs: int = 16
+    """Environments stepped together in a rollout."""
     num_steps: int = 128
+    """Steps of each env per rollout (a PPO iteration collects ``num_envs * num_steps`` env steps)."""
     gamma: float = 0.99
+    """Discount factor."""
     gae_lambda: float = 0.95
+    """GAE's lambda: the bias-variance trade-off of the advantage estimates."""
     num_minibatches: int = 4
+    """Minibatches per epoch; must divide ``num_envs`` (recurrent minibatches are whole envs)."""
     update_epochs: int = 4
+    """Passes over each rollout."""
     clip_coef: float = 0.2
+    """PPO's clipping range for the probability ratio (and for the value, with ``clip_vloss``)."""
     clip_vloss: bool = True
+    """Clip the value loss around the rollout's values."""
     ent_coef: float = 0.01
+    """Weight of the entropy bonus."""
     vf_coef: float = 0.5
+    """Weight of the value loss."""
     max_grad_norm: float = 0.5
+    """Global gradient-norm clip."""
     target_kl: float | None = 0.01
+    """Stop an update's epochs early once the approximate KL passes this (null: never)."""
     norm_adv: bool = True
+    """Normalise advantages within each minibatch."""
 
     def __post_init__(self):
-        for name, lo, hi in (("num_envs", 1, 65536), ("num_steps", 1, 65536), ("num_minibatches", 1, 65536),
-                             ("update_epochs", 1, 1000)):
-            _check_int(name, getattr(self, name), lo, hi)
+        for name, hi in (("num_envs", 65536), ("num_steps", 65536), ("num_minibatches", 65536),
+                         ("update_epochs", 1000)):
+            check_int(self, name, 1, hi)
         if self.num_envs % self.num_minibatches:
-            _fail("num_minibatches", self.num_minibatches,
-                  f"must divide ppo.num_envs={self.num_envs} (recurrent minibatches are whole envs)")
-        _check_number("lr", self.lr, "a number in (0, 1)", lambda v: 0.0 < v < 1.0)
+            fail(self, "num_minibatches", f"must divide ppo.num_envs={self.num_envs} (recurrent minibatches are "
+                                          f"whole envs)")
+        check_number(self, "lr", "a number in (0, 1)", _between(0.0, 1.0, True, True))
         for name in ("gamma", "gae_lambda"):
-            _check_number(name, getattr(self, name), "a number in [0, 1]", lambda v: 0.0 <= v <= 1.0)
+            check_number(self, name, "a number in [0, 1]", _between(0.0, 1.0))
         for name in ("clip_coef", "ent_coef", "vf_coef", "max_grad_norm"):
-            _check_number(name, getattr(self, name), "a non-negative number", lambda v: v >= 0.0)
-        _check_number("target_kl", self.target_kl, "a positive number, or null to never stop early",
-                      lambda v: v > 0.0, optional=True)
+            check_number(self, name, "a non-negative number", _between(0.0, math.inf))
+        check_number(self, "target_kl", "a positive number, or null to never stop early",
+                     _between(0.0, math.inf, low_open=True), optional=True)
         for name in ("clip_vloss", "norm_adv"):
-            _check_bool(name, getattr(self, name))
+            check_bool(self, name)
+
+    def loss_weights(self, aux_coef: float):
+        """The loss's ``LossWeights``: these settings and the agent's auxiliary coefficient."""
+        from train.ppo import LossWeights  # torch, only when training
+
+        return LossWeights(self.clip_coef, self.clip_vloss, self.ent_coef, self.vf_coef, aux_coef, self.norm_adv)
 
 
 @dataclass(frozen=True)
@@ -192,13 +172,12 @@ class ScheduleConfig:
     """Reward-shaping terms (set in the env config) count toward training rewards only for this many steps."""
 
     def __post_init__(self):
-        for name in ("penalty_start", "penalty_end"):
-            _check_int(name, getattr(self, name), 0, optional=True)
-        _check_int("shaping_steps", self.shaping_steps, 0, optional=True)
+        for name in ("penalty_start", "penalty_end", "shaping_steps"):
+            check_int(self, name, 0, optional=True)
         if (self.penalty_start is None) != (self.penalty_end is None):
-            _fail("penalty_end", self.penalty_end, "set both penalty_start and penalty_end, or neither")
+            fail(self, "penalty_end", "set both penalty_start and penalty_end, or neither")
         if self.penalty_start is not None and not self.penalty_start <= self.penalty_end:
-            _fail("penalty_start", self.penalty_start, f"0 <= penalty_start <= penalty_end={self.penalty_end}")
+            fail(self, "penalty_start", f"0 <= penalty_start <= penalty_end={self.penalty_end}")
 
     def penalty_coef(self, step: int, default: float) -> float:
         if self.penalty_start is None:
@@ -242,18 +221,17 @@ class TrainConfig:
 
     def __post_init__(self):
         if not any(a.learns for a in self.agents):
-            _fail("leader.policy/follower.policy", (self.leader.policy, self.follower.policy),
-                  "at least one agent must have policy='learn'")
-        if self.device not in DEVICES:
-            _fail("device", self.device, f"choose one of {list(DEVICES)}")
+            fail(self, "leader.policy/follower.policy", "at least one agent must have policy='learn'",
+                 (self.leader.policy, self.follower.policy))
+        check_choice(self, "device", DEVICES, f"choose one of {list(DEVICES)}")
         for name, lo in (("total_steps", 1), ("seed", 0), ("eval_every", 0), ("eval_episodes", 1),
                          ("replay_episodes", 0), ("save_every", 1), ("threads", 0)):
-            _check_int(name, getattr(self, name), lo)
-        _check_bool("keep_freed_memory", self.keep_freed_memory)
+            check_int(self, name, lo)
+        check_bool(self, "keep_freed_memory")
         if self.replay_episodes > self.eval_episodes:
-            _fail("replay_episodes", self.replay_episodes, f"at most eval_episodes={self.eval_episodes}")
+            fail(self, "replay_episodes", f"at most eval_episodes={self.eval_episodes}")
         if self.env.num_agents != len(AGENTS):
-            _fail("env", self.env.num_agents, "the trainer handles one leader and one follower")
+            fail(self, "env", "the trainer handles one leader and one follower", self.env.num_agents)
 
     @property
     def agents(self) -> tuple[AgentConfig, AgentConfig]:
@@ -268,88 +246,33 @@ class TrainConfig:
         return -(-self.total_steps // self.batch_steps)
 
     def to_dict(self) -> dict:
-        d = dataclasses.asdict(self)
-        d["env"] = self.env.to_dict()
-        return d
+        return configkit.to_dict(self)
 
     @classmethod
     def from_dict(cls, data: dict) -> "TrainConfig":
         return from_dict(data)
 
 
-_SECTIONS = {"leader": AgentConfig, "follower": AgentConfig, "ppo": PPOConfig, "schedule": ScheduleConfig}
-
-
-def _build(kind, data: dict, where: str):
-    if not isinstance(data, dict):
-        raise TrainConfigError(f"{where} must be a mapping, got {type(data).__name__}")
-    names = {f.name for f in dataclasses.fields(kind)}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        raise TrainConfigError(f"unknown field(s) {unknown} in {where or 'the training config'}; "
-                               f"allowed: {sorted(names)}")
-    data = dict(data)
-    if kind is AgentConfig and "net" in data:
-        data["net"] = _build(NetConfig, data["net"], f"{where}.net")
-    try:
-        return kind(**data)
-    except TrainConfigError as err:
-        raise err.within(where) from None
+PRESETS = Presets(folder=PRESETS_DIR, what="preset")
+"""Training presets: one JSON file each in ``train/presets/``, holding the fields that differ from the defaults."""
 
 
 def from_dict(data: dict) -> TrainConfig:
     """A TrainConfig from nested plain data (as in preset files); unknown keys are errors."""
-    if not isinstance(data, dict):
-        raise TrainConfigError(f"a training config must be a mapping, got {type(data).__name__}")
-    data = dict(data)
-    data.pop("description", None)
-    names = {f.name for f in dataclasses.fields(TrainConfig)}
-    unknown = sorted(set(data) - names)
-    if unknown:
-        raise TrainConfigError(f"unknown field(s) {unknown} in the training config; allowed: {sorted(names)}")
-    if "env" in data:
-        data["env"] = EnvConfig.from_dict(data["env"])
-    for key, kind in _SECTIONS.items():
-        if key in data:
-            data[key] = _build(kind, data[key], key)
-    return TrainConfig(**data)
-
-
-def merge(base: dict, override: dict) -> dict:
-    """Recursively merge plain dicts (override wins)."""
-    out = dict(base)
-    for key, value in override.items():
-        out[key] = merge(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
-    return out
+    if isinstance(data, dict):
+        data = {k: v for k, v in data.items() if k != "description"}
+    return configkit.from_dict(TrainConfig, data)
 
 
 def preset_names() -> list[str]:
-    return sorted(p.stem for p in PRESETS_DIR.glob("*.json"))
+    return PRESETS.names()
 
 
 def load_preset(name: str) -> dict:
     """A preset's plain data by name (``train/presets/<name>.json``) or by file path."""
-    path = Path(name)
-    if not path.suffix:
-        path = PRESETS_DIR / f"{name}.json"
-    if not path.exists():
-        raise TrainConfigError(f"unknown preset {name!r}: no file {path}; presets: {preset_names()}")
-    try:
-        return read_json_object(path, "a JSON object of training settings")
-    except JSONFileError as err:
-        raise TrainConfigError(f"preset {err}") from None
+    return PRESETS.load(name)
 
 
 def parse_override(text: str) -> dict:
     """``a.b.c=value`` to ``{"a": {"b": {"c": value}}}``; the value is JSON if it parses, else a string."""
-    if "=" not in text:
-        raise TrainConfigError(f"--set {text!r}: expected KEY=VALUE, e.g. ppo.lr=3e-4 or follower.net.lstm=true")
-    key, raw = text.split("=", 1)
-    try:
-        value = json.loads(raw)
-    except json.JSONDecodeError:
-        value = raw
-    out: dict = value
-    for part in reversed(key.strip().split(".")):
-        out = {part: out}
-    return out
+    return override_dict(text, TrainConfig, example="ppo.lr=3e-4 or follower.net.lstm=true")

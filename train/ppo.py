@@ -29,12 +29,14 @@ def compute_gae(rewards: torch.Tensor, values: torch.Tensor, next_values: torch.
 
 @dataclass(frozen=True)
 class LossWeights:
-    clip_coef: float = 0.2
-    clip_vloss: bool = True
-    ent_coef: float = 0.01
-    vf_coef: float = 0.5
-    aux_coef: float = 0.2
-    norm_adv: bool = True
+    """The loss's coefficients (``PPOConfig.loss_weights`` makes them from a run's settings)."""
+
+    clip_coef: float
+    clip_vloss: bool
+    ent_coef: float
+    vf_coef: float
+    aux_coef: float
+    norm_adv: bool
 
 
 def ppo_loss(logits: torch.Tensor, values: torch.Tensor, goal_logits: torch.Tensor, actions: torch.Tensor,

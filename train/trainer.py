@@ -35,7 +35,6 @@ from train.memory import keep_freed_memory
 from train.metrics import MetricsLog
 from train.nets import ActorCritic
 from train.policy import NetPolicy, check_compatible
-from train.ppo import LossWeights
 
 
 TRAINER_STATE_FORMAT = 2
@@ -111,9 +110,8 @@ class Trainer:
                                  f"asks for {agent.net}; set {AGENTS[i]}.net to match the checkpoint")
             check_compatible(trained.env, cfg.env, agent.init)
             model = trained
-        weights = LossWeights(cfg.ppo.clip_coef, cfg.ppo.clip_vloss, cfg.ppo.ent_coef, cfg.ppo.vf_coef,
-                              agent.aux_coef, cfg.ppo.norm_adv)
-        return Learner(model, cfg.ppo, weights, agent.lr or cfg.ppo.lr, cfg.seed * 2 + i + 1, self.device)
+        return Learner(model, cfg.ppo, cfg.ppo.loss_weights(agent.aux_coef), agent.lr or cfg.ppo.lr,
+                       cfg.seed * 2 + i + 1, self.device)
 
     def _begin_episodes(self) -> None:
         B, A = self.config.ppo.num_envs, self.config.env.num_agents
@@ -224,7 +222,7 @@ class Trainer:
             self.obs, rewards, terms, truncs, infos = env.step(actions)
             rewards = self._training_rewards(rewards, infos, shaping)
             shaped_sum += rewards
-            done = terms[:, 0] | truncs[:, 0]
+            done = terms.any(axis=1) | truncs.any(axis=1)  # [B]: every agent's episode ends at once
             self.last.record(actions, infos, done)
             final = self._final_values(infos, done) if done.any() else {}
             for i, learner in self.learners.items():

@@ -1,18 +1,22 @@
-// Draws a ColorGrid board on a canvas, by the same rules as colorgrid/render.py:
-// floor, colored blocks, the leader (dark, "L") and follower (light, "F"), a frame in the goal color.
-export const PALETTE = ["#dc322f", "#2ea043", "#266edc", "#f5911e", "#8c46be", "#1ebec8", "#8c5a32", "#eb6eb4"];
-const FLOOR = "#ececE8", GRID = "#d2d2cc";
+// Draws a ColorGrid board on a canvas, by the same rules as colorgrid/render.py: floor, colored blocks,
+// each agent as a disc with its letter, a frame in the goal color. The colors and the agents are the
+// server's (`look`: /api/options, the welcome message, a replay's timeline), set once with `setLook`.
+let look = null;
+
+export function setLook(value) {
+  look = value;
+}
 
 export function drawBoard(canvas, board) {
-  const { height, width, blocks, leader, follower, goal } = board;
+  const { height, width, blocks, goal } = board;
   const border = 4;
   const cell = Math.floor(Math.min((canvas.width - 2 * border) / width, (canvas.height - 2 * border) / height));
   const ctx = canvas.getContext("2d");
-  ctx.fillStyle = goal == null ? "#999" : PALETTE[goal];
+  ctx.fillStyle = goal == null ? "#999" : look.palette[goal];
   ctx.fillRect(0, 0, canvas.width, canvas.height);
-  ctx.fillStyle = FLOOR;
+  ctx.fillStyle = look.floor;
   ctx.fillRect(border, border, cell * width, cell * height);
-  ctx.strokeStyle = GRID;
+  ctx.strokeStyle = look.grid;
   ctx.lineWidth = 1;
   ctx.beginPath();
   for (let r = 0; r <= height; r++) { ctx.moveTo(border, border + r * cell + 0.5); ctx.lineTo(border + width * cell, border + r * cell + 0.5); }
@@ -23,28 +27,27 @@ export function drawBoard(canvas, board) {
     const ch = blocks[i];
     if (ch === ".") continue;
     const r = Math.floor(i / width), c = i % width;
-    ctx.fillStyle = PALETTE[Number(ch)];
+    ctx.fillStyle = look.palette[Number(ch)];
     ctx.fillRect(border + c * cell + margin, border + r * cell + margin, cell - 2 * margin, cell - 2 * margin);
   }
-  drawAgent(ctx, border, cell, width, leader, "#191919", "#ffffff", "L");
-  drawAgent(ctx, border, cell, width, follower, "#ffffff", "#191919", "F");
+  for (const agent of look.agents) drawAgent(ctx, border, cell, width, board[agent.name], agent);
   return cell;
 }
 
-function drawAgent(ctx, border, cell, width, index, body, ink, letter) {
+function drawAgent(ctx, border, cell, width, index, agent) {
   const r = Math.floor(index / width), c = index % width;
   const x = border + c * cell + cell / 2, y = border + r * cell + cell / 2;
   ctx.beginPath();
   ctx.arc(x, y, cell / 2 - 0.5, 0, 2 * Math.PI);
-  ctx.fillStyle = body;
+  ctx.fillStyle = agent.body;
   ctx.fill();
   ctx.strokeStyle = "#000";
   ctx.stroke();
-  ctx.fillStyle = ink;
+  ctx.fillStyle = agent.ink;
   ctx.font = `bold ${Math.max(8, cell - 6)}px sans-serif`;
   ctx.textAlign = "center";
   ctx.textBaseline = "middle";
-  ctx.fillText(letter, x, y + 1);
+  ctx.fillText(agent.symbol, x, y + 1);
 }
 
 export function drawBelief(container, probs, colors) {
@@ -56,7 +59,7 @@ export function drawBelief(container, probs, colors) {
     row.className = "belief-row";
     row.dataset.color = colors[k];
     row.innerHTML = `<span class="belief-name">${colors[k]}</span>
-      <span class="belief-track"><span class="belief-fill" style="width:${(100 * p).toFixed(1)}%;background:${PALETTE[k]}"></span></span>
+      <span class="belief-track"><span class="belief-fill" style="width:${(100 * p).toFixed(1)}%;background:${look.palette[k]}"></span></span>
       <span class="belief-value">${p.toFixed(2)}</span>`;
     container.appendChild(row);
   });

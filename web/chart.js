@@ -1,6 +1,6 @@
 // The episode chart under the replay board: belief lines, the true goal strip, pickup and switch markers,
 // and a cursor at the current step. Pure drawing: `drawChart(canvas, data, step)`; `stepAt(canvas, data, x)`.
-import { PALETTE } from "./board.js";
+// `data` is a replay's timeline: its `look` gives the colors and the agents (in index order, the leader first).
 
 const PAD = { left: 30, right: 8, top: 14, bottom: 26 };
 
@@ -28,11 +28,13 @@ export function drawChart(canvas, data, step) {
     ctx.beginPath(); ctx.moveTo(PAD.left, yOf(p)); ctx.lineTo(canvas.width - PAD.right, yOf(p)); ctx.stroke();
     ctx.fillText(p.toFixed(1), 4, yOf(p) + 3);
   }
-  // belief lines, one per color, for each agent that has beliefs (dashed for the leader)
+  const palette = data.look.palette;
+  const [leader] = data.look.agents;  // index order: the leader first
+  // belief lines, one per color, for each agent that has beliefs (dashed for the leader, solid for the follower)
   for (const [agent, probs] of Object.entries(data.goal_probs || {})) {
-    ctx.setLineDash(agent === "leader" ? [4, 3] : []);
+    ctx.setLineDash(agent === leader.name ? [4, 3] : []);
     for (let k = 0; k < data.colors.length; k++) {
-      ctx.strokeStyle = PALETTE[k];
+      ctx.strokeStyle = palette[k];
       ctx.lineWidth = 1.5;
       ctx.beginPath();
       probs.forEach((row, t) => { const x = xOf(canvas, data, t), y = yOf(row[k]); t ? ctx.lineTo(x, y) : ctx.moveTo(x, y); });
@@ -43,7 +45,7 @@ export function drawChart(canvas, data, step) {
   // the true goal beneath the plot
   const stripY = H - PAD.bottom + 4;
   data.goal.forEach((g, t) => {
-    ctx.fillStyle = PALETTE[g];
+    ctx.fillStyle = palette[g];
     const x0 = xOf(canvas, data, t), x1 = xOf(canvas, data, t + 1);
     ctx.fillRect(x0, stripY, Math.max(1, x1 - x0), 8);
   });
@@ -56,8 +58,8 @@ export function drawChart(canvas, data, step) {
       ctx.strokeStyle = "#999"; ctx.setLineDash([2, 3]);
       ctx.beginPath(); ctx.moveTo(x, PAD.top); ctx.lineTo(x, H - PAD.bottom); ctx.stroke(); ctx.setLineDash([]);
     } else {
-      const y = e.agent === "leader" ? 2 : H - 12;
-      ctx.strokeStyle = PALETTE[e.color]; ctx.lineWidth = 2;
+      const y = e.agent === leader.name ? 2 : H - 12;  // the leader's above the plot, the follower's below
+      ctx.strokeStyle = palette[e.color]; ctx.lineWidth = 2;
       ctx.beginPath();
       if (e.correct) { ctx.moveTo(x, y); ctx.lineTo(x, y + 9); }
       else { ctx.moveTo(x - 3, y); ctx.lineTo(x + 3, y + 9); ctx.moveTo(x + 3, y); ctx.lineTo(x - 3, y + 9); }

@@ -1,20 +1,35 @@
-// The play page: the server owns the game; this page draws states and sends keys.
-import { drawBoard, drawBelief, PALETTE } from "./board.js";
+// The play page: the server owns the game; this page draws states and sends keys. What it offers and
+// how it draws (followers, presets, modes, keys, colors, agents) all come from the server.
+import { drawBoard, drawBelief, setLook } from "./board.js";
 
 const $ = (id) => document.getElementById(id);
-const KEYS = new Set(["ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight", "w", "a", "s", "d", "W", "A", "S", "D"]);
-let socket = null, game = null, seq = 0, beliefHidden = false, lastState = null;
+let options = null, socket = null, game = null, seq = 0, beliefHidden = false, lastState = null;
 
 async function loadOptions() {
-  const options = await (await fetch("/api/options")).json();
-  fill($("follower"), options.followers, options.default_follower);
-  fill($("preset"), options.presets, options.default_preset);
+  options = await (await fetch("/api/options")).json();
+  setLook(options.look);
+  fill($("follower"), options.followers.map((v) => ({ value: v, label: v })), options.default_follower);
+  fill($("preset"), options.presets.map((v) => ({ value: v, label: v })), options.default_preset);
+  fill($("mode"), options.modes, options.modes[0].value);
+  $("horizon").max = options.horizon.max;
+  for (const agent of options.look.agents) {
+    for (const el of document.querySelectorAll(`[data-symbol="${agent.name}"]`)) el.textContent = agent.symbol;
+  }
+  showPreset();
   $("tick-note").textContent = `real time runs at ${options.tick_hz} steps/s`;
   if (!options.show_belief) { $("belief-toggle").disabled = true; beliefHidden = true; }
 }
 
-function fill(select, values, chosen) {
-  select.replaceChildren(...values.map((v) => new Option(v, v, v === chosen, v === chosen)));
+function showPreset() {
+  // the chosen setting's rewards and episode length
+  const chosen = options.preset_settings[$("preset").value];
+  $("goal-reward").textContent = `+${chosen.goal_reward}`;
+  $("wrong-penalty").textContent = `−${chosen.wrong_penalty}`;
+  $("horizon").placeholder = chosen.horizon;
+}
+
+function fill(select, items, chosen) {
+  select.replaceChildren(...items.map(({ value, label }) => new Option(label, value, value === chosen, value === chosen)));
 }
 
 function status(text, kind = "") {
@@ -38,11 +53,13 @@ function connect(firstMessage) {
 function onMessage(msg) {
   if (msg.type === "welcome") {
     game = { ...msg, over: false };
+    setLook(msg.look);
     sessionStorage.setItem("colorgrid-game", JSON.stringify({ game_id: msg.game_id, token: msg.token }));
     $("setup").hidden = true;
     $("over").hidden = true;
     $("game").hidden = false;
-    $("mode-label").textContent = msg.mode === "turn" ? "turn-based: the world moves when you do" : `real time, ${msg.tick_hz} steps/s`;
+    const mode = options.modes.find((m) => m.value === msg.mode)?.label ?? msg.mode;
+    $("mode-label").textContent = msg.tick_hz ? `${mode}, ${msg.tick_hz} steps/s` : `${mode}: the world moves when you do`;
     $("follower-label").textContent = msg.follower;
     $("belief-panel").hidden = !msg.show_belief;
     status("your move: arrow keys or WASD");
@@ -53,7 +70,9 @@ function onMessage(msg) {
     game.over = true;
     sessionStorage.removeItem("colorgrid-game");
     $("over").hidden = false;
-    $("over-scores").textContent = `team ${fmt(msg.scores.team)} (you ${fmt(msg.scores.leader)}, follower ${fmt(msg.scores.follower)}) after ${msg.steps} steps`;
+    const [you, partner] = game.look.agents;  // in index order: the leader (the player), then the follower
+    $("over-scores").textContent = `team ${fmt(msg.scores.team)} (you ${fmt(msg.scores[you.name])}, ` +
+      `${partner.name} ${fmt(msg.scores[partner.name])}) after ${msg.steps} steps`;
     const link = $("replay-link");
     link.hidden = !msg.replay_id;
     if (msg.replay_id) link.href = `/replay?id=${encodeURIComponent(msg.replay_id)}`;
@@ -74,15 +93,15 @@ const fmt = (x) => (x > 0 ? "+" : "") + x;
 function render(state) {
   const canvas = $("board");
   drawBoard(canvas, { height: game.height, width: game.width, ...state });
-  canvas.dataset.leader = state.leader;  // agents' cells, for assistive tools and tests
-  canvas.dataset.follower = state.follower;
+  for (const agent of game.look.agents) {
+    canvas.dataset[agent.name] = state[agent.name];  // agents' cells, for assistive tools and tests
+    $(`score-${agent.name}`).textContent = fmt(state.scores[agent.name]);
+  }
   canvas.dataset.step = state.step;
   $("step").textContent = `${state.step} / ${state.horizon}`;
   $("left").textContent = `${state.horizon - state.step} steps left`;
   $("score-team").textContent = fmt(state.scores.team);
-  $("score-leader").textContent = fmt(state.scores.leader);
-  $("score-follower").textContent = fmt(state.scores.follower);
-  $("goal-swatch").style.background = PALETTE[state.goal];
+  $("goal-swatch").style.background = game.look.palette[state.goal];
   $("goal-name").textContent = game.colors[state.goal];
   drawBelief($("belief"), beliefHidden ? null : state.belief, game.colors);
   const events = state.events.map((e) => e.switch !== undefined ? `goal switched to ${game.colors[e.switch]}`
@@ -91,7 +110,7 @@ function render(state) {
 }
 
 document.addEventListener("keydown", (event) => {
-  if (!KEYS.has(event.key) || !game || game.over || !socket || socket.readyState !== WebSocket.OPEN) return;
+  if (!game || game.over || !socket || socket.readyState !== WebSocket.OPEN || !Object.hasOwn(options.keys, event.key)) return;
   event.preventDefault();
   socket.send(JSON.stringify({ type: "key", key: event.key, seq: seq++, t_client: performance.timeOrigin + performance.now() }));
 });
@@ -101,6 +120,7 @@ $("start").addEventListener("click", () => {
   connect({ type: "new_game", follower: $("follower").value, preset: $("preset").value, mode: $("mode").value,
             horizon: $("horizon").value ? Number($("horizon").value) : null, show_belief: true });
 });
+$("preset").addEventListener("change", showPreset);
 $("again").addEventListener("click", () => { $("over").hidden = true; $("game").hidden = true; $("setup").hidden = false; game = null; });
 $("quit").addEventListener("click", () => socket && socket.send(JSON.stringify({ type: "quit" })));
 $("belief-toggle").addEventListener("change", (event) => {

@@ -1,6 +1,7 @@
 // The replay player: /replay?id=ID&step=N. Board (same drawing as the play page), transport controls,
 // the episode chart with a synced cursor, trails, the key log of human games, downloads and step links.
-import { drawBoard, drawBelief, PALETTE } from "./board.js";
+// Colors and agents come with the timeline (`data.look`, agents in index order: the leader first).
+import { drawBoard, drawBelief, setLook } from "./board.js";
 import { drawChart, stepAt } from "./chart.js";
 
 const $ = (id) => document.getElementById(id);
@@ -23,10 +24,10 @@ async function main() {
     return;
   }
   setStatus("");
+  setLook(data.look);
   $("player").hidden = false;
   $("title").textContent = id;
-  $("leader-label").textContent = data.agents.leader?.policy ?? "?";
-  $("follower-label").textContent = data.agents.follower?.policy ?? "?";
+  for (const agent of data.look.agents) $(`${agent.name}-label`).textContent = data.agents[agent.name]?.policy ?? "?";
   const enc = encodeURIComponent(id);
   $("gif").href = `/api/replays/${enc}/export?format=gif`;
   $("mp4").href = `/api/replays/${enc}/export?format=mp4`;
@@ -48,19 +49,17 @@ function show(t) {
   const cell = drawBoard(canvas, { height: data.height, width: data.width, ...board });
   if ($("trails").checked) drawTrails(canvas, cell);
   canvas.dataset.step = step;
-  canvas.dataset.leader = board.leader;
-  canvas.dataset.follower = board.follower;
+  for (const agent of data.look.agents) canvas.dataset[agent.name] = board[agent.name];
   $("scrub").value = step;
   $("step").textContent = `${step} / ${data.steps}`;
   $("goal-name").textContent = data.colors[board.goal];
-  $("goal-swatch").style.background = PALETTE[board.goal];
+  $("goal-swatch").style.background = data.look.palette[board.goal];
   if (board.scores) {
-    const [l, f] = board.scores;
-    $("score-team").textContent = (l + f).toFixed(0);
-    $("score-leader").textContent = l.toFixed(0);
-    $("score-follower").textContent = f.toFixed(0);
+    $("score-team").textContent = board.scores.reduce((a, b) => a + b, 0).toFixed(0);
+    data.look.agents.forEach((agent, i) => { $(`score-${agent.name}`).textContent = board.scores[i].toFixed(0); });
   }
-  const probs = data.goal_probs?.follower;
+  const [, follower] = data.look.agents;  // the bars show the follower's beliefs
+  const probs = data.goal_probs?.[follower.name];
   drawBelief($("belief"), probs ? probs[Math.min(step, data.steps - 1)] : null, data.colors);
   drawChart($("chart"), data, step);
   const link = new URL(location.href);
@@ -73,15 +72,17 @@ function show(t) {
 function drawTrails(canvas, cell) {
   const ctx = canvas.getContext("2d");
   const border = 4;
-  for (const [agent, color] of [["leader", "#191919"], ["follower", "#7a7a7a"]]) {
+  for (const agent of data.look.agents) {  // dots in the agent's body color, ringed in its ink
     for (let k = Math.max(0, step - TRAIL); k < step; k++) {
-      const idx = data.boards[k][agent];
+      const idx = data.boards[k][agent.name];
       const r = Math.floor(idx / data.width), c = idx % data.width;
       ctx.globalAlpha = 0.15 + (0.6 * (k - step + TRAIL)) / TRAIL;
-      ctx.fillStyle = color;
+      ctx.fillStyle = agent.body;
+      ctx.strokeStyle = agent.ink;
       ctx.beginPath();
       ctx.arc(border + c * cell + cell / 2, border + r * cell + cell / 2, cell / 5, 0, 2 * Math.PI);
       ctx.fill();
+      ctx.stroke();
     }
   }
   ctx.globalAlpha = 1;

@@ -16,6 +16,14 @@ async function load() {
   $("next").disabled = offset + PAGE >= data.total;
 }
 
+async function loadSettings() {
+  // the server's presets join the two settings every replay has (asymmetric or symmetric)
+  const options = await (await fetch("/api/options")).json();
+  const select = $("setting");
+  const listed = new Set([...select.options].map((o) => o.value));
+  select.append(...options.presets.filter((p) => !listed.has(p)).map((p) => new Option(p, p)));
+}
+
 function row(item, highlight) {
   const tr = document.createElement("tr");
   tr.dataset.id = item.id;
@@ -45,4 +53,5 @@ for (const id of ["source", "sort", "order", "collection", "setting"]) $(id).add
 $("follower").addEventListener("input", () => { offset = 0; load(); });
 $("prev").addEventListener("click", () => { offset = Math.max(0, offset - PAGE); load(); });
 $("next").addEventListener("click", () => { offset += PAGE; load(); });
+loadSettings();
 load();

@@ -3,10 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 
 from colorgrid.config import EnvConfig
+from colorgrid.configkit import check_int, check_number
 from colorgrid.policies.base import AgentInput, PolicyOutput
 from colorgrid.policies.grid import decode, manhattan_to_nearest
 from colorgrid.policies.scripted import Seeker
@@ -30,14 +32,14 @@ class BayesConfig:
     standby_radius: int = 3
     """While unsure, stay within this Manhattan distance of the leader, on free cells."""
 
+    ERROR_STYLE: ClassVar[str] = "BayesConfig.{name} must be {allowed}, got {value!r}"
+
     def __post_init__(self) -> None:
         for name in ("rationality", "reward_noise"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"BayesConfig.{name} must be >= 0, got {getattr(self, name)!r}")
-        if not 0 <= self.lapse <= 1:
-            raise ValueError(f"BayesConfig.lapse must be in [0, 1], got {self.lapse!r}")
-        if not 0 <= self.collect_threshold <= 1:
-            raise ValueError(f"BayesConfig.collect_threshold must be in [0, 1], got {self.collect_threshold!r}")
+            check_number(self, name, ">= 0", lambda v: v >= 0)
+        for name in ("lapse", "collect_threshold"):
+            check_number(self, name, "in [0, 1]", lambda v: 0 <= v <= 1)
+        check_int(self, "standby_radius", 0, 64)
 
 
 def transition(belief: np.ndarray, switch_prob: float) -> np.ndarray:
@@ -108,7 +110,7 @@ class BayesFollower(Seeker):
         self.has_prev = np.zeros(num_envs, dtype=bool)
         from colorgrid.env import move_table
 
-        self.leader_table = move_table(config)[0]
+        self.leader_table = move_table(config)[self.partner_index]  # its partner, the leader, shows the goal
 
     def update(self, inp: AgentInput, rows: np.ndarray, block_color: np.ndarray, agent_cell: np.ndarray) -> np.ndarray:
         """Fold last step's evidence into the belief of ``rows`` and advance it to the current goal."""
@@ -131,11 +133,11 @@ class BayesFollower(Seeker):
     def _evidence(self, inp: AgentInput, slots: np.ndarray, mask: np.ndarray, block_color, agent_cell) -> np.ndarray:
         """[n, C] likelihood of last step's leader move and reward, for the inputs selected by ``mask``."""
         cfg, p = self.config, self.params
-        leader_before = self.prev_cells[slots, 0]
-        follower_before = self.prev_cells[slots, 1]
+        leader_before = self.prev_cells[slots, self.partner_index]
+        follower_before = self.prev_cells[slots, self.agent_index]
         table = self.leader_table[leader_before]  # [n, M] cells each leader action leads to
         table = np.where(table == follower_before[:, None], leader_before[:, None], table)
-        observed = table == agent_cell[mask, 0][:, None]
+        observed = table == agent_cell[mask, self.partner_index][:, None]
         cells = np.concatenate([leader_before[:, None], table], axis=1)
         d = manhattan_to_nearest(cfg, self.prev_blocks[slots].astype(np.int64), cells)  # [n, 1 + M, C]
         lik = move_likelihood(d[:, 0], d[:, 1:], observed, p.rationality, p.lapse)
@@ -148,7 +150,7 @@ class BayesFollower(Seeker):
         rows = self._rows(rows)
         block_color, agent_cell = decode(inp.observation, cfg)
         belief = self.update(inp, rows, block_color, agent_cell)
-        me, leader = agent_cell[:, self.agent_index], agent_cell[:, 0]
+        me, leader = agent_cell[:, self.agent_index], agent_cell[:, self.partner_index]
         expected = belief * cfg.goal_reward - (1 - belief) * cfg.wrong_penalty * inp.penalty_coef
         wanted = (belief >= p.collect_threshold) & (expected > 0)
         sure = wanted.any(axis=1)

@@ -6,6 +6,7 @@ import numpy as np
 
 from colorgrid.config import EnvConfig
 from colorgrid.env import move_table
+from colorgrid.roles import columns
 
 INF = np.int32(1 << 20)
 
@@ -21,14 +22,10 @@ def decode(observation: np.ndarray, config: EnvConfig):
 
 
 def allowed_cells(config: EnvConfig, agent_index: int) -> np.ndarray:
-    """[H, W] bool: cells this agent may stand on (its half in hemisphere mode)."""
-    mask = np.ones((config.height, config.width), dtype=bool)
-    if config.hemispheres:
-        half = config.width // 2
-        if agent_index == 0:
-            mask[:, half:] = False
-        else:
-            mask[:, :half] = False
+    """[H, W] bool: cells this agent may stand on (its half in hemisphere mode, ``roles.columns``)."""
+    first, stop = columns(config, agent_index)
+    mask = np.zeros((config.height, config.width), dtype=bool)
+    mask[:, first:stop] = True
     return mask
 
 

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from colorgrid.config import EnvConfig
+from colorgrid.config import LEADER, EnvConfig
 from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
 from colorgrid.policies.grid import Mover, allowed_cells, decode, distance_field
+from colorgrid.roles import partner
 
 
 class RandomPolicy(Policy):
@@ -27,13 +28,14 @@ class Seeker(Policy):
 
     def reset(self, config: EnvConfig, num_envs: int, agent_index: int, seed: int = 0) -> None:
         super().reset(config, num_envs, agent_index, seed)
+        self.partner_index = partner(agent_index)
         self.mover = Mover(config, agent_index)
         self.allowed = allowed_cells(config, agent_index)
         self.rng = np.random.default_rng([seed, agent_index, 7])
 
     def positions(self, inp: AgentInput):
         block_color, agent_cell = decode(inp.observation, self.config)
-        return block_color, agent_cell[:, self.agent_index], agent_cell[:, 1 - self.agent_index]
+        return block_color, agent_cell[:, self.agent_index], agent_cell[:, self.partner_index]
 
     def seek(self, wanted: np.ndarray, block_color: np.ndarray, me: np.ndarray, other: np.ndarray,
              avoid_unwanted: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -122,7 +124,7 @@ class CopyFollower(Seeker):
         rows = self._rows(rows)
         target = self.target[rows]
         target[inp.episode_start] = -1
-        leader_color = inp.prev_picked_color[:, 0]
+        leader_color = inp.prev_picked_color[:, LEADER]
         paid = (leader_color >= 0) & (inp.prev_reward > 0) & ~inp.episode_start
         target[paid] = leader_color[paid]
         self.target[rows] = target

@@ -166,7 +166,7 @@ class Replay:
                 require(isinstance(value, list) and len(value) == T,
                         f"steps.{name} must be a list of {T} entries (one per step)")
             require(rows(self.actions, A, lambda x: _is_int(x) and 0 <= x < cfg.num_actions),
-                    f"steps.actions must be [T][2] integers in [0, {cfg.num_actions})")
+                    f"steps.actions must be [T][{A}] integers in [0, {cfg.num_actions})")
             require(self.state_hashes is None or (len(self.state_hashes) == T + 1
                                                   and all(isinstance(h, str) for h in self.state_hashes)),
                     f"steps.state_hash must have {T + 1} entries (T + 1), each a string")
@@ -177,7 +177,7 @@ class Replay:
                                                      for k in ("agent_cell", "blocks", "goal")),
                     f"a frames replay needs frames.agent_cell, frames.blocks and frames.goal with {T + 1} entries")
             require(rows(frames["agent_cell"], A, lambda x: _is_int(x) and 0 <= x < cells),
-                    f"frames.agent_cell must be [T+1][2] cells in [0, {cells})")
+                    f"frames.agent_cell must be [T+1][{A}] cells in [0, {cells})")
             digits = set(".") | {str(k) for k in range(C)}
             require(all(isinstance(b, str) and len(b) == cells and set(b) <= digits for b in frames["blocks"]),
                     f"frames.blocks must be strings of {cells} characters, each '.' or a color digit below {C}")
@@ -189,10 +189,10 @@ class Replay:
                 value = getattr(self, name)
                 require(value is None or len(value) == T, f"steps.{name} must be null or a list of {T} entries")
         if self.block_reward is not None:
-            require(rows(self.block_reward, A, _is_real), "steps.block_reward must be [T][2] numbers")
+            require(rows(self.block_reward, A, _is_real), f"steps.block_reward must be [T][{A}] numbers")
             require(all(_is_real(r) for r in self.team_reward), "steps.team_reward must be [T] numbers")
             require(rows(self.picked_color, A, lambda x: _is_int(x) and -1 <= x < C),
-                    f"steps.picked_color must be [T][2] integers in [-1, {C})")
+                    f"steps.picked_color must be [T][{A}] integers in [-1, {C})")
         if self.goal_switched is not None:
             require(all(isinstance(s, bool) for s in self.goal_switched), "steps.goal_switched must be [T] booleans")
         for name, probs in self.goal_probs.items():

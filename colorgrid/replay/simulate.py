@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.config import AGENTS, LEADER, EnvConfig
 from colorgrid.env import BatchEnv
 from colorgrid.replay.format import Replay, ReplayError
 from colorgrid.rollout import EpisodeBatch
@@ -55,7 +55,7 @@ def verify(replay: Replay, path=None, states: list[EnvState] | None = None) -> V
                                        f"re-simulation gives {got}", t)
     final = replay.final()
     for i, name in enumerate(AGENTS):
-        if "leader_score" in final and abs(float(states[-1].score[0, i]) - final[f"{name}_score"]) > 1e-6:
+        if f"{name}_score" in final and abs(float(states[-1].score[0, i]) - final[f"{name}_score"]) > 1e-6:
             return Verification(False, f"{name} score differs from re-simulation", len(states) - 1)
     return Verification(True, "ok")
 
@@ -106,19 +106,19 @@ def from_batch(batch: EpisodeBatch, agents: dict, source: str, penalty_coef: flo
 def import_frames(config: EnvConfig, planes: np.ndarray, goal_info: np.ndarray, meta: dict | None = None) -> Replay:
     """A frames replay from observation arrays, such as the paper's trajectory dumps.
 
-    planes: ``[T+1, C+2, H, W]`` (or ``[T+1, A, C+2, H, W]``, the first agent's view is used),
-    0/1 per cell; goal_info: ``[T+1, C]`` one-hot goal per frame (the leader's view).
+    planes: ``[T+1, C+A, H, W]`` (or ``[T+1, A, C+A, H, W]``, the leader's view is used),
+    0/1 per cell; goal_info: ``[T+1, C]`` (or ``[T+1, A, C]``) one-hot goal per frame (the leader's view).
     """
     planes = np.asarray(planes)
     goal_info = np.asarray(goal_info)
     if planes.ndim == 5:
-        planes = planes[:, 0]
-    C, H, W = config.num_colors, config.height, config.width
-    if planes.ndim != 4 or planes.shape[1:] != (C + 2, H, W):
-        raise ReplayError(None, f"trajectory must have shape [T, {C + 2}, {H}, {W}] for this config, "
+        planes = planes[:, LEADER]
+    C, A, H, W = config.num_colors, config.num_agents, config.height, config.width
+    if planes.ndim != 4 or planes.shape[1:] != (config.num_planes, H, W):
+        raise ReplayError(None, f"trajectory must have shape [T, {config.num_planes}, {H}, {W}] for this config, "
                                 f"got {list(planes.shape)}")
     if goal_info.ndim == 3:
-        goal_info = goal_info[:, 0]
+        goal_info = goal_info[:, LEADER]
     if goal_info.shape != (planes.shape[0], C):
         raise ReplayError(None, f"goal info must have shape [{planes.shape[0]}, {C}], got {list(goal_info.shape)}")
     if planes.shape[0] < 2:
@@ -127,15 +127,15 @@ def import_frames(config: EnvConfig, planes: np.ndarray, goal_info: np.ndarray, 
         raise ReplayError(None, "goal info rows must be one-hot (the leader's view of the goal)")
     blocks, cells = [], []
     for t, frame in enumerate(planes):
-        agent_counts = frame[C:].reshape(2, -1).sum(axis=1)
+        agent_counts = frame[C:].reshape(A, -1).sum(axis=1)
         if not (agent_counts == 1).all():
             raise ReplayError(None, f"frame {t}: each agent plane must mark exactly one cell")
         color = np.where(frame[:C].any(axis=0), frame[:C].argmax(axis=0), -1).ravel()
         blocks.append(encode_blocks(color))
-        cells.append(frame[C:].reshape(2, -1).argmax(axis=1).tolist())
+        cells.append(frame[C:].reshape(A, -1).argmax(axis=1).tolist())
     goals = goal_info.argmax(axis=1).astype(int).tolist()
     T = planes.shape[0] - 1
-    return Replay(config=config, seed=None, source="import", agents={"leader": {"policy": "unknown"},
-                  "follower": {"policy": "unknown"}}, actions=None, goal=goals[:T], block_reward=None,
+    return Replay(config=config, seed=None, source="import", agents={name: {"policy": "unknown"} for name in AGENTS},
+                  actions=None, goal=goals[:T], block_reward=None,
                   team_reward=None, picked_color=None, goal_switched=None,
                   frames={"agent_cell": cells, "blocks": blocks, "goal": goals}, meta=dict(meta or {}))

@@ -1,6 +1,7 @@
 """A replay as a player draws it: verified first, then one board per step plus the episode's events.
 
-The web replay player (``/api/replays/{id}/timeline``) and the 3D viewer both read this;
+The web replay player (``/api/replays/{id}/timeline``) and the 3D viewer both read this (with
+``look``, the colors and agents to draw them in: ``colorgrid.render.look``);
 a replay that fails verification comes back with ``verified: false`` and its problem,
 and no boards, so that nothing plays a trajectory the rules would not produce.
 """
@@ -10,6 +11,7 @@ from __future__ import annotations
 import bisect
 
 from colorgrid.config import AGENTS, COLOR_NAMES
+from colorgrid.render import look
 from colorgrid.replay.format import Replay
 from colorgrid.replay.simulate import encode_blocks, replay_states, verify
 
@@ -22,7 +24,7 @@ def timeline(replay: Replay, path=None) -> dict:
         "verified": check.ok, "problem": None if check.ok else check.message,
         "kind": replay.kind, "source": replay.source, "agents": replay.agents, "created": replay.created,
         "ended": replay.ended, "seed": replay.seed, "final": replay.final(), "meta": replay.meta,
-        "config": cfg.to_dict(), "colors": list(COLOR_NAMES[: cfg.num_colors]),
+        "config": cfg.to_dict(), "colors": list(COLOR_NAMES[: cfg.num_colors]), "look": look(cfg),
         "height": cfg.height, "width": cfg.width, "steps": replay.num_steps,
     }
     if not check.ok:
@@ -31,7 +33,7 @@ def timeline(replay: Replay, path=None) -> dict:
     for t, state in enumerate(states):
         boards.append({
             "t": t, "blocks": encode_blocks(state.block_colors(cfg).reshape(-1)),
-            "leader": int(state.agent_cell[0, 0]), "follower": int(state.agent_cell[0, 1]),
+            **{name: int(state.agent_cell[0, i]) for i, name in enumerate(AGENTS)},
             "goal": int(replay.goal[t]) if t < replay.num_steps else int(state.goal[0]),
             "scores": [float(x) for x in state.score[0]] if replay.kind == "actions" else None,
         })

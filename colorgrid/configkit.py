@@ -1,0 +1,330 @@
+"""The config toolkit: one way to validate, build, override and expose frozen dataclass configs.
+
+Every config of the project (``EnvConfig``, the training configs, ``BayesConfig``,
+``ServerSettings``) is a frozen dataclass with a docstring per field, validated in
+``__post_init__`` with the checks below, built from plain data by ``from_dict`` (nested
+dataclasses included), changed with ``KEY=VALUE`` overrides (``parse_override``,
+``apply_overrides``), named in presets (``Presets``), and turned into command-line flags
+(``add_arguments``, ``from_args``). Each class says how its errors read with ``ERROR_STYLE``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import inspect
+import json
+import math
+import textwrap
+import types
+import typing
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+FIELD_FIRST = "{name}={value!r} is invalid: {allowed}"
+"""The default error style: the field, its value, what is allowed (``ppo.lr=-1 is invalid: ...``)."""
+
+
+class ConfigError(ValueError):
+    """A setting is invalid; the message names the field, the value and what is allowed.
+
+    ``field`` is the setting's name within the dataclass that raised it (None for errors not
+    about one field); ``within`` names it from the config's root.
+    """
+
+    def __init__(self, message: str, field: str | None = None, detail: str = ""):
+        super().__init__(message)
+        self.field, self.detail = field, detail
+
+    def within(self, section: str) -> "ConfigError":
+        """The same error with the field named from its section: ``aux_coef`` -> ``follower.aux_coef``."""
+        if self.field is None or not section:
+            return self
+        name = f"{section}.{self.field}"
+        return type(self)(name + self.detail, name, self.detail)
+
+
+# ------------------------------------------------------------------ checks
+def fail(owner, name: str, allowed: str, value: Any = dataclasses.MISSING) -> typing.NoReturn:
+    """Raise ``ConfigError`` for ``owner.name`` in the owner's ``ERROR_STYLE``."""
+    value = getattr(owner, name) if value is dataclasses.MISSING else value
+    style = getattr(owner, "ERROR_STYLE", FIELD_FIRST)
+    message = style.format(name=name, value=value, allowed=allowed)
+    if style.startswith("{name}"):  # the field leads: it can be renamed from the root (``within``)
+        raise ConfigError(message, name, message[len(name):])
+    raise ConfigError(message)
+
+
+def is_int(value) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def check_int(owner, name: str, lo: int, hi: int | None = None, *, optional: bool = False,
+              allowed: str | None = None) -> None:
+    """``owner.name`` is an int (not a bool) in ``[lo, hi]``; ``optional``: or None."""
+    value = getattr(owner, name)
+    if optional and value is None:
+        return
+    if not is_int(value) or value < lo or (hi is not None and value > hi):
+        text = allowed or (f"an integer in [{lo}, {hi}]" if hi is not None else f"an integer >= {lo}")
+        fail(owner, name, text + (" or null" if optional and allowed is None else ""))
+
+
+def check_number(owner, name: str, allowed: str, within: Callable[[float], bool] = lambda v: True, *,
+                 optional: bool = False) -> None:
+    """``owner.name`` is a finite int or float (not a bool) for which ``within`` holds; ``optional``: or None."""
+    value = getattr(owner, name)
+    if optional and value is None:
+        return
+    if not is_number(value) or not within(value):
+        fail(owner, name, allowed)
+
+
+def check_bool(owner, name: str, allowed: str = "true or false") -> None:
+    if not isinstance(getattr(owner, name), bool):
+        fail(owner, name, allowed)
+
+
+def check_choice(owner, name: str, choices, allowed: str | None = None) -> None:
+    if getattr(owner, name) not in choices:
+        fail(owner, name, allowed or f"one of {list(choices)}")
+
+
+def check_strings(owner, name: str, choices=None, *, distinct: bool = False, allowed: str | None = None) -> None:
+    """``owner.name`` is a tuple of non-empty strings (from ``choices``; all different if ``distinct``)."""
+    value = getattr(owner, name)
+    ok = isinstance(value, tuple) and all(isinstance(v, str) and v for v in value)
+    if ok and choices is not None:
+        ok = set(value) <= set(choices)
+    if ok and distinct:
+        ok = len(set(value)) == len(value)
+    if not ok:
+        what = "distinct names" if distinct else "non-empty strings"
+        fail(owner, name, allowed or f"a tuple of {what}" + (f" from {list(choices)}" if choices else ""))
+
+
+# ---------------------------------------------------------------- building
+def from_dict(cls, data: Any, where: str = ""):
+    """An instance of the frozen dataclass ``cls`` from plain data (e.g. JSON), nested dataclasses
+    included; lists become tuples where the field is a tuple; unknown keys are an error naming the allowed
+    ones. ``where`` names the section in errors (``ppo``, ``follower.net``)."""
+    label = getattr(cls, "CONFIG_NAME", "")
+    if not isinstance(data, dict):
+        what = label or where or "a config"
+        raise ConfigError(f"{what} must be built from a dict (a JSON object), got {type(data).__name__}")
+    names = [f.name for f in dataclasses.fields(cls)]
+    unknown = sorted(set(data) - set(names))
+    if unknown:
+        place = f" in {where}" if where and not label else ""
+        raise ConfigError(f"unknown {label + ' ' if label else ''}field(s) {unknown}{place}; allowed: {names}")
+    hints = typing.get_type_hints(cls)
+    values = {}
+    for name, value in data.items():
+        kind = hints[name]
+        if dataclasses.is_dataclass(kind) and isinstance(value, dict):
+            value = from_dict(kind, value, f"{where}.{name}" if where else name)
+        elif _is_tuple(kind) and isinstance(value, list):
+            value = tuple(value)
+        elif kind is Path and isinstance(value, str):
+            value = Path(value)
+        values[name] = value
+    try:
+        return cls(**values)
+    except ConfigError as err:
+        raise err.within(where) from None
+
+
+def to_dict(obj) -> dict:
+    """Plain data of a (nested) dataclass: tuples become lists, paths strings, as JSON has them."""
+    def plain(value):
+        if dataclasses.is_dataclass(value):
+            return {f.name: plain(getattr(value, f.name)) for f in dataclasses.fields(value)}
+        if isinstance(value, (tuple, list)):
+            return [plain(v) for v in value]
+        if isinstance(value, Path):
+            return str(value)
+        return value
+
+    return plain(obj)
+
+
+def _is_tuple(kind) -> bool:
+    return kind is tuple or typing.get_origin(kind) is tuple
+
+
+def _plain_type(kind):
+    """``int | None`` -> int; other types as they are."""
+    args = [a for a in typing.get_args(kind) if a is not type(None)]
+    return args[0] if typing.get_origin(kind) in (typing.Union, types.UnionType) and len(args) == 1 else kind
+
+
+def merge(base: dict, override: dict) -> dict:
+    """Recursively merge plain dicts (override wins)."""
+    out = dict(base)
+    for key, value in override.items():
+        out[key] = merge(out[key], value) if isinstance(value, dict) and isinstance(out.get(key), dict) else value
+    return out
+
+
+# --------------------------------------------------------------- overrides
+def parse_override(text: str, flag: str = "--set", example: str = "ppo.lr=3e-4") -> tuple[list[str], Any]:
+    """``a.b.c=value`` -> ``(["a", "b", "c"], value)``; the value is JSON if it parses, else the string."""
+    if "=" not in text:
+        raise ConfigError(f"{flag} {text!r}: expected KEY=VALUE, e.g. {example}")
+    key, raw = text.split("=", 1)
+    try:
+        value = json.loads(raw)
+    except json.JSONDecodeError:
+        value = raw
+    return key.strip().split("."), value
+
+
+def override_dict(text: str, cls=None, **kwargs) -> dict:
+    """One ``KEY=VALUE`` as nested plain data; with ``cls`` the keys are checked against its fields, and
+    ``a,b`` becomes a tuple where the field is one."""
+    path, value = parse_override(text, **kwargs)
+    if cls is not None:
+        value = _coerce(cls, path, value, text)
+    out: Any = value
+    for part in reversed(path):
+        out = {part: out}
+    return out
+
+
+def apply_overrides(data: dict, items, cls=None, **kwargs) -> dict:
+    """``data`` with every ``KEY=VALUE`` of ``items`` merged in (see ``override_dict``)."""
+    for text in items:
+        data = merge(data, override_dict(text, cls, **kwargs))
+    return data
+
+
+def _coerce(cls, path: list[str], value, text: str):
+    kind = cls
+    for i, part in enumerate(path):
+        fields = {f.name for f in dataclasses.fields(kind)} if dataclasses.is_dataclass(kind) else set()
+        if part not in fields:
+            label = getattr(cls, "CONFIG_NAME", "") or cls.__name__
+            raise ConfigError(f"unknown {label} field {'.'.join(path[:i + 1])!r} in {text!r}; allowed: "
+                              f"{sorted(fields)}")
+        kind = _plain_type(typing.get_type_hints(kind)[part])
+    if _is_tuple(kind) and isinstance(value, str):
+        return tuple(v for v in value.split(",") if v)
+    return value
+
+
+# ----------------------------------------------------------------- presets
+class Presets:
+    """Named bundles of settings: built in (a dict) and/or one JSON file each in ``folder``."""
+
+    def __init__(self, builtin: Mapping[str, dict] | None = None, folder: Path | None = None, what: str = "preset"):
+        self.builtin, self.folder, self.what = dict(builtin or {}), folder, what
+
+    def names(self) -> list[str]:
+        files = [p.stem for p in self.folder.glob("*.json")] if self.folder else []
+        return sorted({*self.builtin, *files})
+
+    def __contains__(self, name: str) -> bool:
+        return name in self.names()
+
+    def load(self, name: str) -> dict:
+        """A preset's plain data by name, or (with a folder) a JSON file's by path."""
+        from colorgrid.files import JSONFileError, read_json_object
+
+        if name in self.builtin:
+            return dict(self.builtin[name])
+        if self.folder is None:
+            raise ConfigError(f"unknown {self.what} {name!r}; choose one of {self.names()}")
+        path = Path(name)
+        if not path.suffix:
+            path = self.folder / f"{name}.json"
+        if not path.exists():
+            raise ConfigError(f"unknown {self.what} {name!r}: no file {path}; presets: {self.names()}")
+        try:
+            return read_json_object(path, f"a JSON object of {self.what} settings")
+        except JSONFileError as err:
+            raise ConfigError(f"{self.what} {err}") from None
+
+
+# --------------------------------------------------------------------- CLI
+def field_docs(cls) -> dict[str, str]:
+    """The docstring under each field of a dataclass (Python keeps none at run time; read from the source)."""
+    out: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        if not dataclasses.is_dataclass(klass):
+            continue
+        try:
+            tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
+        except (OSError, TypeError):
+            continue
+        body = tree.body[0].body
+        for node, after in zip(body, body[1:]):
+            if isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name) \
+                    and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant) \
+                    and isinstance(after.value.value, str):
+                out[node.target.id] = " ".join(after.value.value.split())
+    return out
+
+
+@dataclass(frozen=True)
+class Flag:
+    """How one field appears on the command line, where the generated flag is not what users type."""
+
+    name: str | None = None
+    """The flag (default: ``--field-name``)."""
+    invert: bool = False
+    """A bool field set to False by the flag (``--hide-belief`` for ``show_belief``)."""
+    extend_default: bool = False
+    """A tuple field whose repeated flag adds to the default (``--allowed-host``) instead of replacing it."""
+    help: str | None = None
+    choices: tuple | None = None
+
+
+def add_arguments(parser: argparse.ArgumentParser, cls, flags: Mapping[str, Flag] | None = None,
+                  skip=()) -> None:
+    """One flag per field of ``cls``: the type and default from the field, the help from its docstring."""
+    flags, docs = dict(flags or {}), field_docs(cls)
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        if f.name in skip:
+            continue
+        flag = flags.get(f.name, Flag())
+        option = flag.name or "--" + f.name.replace("_", "-")
+        default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+        kind = _plain_type(hints[f.name])
+        help_text = (flag.help or docs.get(f.name, "")).replace("%", "%%")
+        if kind is bool:
+            parser.add_argument(option, dest=f.name, action="store_false" if flag.invert else "store_true",
+                                default=default, help=help_text)
+        elif _is_tuple(kind):
+            item = (typing.get_args(kind) or (str,))[0]
+            parser.add_argument(option, dest=f.name, action="append", type=item, default=None,
+                                metavar=f.name.rstrip("s").upper(), help=help_text + (
+                                    " (repeatable; adds to " if flag.extend_default else " (repeatable; default ")
+                                + f"{list(default)})")
+        else:
+            parser.add_argument(option, dest=f.name, type=kind, default=default, choices=flag.choices,
+                                help=help_text + f" (default: {default})")
+
+
+def from_args(cls, args: argparse.Namespace, flags: Mapping[str, Flag] | None = None, skip=(), **fixed):
+    """The ``cls`` instance the flags of ``add_arguments`` describe (validated as usual)."""
+    flags, hints = dict(flags or {}), typing.get_type_hints(cls)
+    values = dict(fixed)
+    for f in dataclasses.fields(cls):
+        if f.name in skip or f.name in values:
+            continue
+        value = getattr(args, f.name)
+        if _is_tuple(_plain_type(hints[f.name])):
+            default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
+            if value is None:  # not given
+                value = default
+            else:
+                value = (*default, *value) if flags.get(f.name, Flag()).extend_default else tuple(value)
+        values[f.name] = value
+    return cls(**values)
