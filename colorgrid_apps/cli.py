@@ -44,11 +44,19 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     followers = args.compare or [args.follower]
-    reports = [evaluate(config, args.leader, name, args.episodes, args.seed, record_dir=args.record)
-               for name in followers]
-    print(format_reports(reports))
-    if args.json:
+    if args.leaders:
+        from colorgrid_apps.matrix import evaluate_matrix, format_matrix, leaders_from
+
+        if args.record:
+            raise ValueError("--record records one leader's episodes; use --leader with it, not --leaders")
+        payload = evaluate_matrix(config, leaders_from(args.leaders), followers, args.episodes, args.seed)
+        print(format_matrix(payload))
+    else:
+        reports = [evaluate(config, args.leader, name, args.episodes, args.seed, record_dir=args.record)
+                   for name in followers]
+        print(format_reports(reports))
         payload = reports[0] if len(reports) == 1 else {"reports": reports}
+    if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(payload, indent=2))
         print(f"wrote {args.json}")
@@ -99,9 +107,13 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=cmd_demo)
 
     ev = sub.add_parser("eval", help="evaluate agents over a batch of episodes")
-    ev.add_argument("--leader", default="astar", help="leader policy: a scripted name or a checkpoint .pt")
+    ev.add_argument("--leader", default="astar", help="leader policy: a scripted name (person:slip=0.1,... with "
+                    "parameters), a population or a checkpoint .pt")
     ev.add_argument("--follower", default="bayes", help="follower policy: a scripted name or a checkpoint .pt")
     ev.add_argument("--compare", nargs="+", metavar="FOLLOWER", help="evaluate several followers on the same seeds")
+    ev.add_argument("--leaders", metavar="POPULATION", help="a leader x follower matrix over a population "
+                    "(population:people, population:people#held_out, or FILE.json[#PART]) with paired differences "
+                    "against the first follower")
     ev.add_argument("--episodes", type=int, default=100)
     ev.add_argument("--seed", type=int, default=0, help="episode i uses seed + i")
     ev.add_argument("--json", help="also write the report(s) as JSON to this path")

@@ -33,6 +33,14 @@ def _between(low: float, high: float, low_open: bool = False, high_open: bool = 
     return lambda v: (low < v if low_open else low <= v) and (v < high if high_open else v <= high)
 
 
+def _policy_spec(spec: str, names: list[str]) -> bool:
+    """Whether ``spec`` names a policy ``make_policy`` can build (checked by its form; built when the run starts)."""
+    if spec in names or spec.endswith(".pt") or spec.startswith("population:") or ".json" in spec:
+        return True
+    base, sep, _ = spec.partition(":")
+    return bool(sep) and base in SCRIPTED
+
+
 @dataclass(frozen=True)
 class NetConfig:
     """The actor-critic of one agent."""
@@ -91,8 +99,10 @@ class AgentConfig:
         if not isinstance(self.policy, str) or not self.policy:
             fail(self, "policy", "'learn', a scripted policy name or a checkpoint path ending in .pt")
         names = sorted(SCRIPTED) + registry.registered_names()
-        if not self.learns and not self.policy.endswith(".pt") and self.policy not in names:
-            fail(self, "policy", f"'learn', one of {names} or a checkpoint path ending in .pt")
+        if not self.learns and not _policy_spec(self.policy, names):
+            fail(self, "policy", f"'learn', one of {names} (scripted ones with parameters as name:key=value,...), "
+                                 f"a population (population:NAME[#PART] or FILE.json[#PART]) or a checkpoint path "
+                                 f"ending in .pt")
         if self.init is not None and not isinstance(self.init, str):
             fail(self, "init", "a checkpoint path (a string) or null")
         if self.init is not None and not self.learns:

@@ -4,7 +4,9 @@ from __future__ import annotations
 
 from colorgrid.policies import registry
 from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
-from colorgrid.policies.bayes import BayesConfig, BayesFollower
+from colorgrid.policies.bayes import BayesConfig, BayesFollower, PeopleBayesFollower
+from colorgrid.policies.people import PersonLeader, PersonStyle
+from colorgrid.policies.population import PopulationPolicy, load_population
 from colorgrid.policies.scripted import AStarLeader, CopyFollower, IdleFollower, OracleFollower, RandomPolicy
 
 SCRIPTED = {
@@ -14,18 +16,27 @@ SCRIPTED = {
     "copy": CopyFollower,
     "oracle": OracleFollower,
     "bayes": BayesFollower,
+    "bayes-people": PeopleBayesFollower,
+    "person": PersonLeader,
 }
-"""Scripted policies by name. ``astar`` needs the goal (the leader); ``idle`` never collects."""
+"""Scripted policies by name. ``astar`` and ``person`` need the goal (leaders); ``idle`` never collects.
+Those with parameters take them in the name: ``person:slip=0.1,notice_delay=3``, ``bayes:lapse=0.2``."""
 
 
 def make_policy(name: str, role: str | None = None) -> Policy:
-    """A policy by name: scripted (``SCRIPTED``), or registered by an installed application (the trainer's
-    shipped agents ``ippo`` and ``ippo-leader``, and checkpoint files ``*.pt``).
+    """A policy by name: scripted (``SCRIPTED``, with parameters as ``name:key=value,...``), a population
+    (``FILE.json[#PART]`` or ``population:NAME[#PART]``), or registered by an installed application (the
+    trainer's shipped agents ``ippo`` and ``ippo-leader``, and checkpoint files ``*.pt``).
 
     For a checkpoint holding both agents, ``role`` (``"leader"``/``"follower"``) says which to load.
     """
     if name in SCRIPTED:
         return SCRIPTED[name]()
+    if name.startswith("population:") or name.endswith(".json") or ".json#" in name:
+        return make_population(name.removeprefix("population:"), role)
+    base, sep, params = name.partition(":")
+    if sep and base in SCRIPTED:
+        return SCRIPTED[base](parse_params(SCRIPTED[base], params, name))
     policy = registry.find(name, role)
     if policy is not None:
         return policy
@@ -33,5 +44,37 @@ def make_policy(name: str, role: str | None = None) -> Policy:
     raise ValueError(f"unknown policy {name!r}; choose one of {sorted(SCRIPTED) + registry.registered_names()}{files}")
 
 
+def parse_params(kind, text: str, name: str):
+    """``"slip=0.1,notice_delay=3"`` -> ``kind.Params(slip=0.1, notice_delay=3)`` (values read as JSON)."""
+    import dataclasses
+    import json
+
+    params = getattr(kind, "Params", None)
+    if params is None:
+        raise ValueError(f"{name!r}: policy {kind.name!r} takes no parameters")
+    values = {}
+    for item in filter(None, text.split(",")):
+        key, sep, raw = item.partition("=")
+        if not sep:
+            raise ValueError(f"{name!r}: expected NAME:KEY=VALUE,KEY=VALUE, got {item!r}")
+        try:
+            values[key.strip()] = json.loads(raw)
+        except json.JSONDecodeError:
+            values[key.strip()] = raw
+    fields = [f.name for f in dataclasses.fields(params)]
+    unknown = sorted(set(values) - set(fields))
+    if unknown:
+        raise ValueError(f"{name!r}: unknown parameter(s) {unknown} of {kind.name!r}; allowed: {fields}")
+    default = getattr(kind, "default_params", None)
+    return dataclasses.replace(default, **values) if default is not None else params(**values)
+
+
+def make_population(spec: str, role: str | None = None) -> PopulationPolicy:
+    """A ``PopulationPolicy`` of ``FILE[#PART]`` (see ``colorgrid.policies.population``)."""
+    members = load_population(spec)
+    return PopulationPolicy({name: make_policy(member, role) for name, member in members.items()}, spec)
+
+
 __all__ = ["SCRIPTED", "AgentInput", "AStarLeader", "BayesConfig", "BayesFollower", "CopyFollower", "IdleFollower",
-           "OracleFollower", "Policy", "PolicyOutput", "RandomPolicy", "make_policy"]
+           "OracleFollower", "PersonLeader", "PersonStyle", "Policy", "PolicyOutput", "PopulationPolicy", "RandomPolicy",
+           "make_policy"]

@@ -31,13 +31,21 @@ class BayesConfig:
     reward is positive (break-even is wrong_penalty / (goal_reward + wrong_penalty))."""
     standby_radius: int = 3
     """While unsure, stay within this Manhattan distance of the leader, on free cells."""
+    notice_rate: float = 1.0
+    """Leader model for people: the probability, each step, that a leader pursuing another color than the
+    goal turns to the goal (1: it always pursues the current goal, as A* does; 0.3: a switch is noticed
+    after about two steps). Below 1 the belief is over (goal, color the leader pursues)."""
+    distraction: float = 0.0
+    """Leader model for people: the probability, each step, that a leader pursuing the goal sets off after
+    another color (a wrong pickup in the making). Its moves then say little about the goal, and the
+    negative reward of the wrong pickup is evidence against that color."""
 
     ERROR_STYLE: ClassVar[str] = "BayesConfig.{name} must be {allowed}, got {value!r}"
 
     def __post_init__(self) -> None:
         for name in ("rationality", "reward_noise"):
             check_number(self, name, ">= 0", lambda v: v >= 0)
-        for name in ("lapse", "collect_threshold"):
+        for name in ("lapse", "collect_threshold", "notice_rate", "distraction"):
             check_number(self, name, "in [0, 1]", lambda v: 0 <= v <= 1)
         check_int(self, "standby_radius", 0, 64)
 
@@ -46,6 +54,28 @@ def transition(belief: np.ndarray, switch_prob: float) -> np.ndarray:
     """[B, C] -> [B, C]: one step of the goal's Markov chain (switch to another color uniformly)."""
     C = belief.shape[1]
     return (1 - switch_prob) * belief + switch_prob * (1 - belief) / (C - 1)
+
+
+def goal_transition(joint: np.ndarray, switch_prob: float) -> np.ndarray:
+    """[B, C, C] -> [B, C, C]: ``transition`` of the goal (middle axis) of a joint belief over (goal, pursued)."""
+    C = joint.shape[1]
+    return (1 - switch_prob) * joint + switch_prob * (joint.sum(axis=1, keepdims=True) - joint) / (C - 1)
+
+
+def leader_transition(joint: np.ndarray, notice_rate: float, distraction: float) -> np.ndarray:
+    """[B, C, C] -> [B, C, C]: one step of the color the leader pursues (last axis) given the goal (middle).
+
+    A leader pursuing the goal sets off after each other color with probability distraction / (C - 1);
+    one pursuing another color turns to the goal with probability notice_rate.
+    """
+    C = joint.shape[1]
+    on_goal = np.eye(C, dtype=bool)[None]  # [1, G, P]: P == G
+    mass_on_goal = np.where(on_goal, joint, 0.0).sum(axis=2, keepdims=True)  # [B, G, 1]
+    mass_off_goal = np.where(on_goal, 0.0, joint).sum(axis=2, keepdims=True)
+    stay_off = np.where(on_goal, 0.0, joint) * (1 - notice_rate)
+    wander = np.where(on_goal, 0.0, mass_on_goal * distraction / (C - 1))
+    to_goal = np.where(on_goal, mass_on_goal * (1 - distraction) + mass_off_goal * notice_rate, 0.0)
+    return stay_off + wander + to_goal
 
 
 def move_likelihood(dist_before: np.ndarray, dist_after: np.ndarray, observed: np.ndarray,
@@ -80,6 +110,12 @@ def reward_likelihood(picked: np.ndarray, reward: np.ndarray, config: EnvConfig,
     return np.where(np.abs(predicted - reward[:, None]) < 1e-4, 1.0, noise)
 
 
+PEOPLE = BayesConfig(rationality=1.0, lapse=0.2, notice_rate=0.3, distraction=0.02)
+"""The leader model of ``bayes-people``: people move less than optimally, slip, notice switches late and
+now and then set off after a wrong block. Set by reasoning about how people play, not fitted to any
+population of leaders (so that the held-out population judges it fairly)."""
+
+
 class BayesFollower(Seeker):
     """Keeps a posterior over the goal color and collects only when it is confident.
 
@@ -91,7 +127,8 @@ class BayesFollower(Seeker):
     """
 
     name = "bayes"
-    state_fields = ("belief", "prev_blocks", "prev_cells", "has_prev")
+    Params = BayesConfig
+    state_fields = ("belief", "joint", "prev_blocks", "prev_cells", "has_prev")
 
     def __init__(self, params: BayesConfig | None = None):
         self.params = params or BayesConfig()
@@ -105,6 +142,7 @@ class BayesFollower(Seeker):
         super().reset(config, num_envs, agent_index, seed)
         C = config.num_colors
         self.belief = np.full((num_envs, C), 1.0 / C)
+        self.joint = np.repeat(np.eye(C)[None] / C, num_envs, axis=0)  # [B, goal, pursued color]
         self.prev_blocks = np.full((num_envs, config.height, config.width), -1, dtype=np.int8)
         self.prev_cells = np.zeros((num_envs, config.num_agents), dtype=np.int64)
         self.has_prev = np.zeros(num_envs, dtype=bool)
@@ -115,23 +153,33 @@ class BayesFollower(Seeker):
     def update(self, inp: AgentInput, rows: np.ndarray, block_color: np.ndarray, agent_cell: np.ndarray) -> np.ndarray:
         """Fold last step's evidence into the belief of ``rows`` and advance it to the current goal."""
         cfg = self.config
-        belief = self.belief[rows]
+        belief, joint = self.belief[rows], self.joint[rows]
         fresh = inp.episode_start | ~self.has_prev[rows]
         go = ~fresh
         if go.any():
-            lik = self._evidence(inp, rows[go], go, block_color, agent_cell)
-            post = belief[go] * lik
-            post /= post.sum(axis=1, keepdims=True)
-            belief[go] = transition(post, cfg.switch_prob)
+            move, reward = self._evidence(inp, rows[go], go, block_color, agent_cell)
+            if self.params.notice_rate == 1.0 and self.params.distraction == 0.0:  # the leader pursues the goal
+                post = belief[go] * move * reward
+                post /= post.sum(axis=1, keepdims=True)
+                belief[go] = transition(post, cfg.switch_prob)
+                joint[go] = belief[go][:, :, None] * np.eye(cfg.num_colors)[None]
+            else:  # moves show the color pursued, rewards the goal
+                post = joint[go] * reward[:, :, None] * move[:, None, :]
+                post /= post.sum(axis=(1, 2), keepdims=True)
+                joint[go] = leader_transition(goal_transition(post, cfg.switch_prob), self.params.notice_rate,
+                                              self.params.distraction)
+                belief[go] = joint[go].sum(axis=2)
         belief[fresh] = 1.0 / cfg.num_colors
-        self.belief[rows] = belief
+        joint[fresh] = np.eye(cfg.num_colors)[None] / cfg.num_colors
+        self.belief[rows], self.joint[rows] = belief, joint
         self.prev_blocks[rows] = block_color
         self.prev_cells[rows] = agent_cell
         self.has_prev[rows] = True
         return belief
 
-    def _evidence(self, inp: AgentInput, slots: np.ndarray, mask: np.ndarray, block_color, agent_cell) -> np.ndarray:
-        """[n, C] likelihood of last step's leader move and reward, for the inputs selected by ``mask``."""
+    def _evidence(self, inp: AgentInput, slots: np.ndarray, mask: np.ndarray, block_color, agent_cell):
+        """``[n, C]`` likelihoods of last step's leader move (under each color it may pursue) and of the reward
+        (under each goal), for the inputs selected by ``mask``."""
         cfg, p = self.config, self.params
         leader_before = self.prev_cells[slots, self.partner_index]
         follower_before = self.prev_cells[slots, self.agent_index]
@@ -140,10 +188,10 @@ class BayesFollower(Seeker):
         observed = table == agent_cell[mask, self.partner_index][:, None]
         cells = np.concatenate([leader_before[:, None], table], axis=1)
         d = manhattan_to_nearest(cfg, self.prev_blocks[slots].astype(np.int64), cells)  # [n, 1 + M, C]
-        lik = move_likelihood(d[:, 0], d[:, 1:], observed, p.rationality, p.lapse)
-        lik *= reward_likelihood(inp.prev_picked_color[mask], inp.prev_reward[mask], cfg, inp.penalty_coef,
-                                 self.agent_index, p.reward_noise)
-        return lik
+        move = move_likelihood(d[:, 0], d[:, 1:], observed, p.rationality, p.lapse)
+        reward = reward_likelihood(inp.prev_picked_color[mask], inp.prev_reward[mask], cfg, inp.penalty_coef,
+                                   self.agent_index, p.reward_noise)
+        return move, reward
 
     def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
         cfg, p = self.config, self.params
@@ -175,3 +223,14 @@ class BayesFollower(Seeker):
         closer = (now > self.params.standby_radius) & (gap.min(axis=1) < now)
         actions[closer] = gap[closer].argmin(axis=1)
         return actions
+
+
+class PeopleBayesFollower(BayesFollower):
+    """The Bayesian follower with a leader model for people (``PEOPLE``): a belief over the goal and the color
+    the leader pursues, so that a slip, a late turn or a wrong pickup is not taken for a goal switch."""
+
+    name = "bayes-people"
+    default_params = PEOPLE
+
+    def __init__(self, params: BayesConfig | None = None):
+        super().__init__(params or PEOPLE)

@@ -1,0 +1,154 @@
+"""Leaders that stand in for people: the A* leader with the ways people depart from it.
+
+A person who knows the goal does not walk like A*: they slip, notice a goal switch late,
+move less than optimally, set off after a wrong block now and then, hesitate and take
+detours. ``PersonLeader`` has one parameter for each (``PersonStyle``; all off, it is the
+A* leader), so that populations of such leaders can be written as named specs
+(``person:slip=0.1,notice_delay=3``) and split into training and held-out parts
+(``colorgrid.policies.population``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import ClassVar
+
+import numpy as np
+
+from colorgrid.config import EnvConfig
+from colorgrid.configkit import check_int, check_number, fail
+from colorgrid.policies.base import AgentInput, PolicyOutput
+from colorgrid.policies.grid import INF, distance_field
+from colorgrid.policies.scripted import Seeker
+
+
+@dataclass(frozen=True)
+class PersonStyle:
+    """How a person-like leader departs from the A* leader (every default: not at all)."""
+
+    ERROR_STYLE: ClassVar[str] = "PersonStyle.{name} must be {allowed}, got {value!r}"
+
+    slip: float = 0.0
+    """Probability, each step, of a uniformly random move instead of the intended one."""
+    notice_delay: int = 0
+    """Steps the leader keeps pursuing the old goal after a switch (exactly this many)."""
+    rationality: float | None = None
+    """Boltzmann rationality beta: moves are drawn with probability proportional to
+    exp(-beta * distance to the target after the move). None: always a shortest step."""
+    wrong_pickup: float = 0.0
+    """Probability, each step, of setting off after the nearest block of a wrong color (until it collects a block)."""
+    hesitate: float = 0.0
+    """Probability, each step, of repeating the last move instead of choosing afresh."""
+    detour: float = 0.0
+    """Probability, each step, of starting a detour: ``detour_len`` steps in one random direction."""
+    detour_len: int = 4
+    """Steps of a detour."""
+
+    def __post_init__(self) -> None:
+        for name in ("slip", "wrong_pickup", "hesitate", "detour"):
+            check_number(self, name, "a probability in [0, 1]", lambda v: 0.0 <= v <= 1.0)
+        check_int(self, "notice_delay", 0, 10_000)
+        check_int(self, "detour_len", 1, 1000)
+        if self.rationality is not None:
+            check_number(self, "rationality", "a number > 0, or null for shortest steps", lambda v: v > 0)
+        if self.slip + self.hesitate > 1.0:
+            fail(self, "hesitate", f"at most 1 - slip = {1 - self.slip:g} (they share a step's chance)")
+
+
+class PersonLeader(Seeker):
+    """The A* leader with a ``PersonStyle``: each departure is drawn per env and step from its own RNG."""
+
+    name = "person"
+    Params = PersonStyle
+    state_fields = ("target", "pending", "distracted", "last_action", "detour_left", "detour_dir")
+
+    def __init__(self, style: PersonStyle | None = None):
+        self.style = style or PersonStyle()
+
+    def describe(self) -> dict:
+        return {"policy": self.name, "params": asdict(self.style)}
+
+    def reset(self, config: EnvConfig, num_envs: int, agent_index: int, seed: int = 0) -> None:
+        super().reset(config, num_envs, agent_index, seed)
+        self.target = np.full(num_envs, -1, dtype=np.int64)  # the goal it pursues (lags the true one when late)
+        self.pending = np.zeros(num_envs, dtype=np.int64)  # steps since it could have seen a new goal
+        self.distracted = np.full(num_envs, -1, dtype=np.int64)  # a wrong color it is after, -1 if none
+        self.last_action = np.full(num_envs, -1, dtype=np.int64)
+        self.detour_left = np.zeros(num_envs, dtype=np.int64)
+        self.detour_dir = np.zeros(num_envs, dtype=np.int64)
+
+    def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
+        style, C = self.style, self.config.num_colors
+        rows = self._rows(rows)
+        n = len(rows)
+        goal = inp.goal_info.argmax(axis=1)
+        if not (inp.goal_info > 0.5).any(axis=1).all():
+            raise ValueError("the person leader needs the goal: use it as the leader or with asymmetric=False")
+        target, pending = self.target[rows], self.pending[rows]
+        distracted, last = self.distracted[rows], self.last_action[rows]
+        detour_left, detour_dir = self.detour_left[rows], self.detour_dir[rows]
+        start = inp.episode_start | (target < 0)
+        target[start], pending[start], distracted[start], last[start], detour_left[start] = goal[start], 0, -1, -1, 0
+        u = self.rng.random((n, 6))  # one draw per departure, per env and step
+
+        # late noticing: a new goal is pursued only after notice_delay steps
+        differs = goal != target
+        pending = np.where(differs, pending + 1, 0)
+        noticed = differs & (pending > style.notice_delay)
+        target[noticed], pending[noticed] = goal[noticed], 0
+
+        # wrong pickups: now and then it sets off after a wrong color, until it collects a block
+        distracted[inp.prev_picked_color[:, self.agent_index] >= 0] = -1
+        tempted = (distracted < 0) & (u[:, 0] < style.wrong_pickup)
+        if tempted.any():
+            offset = 1 + (u[tempted, 1] * (C - 1)).astype(np.int64)
+            distracted[tempted] = (target[tempted] + offset) % C
+        pursued = np.where(distracted >= 0, distracted, target)
+
+        block_color, me, other = self.positions(inp)
+        wanted = np.eye(C, dtype=bool)[pursued]
+        if style.rationality is None:
+            actions, _ = self.seek(wanted, block_color, me, other)
+        else:
+            actions = self.boltzmann(wanted, block_color, me, other, style.rationality)
+
+        # detours: a few steps in one random direction
+        begin = (detour_left == 0) & (u[:, 2] < style.detour)
+        detour_left[begin] = style.detour_len
+        detour_dir[begin] = self.rng.integers(0, 4, int(begin.sum()))
+        on_detour = detour_left > 0
+        actions[on_detour] = detour_dir[on_detour]
+        detour_left[on_detour] -= 1
+
+        # hesitation repeats the last move; a slip is any move
+        hesitates = (u[:, 3] < style.hesitate) & (last >= 0)
+        actions[hesitates] = last[hesitates]
+        slips = (u[:, 3] >= 1.0 - style.slip)
+        actions[slips] = (u[slips, 4] * 4).astype(np.int64)
+
+        self.target[rows], self.pending[rows], self.distracted[rows] = target, pending, distracted
+        self.last_action[rows], self.detour_left[rows], self.detour_dir[rows] = actions, detour_left, detour_dir
+        return PolicyOutput(actions)
+
+    def boltzmann(self, wanted, block_color, me, other, beta: float) -> np.ndarray:
+        """Moves drawn with probability proportional to exp(-beta * distance to a wanted block after the move)."""
+        B, H, W = block_color.shape
+        has_block = block_color >= 0
+        is_wanted = has_block & np.take_along_axis(wanted, np.maximum(block_color, 0).reshape(B, -1), axis=1
+                                                   ).reshape(B, H, W)
+        other_mask = np.zeros((B, H * W), dtype=bool)
+        other_mask[np.arange(B), other] = True
+        passable = self.allowed[None] & ~other_mask.reshape(B, H, W) & ~(has_block & ~is_wanted)
+        dist = distance_field(is_wanted, passable, start_cell=me).reshape(B, -1)
+        nxt, moves = self.mover.neighbours(me, other)
+        values = dist[np.arange(B)[:, None], nxt]
+        stuck = values >= INF
+        values = np.where(stuck, values.min(axis=1, keepdims=True, where=~stuck, initial=INF) + 2, values)
+        logits = np.where(moves, -beta * values, -math.inf)
+        logits = np.where(moves.any(axis=1, keepdims=True), logits, 0.0)  # boxed in: any move
+        logits -= logits.max(axis=1, keepdims=True)
+        p = np.exp(logits)
+        p /= p.sum(axis=1, keepdims=True)
+        u = self.rng.random((B, 1))
+        return np.minimum((p.cumsum(axis=1) <= u).sum(axis=1), 3)
