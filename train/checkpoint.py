@@ -6,9 +6,10 @@ Layout (``torch.save`` of plain containers, loadable with ``weights_only=True``)
     config: the TrainConfig as a dict        env_config: the EnvConfig as a dict
     step, iteration                          agents: {"leader": entry | None, "follower": entry | None}
     entry: {"net": NetConfig dict, "agent_index", "state_dict", "optimizer" (or None when exported)}
-    trainer_state: pickled bytes (env state, recurrent states, partners, RNG) or None when exported
+    trainer_state: tensors and plain values (format 2: env state, last step's inputs, recurrent states,
+                   partners' state_dicts, RNG states), or None when exported
 
-``trainer_state`` is only unpickled when resuming a run, from its own directory.
+Nothing in a checkpoint is pickled: resuming a run is as safe as loading its weights.
 """
 
 from __future__ import annotations
