@@ -37,6 +37,22 @@ def add_train_commands(sub) -> None:
                     help="card: the command that trained it")
     ck.set_defaults(func=cmd_checkpoint)
 
+    bc = sub.add_parser("train-bc", help="learn a leader from recorded games (behaviour cloning)",
+                        description="Behaviour cloning: re-simulate every actions replay (*.replay.json, searched "
+                                    "recursively) in the folders and train the leader's network to take the "
+                                    "recorded leader's actions. Episodes are split into training and held-out "
+                                    "sets; the result loads wherever a policy name does (--leader OUT). Example: "
+                                    "colorgrid train-bc replays/ --out leader_bc.pt --epochs 20")
+    bc.add_argument("recordings", nargs="+", metavar="RECORDINGS_DIR", help="folders of recorded games")
+    bc.add_argument("--out", default="leader_bc.pt", help="the checkpoint to write (default: %(default)s)")
+    bc.add_argument("--epochs", type=int, help="passes over the training episodes (default 15)")
+    bc.add_argument("--seed", type=int, help="seeds the split, the initial weights and the batch order (default 0)")
+    bc.add_argument("--holdout", type=float, help="fraction of episodes held out to measure accuracy (default 0.2)")
+    bc.add_argument("--net-hidden", type=int, help="width of the network's trunk (net.hidden, default 128)")
+    bc.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a setting of train/bc.py's BCConfig, e.g. lr=1e-3, batch_size=128, net.lstm=true")
+    bc.set_defaults(func=cmd_train_bc)
+
 
 def resolve_config(args: argparse.Namespace) -> TrainConfig:
     data = load_preset(args.preset)
@@ -109,6 +125,17 @@ def cmd_checkpoint(args: argparse.Namespace) -> int:
         return 0
     path = export_agent(args.path, args.agent, args.out)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
+    return 0
+
+
+def cmd_train_bc(args: argparse.Namespace) -> int:
+    from train.bc import bc_config, train_bc  # torch: imported only for this command
+
+    flags = {"epochs": args.epochs, "seed": args.seed, "holdout": args.holdout}
+    changes = {name: value for name, value in flags.items() if value is not None}
+    if args.net_hidden is not None:
+        changes["net"] = {"hidden": args.net_hidden}
+    train_bc(args.recordings, args.out, bc_config(changes, args.set))
     return 0
 
 
