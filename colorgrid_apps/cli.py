@@ -49,7 +49,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
         if args.record:
             raise ValueError("--record records one leader's episodes; use --leader with it, not --leaders")
-        payload = evaluate_matrix(config, leaders_from(args.leaders), followers, args.episodes, args.seed)
+        payload = evaluate_matrix(config, leaders_from(args.leaders), followers, args.episodes, args.seed,
+                                  workers=args.workers)
         print(format_matrix(payload))
     else:
         reports = [evaluate(config, args.leader, name, args.episodes, args.seed, record_dir=args.record)
@@ -115,6 +116,8 @@ def build_parser() -> argparse.ArgumentParser:
                     "(population:people, population:people#held_out, or FILE.json[#PART]) with paired differences "
                     "against the first follower")
     ev.add_argument("--episodes", type=int, default=100)
+    ev.add_argument("--workers", type=int, default=None, help="with --leaders: processes for the cells (default: "
+                    "one per CPU; the result is the same for any number)")
     ev.add_argument("--seed", type=int, default=0, help="episode i uses seed + i")
     ev.add_argument("--json", help="also write the report(s) as JSON to this path")
     ev.add_argument("--record", metavar="DIR", help="save every episode as a replay in DIR")

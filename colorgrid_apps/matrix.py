@@ -7,7 +7,10 @@ episode is a paired sample, and its 95% interval is much tighter than the two me
 
 from __future__ import annotations
 
+import multiprocessing
+import os
 import time
+from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
@@ -37,14 +40,23 @@ def cell(config: EnvConfig, leader: str, follower: str, episodes: int, seed: int
 
 
 def evaluate_matrix(config: EnvConfig, leaders: dict[str, str], followers: list[str], episodes: int,
-                    seed: int) -> dict:
-    """``leaders`` (name -> policy spec) x ``followers``; paired differences against the first follower."""
+                    seed: int, workers: int | None = None) -> dict:
+    """``leaders`` (name -> policy spec) x ``followers``; paired differences against the first follower.
+
+    Cells run in ``workers`` processes (default: one per CPU); each cell is seeded the same whatever
+    process runs it, so the result does not depend on ``workers``.
+    """
     start = time.perf_counter()
-    cells, per_episode = {}, {}
-    for name, spec in leaders.items():
-        cells[name] = {}
-        for follower in followers:
-            cells[name][follower], per_episode[name, follower] = cell(config, spec, follower, episodes, seed)
+    pairs = [(name, follower) for name in leaders for follower in followers]
+    workers = max(1, min(workers or os.cpu_count() or 1, len(pairs)))
+    if workers == 1:
+        results = [cell(config, leaders[n], f, episodes, seed) for n, f in pairs]
+    else:
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            results = list(pool.map(cell, *zip(*[(config, leaders[n], f, episodes, seed) for n, f in pairs])))
+    cells, per_episode = {name: {} for name in leaders}, {}
+    for (name, follower), (metrics, nets) in zip(pairs, results):
+        cells[name][follower], per_episode[name, follower] = metrics, nets
     base = followers[0]
     paired = {f: {name: mean_ci(per_episode[name, f] - per_episode[name, base]) for name in leaders}
               for f in followers[1:]}
@@ -53,7 +65,8 @@ def evaluate_matrix(config: EnvConfig, leaders: dict[str, str], followers: list[
                for f in followers}
     return {"env_id": ENV_ID, "config": config.to_dict(), "episodes": episodes, "seed": seed,
             "leaders": leaders, "followers": followers, "cells": cells, "baseline": base,
-            "paired_difference": paired, "mean_over_leaders": overall, "wall_seconds": time.perf_counter() - start}
+            "paired_difference": paired, "mean_over_leaders": overall, "workers": workers,
+            "wall_seconds": time.perf_counter() - start}
 
 
 def leaders_from(spec: str) -> dict[str, str]:

@@ -166,3 +166,13 @@ def test_the_population_matrix_json(tmp_path):
     cells = report["cells"][leaders[0]]
     assert diff == pytest.approx(cells["bayes"]["net_pickups"]["mean"] - cells["copy"]["net_pickups"]["mean"])
     assert "paired difference in follower net pickups against copy" in done.stdout
+
+
+def test_the_matrix_is_the_same_in_one_process_or_several():
+    from colorgrid_apps.matrix import evaluate_matrix
+
+    leaders = {"slips": "person:slip=0.2", "late": "person:notice_delay=5"}
+    config = EnvConfig(horizon=32)
+    one = evaluate_matrix(config, leaders, ["copy", "bayes"], 4, 7, workers=1)
+    two = evaluate_matrix(config, leaders, ["copy", "bayes"], 4, 7, workers=2)
+    assert one["cells"] == two["cells"] and one["paired_difference"] == two["paired_difference"]
