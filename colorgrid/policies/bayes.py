@@ -110,10 +110,10 @@ def reward_likelihood(picked: np.ndarray, reward: np.ndarray, config: EnvConfig,
     return np.where(np.abs(predicted - reward[:, None]) < 1e-4, 1.0, noise)
 
 
-PEOPLE = BayesConfig(rationality=1.0, lapse=0.2, notice_rate=0.3, distraction=0.02)
-"""The leader model of ``bayes-people``: people move less than optimally, slip, notice switches late and
-now and then set off after a wrong block. Set by reasoning about how people play, not fitted to any
-population of leaders (so that the held-out population judges it fairly)."""
+PEOPLE = BayesConfig(rationality=2.0, lapse=0.1, notice_rate=0.5, distraction=0.01)
+"""The leader model of ``bayes-people``: a leader that notices a goal switch after about a step and sets off
+after a wrong block now and then. Chosen among four candidates on the training part of
+``populations/people.json`` (docs/EVALUATION.md), never on the held-out part."""
 
 
 class BayesFollower(Seeker):
