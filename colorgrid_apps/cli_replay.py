@@ -94,6 +94,31 @@ def cmd_export(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_branch(args: argparse.Namespace) -> int:
+    from colorgrid.replay import load, save, verify
+    from colorgrid_apps.branch import branch
+
+    path = Path(args.replay)
+    child = branch(load(path), args.step, args.follower, args.leader, args.seed, parent_name=path.name)
+    tag = Path(args.follower).stem.replace(":", "_").replace("=", "").replace(",", "_")
+    out = save(child, Path(args.out) / f"{path.name[:-len(SUFFIX)]}--branch{args.step}-{tag}{SUFFIX}")
+    check = verify(child)
+    print(f"wrote {out} ({child.num_steps} steps, the first {args.step} the parent's; {check.message}); final "
+          f"team score {child.final()['team_score']:+g} (parent {load(path).final()['team_score']:+g})")
+    return 0 if check.ok else 1
+
+
+def cmd_rescore(args: argparse.Namespace) -> int:
+    from colorgrid_apps.branch import format_rescore, rescore
+
+    report = rescore(_replay_files(Path(args.folder)), args.follower, seed=args.seed)
+    print(format_rescore(report))
+    if args.json:
+        Path(args.json).write_text(json.dumps(report, indent=2))
+        print(f"wrote {args.json}")
+    return 0
+
+
 def add_replay_commands(sub) -> None:
     replay = sub.add_parser("replay", help="check, inspect, import and release replays")
     rsub = replay.add_subparsers(dest="replay_command", required=True)
@@ -109,6 +134,20 @@ def add_replay_commands(sub) -> None:
     imp.add_argument("--out", required=True, help="replay file to write (*.replay.json)")
     add_config_arguments(imp)
     imp.set_defaults(func=cmd_import)
+    br = rsub.add_parser("branch", help="continue a replay from step T with another follower (what-if)")
+    br.add_argument("replay", help="the parent replay (an actions replay)")
+    br.add_argument("--step", type=int, required=True, help="the first step the new follower acts in (0..T)")
+    br.add_argument("--follower", required=True, help="the follower from step T: a policy name or checkpoint")
+    br.add_argument("--leader", default="recorded", help="'recorded' (replay the leader's moves) or a policy")
+    br.add_argument("--seed", type=int, default=None, help="the new agents' random seed (default: the episode's)")
+    br.add_argument("--out", required=True, help="folder for the branch replay")
+    br.set_defaults(func=cmd_branch)
+    rs = rsub.add_parser("rescore", help="replay every recorded leader's moves with each follower (open-loop)")
+    rs.add_argument("folder", help="a folder of replays (e.g. the play server's recordings)")
+    rs.add_argument("--follower", nargs="+", required=True, help="followers to compare; the first is the baseline")
+    rs.add_argument("--seed", type=int, default=None, help="the followers' random seed (default: each episode's)")
+    rs.add_argument("--json", help="also write the figures as JSON")
+    rs.set_defaults(func=cmd_rescore)
     rel = rsub.add_parser("release", help="regenerate the released replay set")
     rel.add_argument("--out", default="replays")
     rel.add_argument("--episodes", type=int, default=2, help="episodes per (setting, follower)")

@@ -136,8 +136,8 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
         items = [e.summary for e in (await entries()).values()]
         if source:
             items = [i for i in items if i.get("source") == source]
-        if follower:
-            items = [i for i in items if i.get("follower") == follower]
+        if follower:  # a part of the follower's name, any case ("ippo" finds ippo and ippo@3000)
+            items = [i for i in items if follower.lower() in str(i.get("follower") or "").lower()]
         if collection:
             items = [i for i in items if i.get("collection") == collection]
         if setting:

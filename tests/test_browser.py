@@ -237,3 +237,18 @@ def test_the_replay_player_draws_in_the_colors_its_timeline_sends(server, browse
     expect(page.locator("#goal-swatch")).to_have_css("background-color", css_rgb(swapped[first["goal"]]))
     assert errors == []
     page.close()
+
+
+def test_an_id_with_a_plus_typed_into_the_address_bar_opens_its_replay(server, browser):
+    page = browser.new_page()
+    page.goto(server.url + "/replay?id=released--default--astar+bayes_seed2026&step=3")  # "+" as typed, not %2B
+    expect(page.locator("#player")).to_be_visible(timeout=60_000)  # the timeline is made by a low-priority worker
+    assert page.locator("body").get_attribute("data-verified") == "true"
+    expect(page.locator("#step")).to_contain_text("3")
+    page.close()
+
+
+def test_the_replay_list_finds_followers_by_part_of_their_name(server):
+    every = server.get("/api/replays?limit=500")[0]["items"]
+    found = server.get("/api/replays?follower=AYE&limit=500")[0]["items"]  # part of "bayes", any case
+    assert found and {i["id"] for i in found} == {i["id"] for i in every if "aye" in str(i.get("follower")).lower()}

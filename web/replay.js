@@ -3,10 +3,10 @@
 // Colors and agents come with the timeline (`data.look`, agents in index order: the leader first).
 import { drawBoard, drawBelief, setLook } from "./board.js";
 import { drawChart, stepAt } from "./chart.js";
+import { queryParam } from "./params.js";
 
 const $ = (id) => document.getElementById(id);
-const params = new URLSearchParams(location.search);
-const id = params.get("id");
+const id = queryParam("id");
 const TRAIL = 12;
 const BASE_FPS = 8;  // steps per second at 1x
 let data = null, step = 0, timer = null;
@@ -38,7 +38,7 @@ async function main() {
     (data.seed != null ? `, seed ${data.seed}` : "") + `, created ${data.created}`;
   $("scrub").max = data.steps;
   buildKeyLog();
-  const wanted = Number.parseInt(params.get("step") ?? "0", 10);
+  const wanted = Number.parseInt(queryParam("step") ?? "0", 10);
   show(Number.isFinite(wanted) ? wanted : 0);
 }
 

@@ -1,4 +1,6 @@
 // The replay list: filters, sorting and pages over /api/replays.
+import { queryParam } from "./params.js";
+
 const $ = (id) => document.getElementById(id);
 const PAGE = 25;
 let offset = 0;
@@ -9,7 +11,7 @@ async function load() {
     if ($(name).value) params.set(name, $(name).value);
   }
   const data = await (await fetch(`/api/replays?${params}`)).json();
-  const highlight = new URLSearchParams(location.search).get("id");
+  const highlight = queryParam("id");
   $("list").tBodies[0].replaceChildren(...data.items.map((item) => row(item, item.id === highlight)));
   $("page").textContent = `${data.total ? offset + 1 : 0}-${Math.min(offset + PAGE, data.total)} of ${data.total}`;
   $("prev").disabled = offset === 0;

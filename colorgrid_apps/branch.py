@@ -1,0 +1,136 @@
+"""What would another assistant have done here? Branching a replay, and rescoring recorded games.
+
+``branch`` continues a recorded episode from the exact state at step T with another follower
+(or the same one with another seed). The first T steps are the parent's: the env re-simulates
+them from the seed and the recorded actions, and the new follower watches them (it is fed
+every input it would have seen, and its actions are ignored), so that its beliefs and memory
+at step T come from the same history. From step T the follower acts; the leader replays its
+recorded actions (the default) or is a policy.
+
+``rescore`` branches every recorded game at step 0 with each follower and compares them on the
+same leader moves. That is open-loop: the person did not see the new follower and did not
+react to it, so it measures how a follower does beside these exact moves, not how the game
+would have gone.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from colorgrid.config import FOLLOWER, LEADER
+from colorgrid.env import BatchEnv
+from colorgrid.policies import make_policy
+from colorgrid.replay import Replay, ReplayError, describe_agent, load
+from colorgrid.step_inputs import StepInputs
+
+
+def branch(parent: Replay, step: int, follower: str, leader: str = "recorded", seed: int | None = None,
+           parent_name: str | None = None) -> Replay:
+    """The episode of ``parent`` continued from step ``step`` (0..T) with ``follower`` (and ``leader``)."""
+    if parent.kind != "actions":
+        raise ReplayError(parent_name, "only actions replays can be branched (a frames replay has no seed)")
+    T = parent.num_steps
+    if not 0 <= step <= T:
+        raise ValueError(f"--step must be in [0, {T}] (the parent has {T} steps), got {step}")
+    cfg = parent.config
+    seed = parent.seed if seed is None else seed
+    follower_policy = make_policy(follower, role="follower")
+    follower_policy.reset(cfg, 1, FOLLOWER, seed=seed)
+    leader_policy = None
+    if leader != "recorded":
+        leader_policy = make_policy(leader, role="leader")
+        leader_policy.reset(cfg, 1, LEADER, seed=seed)
+    env = BatchEnv(cfg, num_envs=1, seed=parent.seed, autoreset=False)
+    obs, _ = env.reset()
+    env.penalty_coef = parent.penalty_coef
+    last = StepInputs.begin(cfg, 1)
+    # the leader's recorded moves set the length; a leader policy plays to the horizon
+    length = T if leader_policy is None else cfg.horizon
+    record: dict[str, list] = {k: [] for k in ("actions", "goal", "block_reward", "team_reward", "picked_color",
+                                               "goal_switched", "beliefs")}
+    hashes = [env.state.state_hash(0)]
+    for t in range(length):
+        goal = env.state.goal.copy()
+        out = follower_policy.act(last.agent_input(obs, FOLLOWER, env.penalty_coef, goal.copy()))
+        lead = leader_policy.act(last.agent_input(obs, LEADER, env.penalty_coef, goal.copy())).actions[0] \
+            if leader_policy is not None else None
+        if t < step:  # the parent's step: the new agents watch, the recorded actions play
+            joint = list(parent.actions[t])
+        else:
+            joint = [int(lead) if lead is not None else parent.actions[t][LEADER], int(out.actions[0])]
+        actions = np.array([joint], dtype=np.int64)
+        obs, _, _, truncs, info = env.step(actions)
+        last.record(actions, info)
+        record["actions"].append(joint)
+        record["goal"].append(int(goal[0]))
+        record["block_reward"].append([float(x) for x in info["block_reward"][0]])
+        record["team_reward"].append(float(info["team_reward"][0]))
+        record["picked_color"].append([int(x) for x in info["picked_color"][0]])
+        record["goal_switched"].append(bool(info["goal_switched"][0]))
+        if out.goal_probs is not None:
+            record["beliefs"].append([round(float(p), 5) for p in out.goal_probs[0]])
+        hashes.append(env.state.state_hash(0))
+        if truncs.all():
+            break
+    agents = dict(parent.agents)
+    agents["follower"] = describe_agent(follower_policy.describe(), follower if follower.endswith(".pt") else None)
+    if leader_policy is not None:
+        agents["leader"] = describe_agent(leader_policy.describe(), leader if leader.endswith(".pt") else None)
+    keys = [e for e in (parent.key_events or []) if e.get("applied_step") is None or e["applied_step"] < step] \
+        if parent.key_events is not None else None
+    beliefs = record.pop("beliefs")
+    steps = len(record["actions"])
+    return Replay(
+        config=cfg, seed=parent.seed, source=parent.source, agents=agents,
+        goal_probs={"follower": beliefs} if len(beliefs) == steps else {}, state_hashes=hashes,
+        penalty_coef=parent.penalty_coef, ended="complete" if steps == cfg.horizon else parent.ended,
+        key_events=keys,
+        meta={**{k: v for k, v in parent.meta.items() if k not in ("state_sent_ms", "deadline_misses")},
+              "branch_of": {"file": parent_name, "created": parent.created, "step": step,
+                            "parent_checksum": parent.to_document()["checksum"]},
+              "branch": {"step": step, "follower": follower, "leader": leader, "follower_seed": seed}},
+        **record,
+    )
+
+
+def rescore(files: list[Path], followers: list[str], seed: int | None = None) -> dict:
+    """Every recorded leader's moves replayed with each follower (``branch`` at step 0): per-follower means
+    and paired differences against the first follower, with 95% intervals over games."""
+    from colorgrid_apps.evaluate import mean_ci
+
+    nets: dict[str, list[float]] = {f: [] for f in followers}
+    wrongs: dict[str, list[float]] = {f: [] for f in followers}
+    used = []
+    for path in files:
+        parent = load(path)
+        if parent.kind != "actions":
+            continue
+        used.append(str(path))
+        for follower in followers:
+            b = branch(parent, 0, follower, seed=seed, parent_name=str(path))
+            final = b.final()
+            nets[follower].append(final["follower_goal_pickups"] - final["follower_wrong_pickups"])
+            wrongs[follower].append(final["follower_wrong_pickups"])
+    if not used:
+        raise ValueError("no actions replays to rescore")
+    base = followers[0]
+    return {
+        "games": used, "followers": followers, "baseline": base,
+        "net_pickups": {f: mean_ci(np.array(nets[f])) for f in followers},
+        "wrong_pickups": {f: mean_ci(np.array(wrongs[f])) for f in followers},
+        "paired_difference": {f: mean_ci(np.array(nets[f]) - np.array(nets[base])) for f in followers[1:]},
+        "per_game": {f: nets[f] for f in followers},
+    }
+
+
+def format_rescore(report: dict) -> str:
+    lines = [f"{len(report['games'])} recorded games, each leader's moves replayed open-loop with each follower",
+             f"{'follower':<36}{'net pickups ± 95%':>22}{'wrong pickups':>16}"]
+    for f in report["followers"]:
+        n, w = report["net_pickups"][f], report["wrong_pickups"][f]
+        lines.append(f"{f:<36}{n['mean']:>+14.2f} ± {n['ci95']:<5.2f}{w['mean']:>16.2f}")
+    for f, d in report["paired_difference"].items():
+        lines.append(f"{f} - {report['baseline']}: {d['mean']:+.2f} ± {d['ci95']:.2f} net pickups per game (paired)")
+    return "\n".join(lines)
