@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import re
 import time
 from contextlib import asynccontextmanager
 from urllib.parse import urlsplit
@@ -12,18 +13,18 @@ from urllib.parse import urlsplit
 from fastapi import FastAPI, HTTPException, Query, WebSocket, WebSocketDisconnect
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
-from pydantic import ValidationError
+from pydantic import BaseModel, Field, ValidationError
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from colorgrid import __version__
 from colorgrid.presets import PRESETS, env_config
 from colorgrid.render import look
 from server.hub import GameHub, ServerFull
-from server.jobs import Busy, ReplayJobs, summaries
+from server.jobs import Busy, ReplayJobs, branch_file, summaries
 from server.limits import AddressLimits, FloodRule, TokenBucket
 from server.protocol import (CLIENT_TYPES, KEY_ACTIONS, MAX_HORIZON, Key, Mode, NewGame, Ping, Quit, Rejoin,
                              client_message, error)
-from server.replays import ReplayCatalogue
+from server.replays import ID_PATTERN, SUFFIX, ReplayCatalogue
 from server.settings import REPO_ROOT, ServerSettings
 
 WEB_DIR = REPO_ROOT / "web"
@@ -33,6 +34,19 @@ CLOSE_RESTART = 1012  # the server is stopping (after game_over)
 CLOSE_TRY_LATER = 1013  # too many connections
 FLOOD_WINDOW_S = 5.0
 log = logging.getLogger("colorgrid.server")
+
+
+class BranchRequest(BaseModel):
+    """``POST /api/replays/{id}/branch``: where to branch and which follower plays on."""
+
+    step: int = Field(ge=0, le=MAX_HORIZON, description="the step the follower takes over at (0..the replay's steps)")
+    follower: str = Field(max_length=200, description="one of /api/options' followers")
+
+
+def file_part(name: str) -> str:
+    """A follower's name as part of a file name (a checkpoint path by its file's stem)."""
+    stem = name.rsplit("/", 1)[-1].removesuffix(".pt")
+    return re.sub(r"[^A-Za-z0-9_.+-]+", "_", stem) or "follower"
 
 
 def create_app(settings: ServerSettings | None = None) -> FastAPI:
@@ -119,8 +133,6 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
         return found
 
     async def entry_or_404(replay_id: str):
-        from server.replays import ID_PATTERN
-
         entry = (await entries()).get(replay_id) if ID_PATTERN.match(replay_id) else None
         if entry is None:
             raise HTTPException(404, f"no replay with id {replay_id!r}")
@@ -181,6 +193,39 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
             raise HTTPException(422, f"replay cannot be exported: {err}") from None
         media = "image/gif" if format == "gif" else "video/mp4"
         return FileResponse(out, media_type=media, filename=f"{replay_id}.{format}")
+
+    branching: dict = {}  # branch file -> the job making it: requests for the same branch share one
+
+    @app.post("/api/replays/{replay_id}/branch", responses={400: {}, 404: {}, 422: {}, 503: {}})
+    async def branch_replay(replay_id: str, body: BranchRequest):
+        """The replay continued from ``step`` with another of the server's followers (the leader replays its
+        recorded moves), saved under ``branches/`` in the recordings folder and made once: ``{"id": ...}``."""
+        entry = await entry_or_404(replay_id)
+        if entry.problem:
+            raise HTTPException(422, f"replay {replay_id!r} cannot be branched: {entry.problem}")
+        if body.follower not in settings.follower_choices:  # names only: a path from the web would read files
+            raise HTTPException(400, f"follower must be one of {list(settings.follower_choices)}, "
+                                     f"got {body.follower!r}")
+        steps = entry.summary["steps"]
+        if not 0 <= body.step <= steps:
+            raise HTTPException(422, f"step must be in [0, {steps}] (the replay has {steps} steps), got {body.step}")
+        name = f"{replay_id}--branch{body.step}-{file_part(body.follower)}"
+        branch_id = f"branches--{name}"
+        if not ID_PATTERN.match(branch_id):
+            raise HTTPException(422, f"replay {replay_id!r} cannot be branched: its branch's id would be too long")
+        out = settings.replays_dir / "branches" / f"{name}{SUFFIX}"
+        if not out.exists():
+            running = branching.get(out)
+            if running is None:
+                running = asyncio.ensure_future(jobs.run(branch_file, str(entry.path), str(out), body.step,
+                                                         body.follower, replay_id, max_bytes))
+                branching[out] = running
+                running.add_done_callback(lambda _: branching.pop(out, None))
+            problem = await asyncio.shield(running)
+            if problem is not None:
+                raise HTTPException(422, f"replay {replay_id!r} cannot be branched: {problem}")
+            scans["task"] = None  # the next request lists the new file
+        return {"id": branch_id}
 
     @app.exception_handler(Busy)
     async def busy(request, err: Busy):

@@ -82,6 +82,22 @@ def export_file(path: str, out: str, fmt: str, max_bytes: int) -> str | None:
     return None
 
 
+def branch_file(path: str, out: str, step: int, follower: str, parent_id: str, max_bytes: int) -> str | None:
+    """Save the replay at ``path`` continued from ``step`` with ``follower`` (``colorgrid_apps.branch``: the
+    leader replays its recorded moves) to ``out``; returns the problem if it cannot be branched. A branch that
+    exists already is kept (the same parent, step, follower and seed give the same game)."""
+    from colorgrid.replay import ReplayError, load, save
+    from colorgrid_apps.branch import branch
+
+    if Path(out).exists():
+        return None
+    try:
+        save(branch(load(path, max_bytes=max_bytes), step, follower, parent_name=parent_id), out)
+    except (ReplayError, ValueError) as err:  # a file that does not load or is not an actions replay; a bad step
+        return getattr(err, "problem", None) or str(err)
+    return None
+
+
 def _ready() -> bool:
     return True
 

@@ -25,7 +25,7 @@ class ServerSettings:
     """TCP port (0 picks a free one)."""
     follower: str = "ippo"
     """Default follower: a scripted name or a checkpoint path; players may pick another allowed one."""
-    followers: tuple[str, ...] = ("ippo", "bayes", "copy", "oracle", "idle", "random")
+    followers: tuple[str, ...] = ("ippo", "bayes", "bayes-people", "copy", "oracle", "idle", "random")
     """Followers a player may choose from (the default is always allowed)."""
     preset: str = "default"
     """Default environment preset (see ``colorgrid.presets.PRESETS``)."""

@@ -252,3 +252,64 @@ def test_the_replay_list_finds_followers_by_part_of_their_name(server):
     every = server.get("/api/replays?limit=500")[0]["items"]
     found = server.get("/api/replays?follower=AYE&limit=500")[0]["items"]  # part of "bayes", any case
     assert found and {i["id"] for i in found} == {i["id"] for i in every if "aye" in str(i.get("follower")).lower()}
+
+
+def test_branch_here_draws_the_branch_beside_the_replay_on_one_cursor(server, browser):
+    replay_id = "released--default--astar+bayes_seed2026"
+    page = browser.new_page()
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(server.url + f"/replay?id={quote(replay_id)}&step=20")
+    board = page.locator("#board")
+    expect(board).to_have_attribute("data-step", "20", timeout=60_000)  # timelines come from a low-priority worker
+    options = server.get("/api/options")[0]
+    assert page.locator("#branch-follower option").all_text_contents() == options["followers"]
+    expect(page.locator("#branch-panel")).to_be_hidden()
+    page.select_option("#branch-follower", "copy")
+    page.click("#branch-here")
+    panel, branch_board = page.locator("#branch-panel"), page.locator("#branch-board")
+    expect(panel).to_be_visible(timeout=120_000)
+    expect(panel).to_have_attribute("data-id", f"branches--{replay_id}--branch20-copy")
+    expect(page.locator("#branch-title")).to_contain_text("copy")
+    expect(page.locator("#branch-title")).to_contain_text("20")
+    expect(branch_board).to_have_attribute("data-step", "20")
+    expect(page.locator("#branch-chart")).to_have_attribute("data-cursor", "20")
+    assert branch_board.evaluate("c => c.toDataURL()") == board_pixels(page), "step 20 is the same state"
+    diff = page.locator("#branch-diff")
+    expect(diff).to_contain_text("at step 20")
+    expect(diff).to_contain_text("at the end")
+    assert float(diff.get_attribute("data-now")) == 0, "nothing differs yet at the branch step"
+    # one cursor: scrubbing, stepping and the chart move both
+    page.locator("#scrub").evaluate("el => { el.value = 60; el.dispatchEvent(new Event('input')); }")
+    expect(board).to_have_attribute("data-step", "60")
+    expect(branch_board).to_have_attribute("data-step", "60")
+    expect(page.locator("#branch-chart")).to_have_attribute("data-cursor", "60")
+    expect(page.locator("#branch-step")).to_have_text(page.locator("#step").text_content())
+    expect(diff).to_contain_text("at step 60")
+    page.keyboard.press("ArrowRight")
+    expect(board).to_have_attribute("data-step", "61")
+    expect(branch_board).to_have_attribute("data-step", "61")
+    assert page.locator("#branch-step").text_content() == page.locator("#step").text_content()
+    timeline = server.get(f"/api/replays/{quote(replay_id)}/timeline")[0]
+    branch = server.get(f"/api/replays/{quote(panel.get_attribute('data-id'))}/timeline")[0]
+    team = lambda b: sum(b["scores"])  # noqa: E731
+    assert float(diff.get_attribute("data-now")) == team(branch["boards"][61]) - team(timeline["boards"][61])
+    assert float(diff.get_attribute("data-end")) == team(branch["boards"][-1]) - team(timeline["boards"][-1])
+    # the address keeps the branch: a reload shows it again; closing hides it
+    assert "branch=" in page.url
+    page.reload()
+    expect(page.locator("#branch-panel")).to_be_visible(timeout=60_000)
+    expect(page.locator("#branch-board")).to_have_attribute("data-step", "61")
+    page.click("#branch-close")
+    expect(page.locator("#branch-panel")).to_be_hidden()
+    assert "branch=" not in page.url
+    page.keyboard.press("ArrowRight")
+    expect(board).to_have_attribute("data-step", "62")
+    # a follower the server does not offer is refused with its reason
+    page.locator("#branch-follower").evaluate("s => s.add(new Option('tests/x.pt', 'tests/x.pt'))")
+    page.select_option("#branch-follower", "tests/x.pt")
+    page.click("#branch-here")
+    expect(page.locator("#branch-status")).to_contain_text("follower must be one of", timeout=30_000)
+    expect(page.locator("#branch-panel")).to_be_hidden()
+    assert errors == []
+    page.close()

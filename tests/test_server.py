@@ -263,3 +263,47 @@ def test_the_pages_repeat_no_color_the_server_sends():
         if page.suffix in (".js", ".html"):
             text = page.read_text().lower()
             assert not [c for c in colors if c in text], f"{page.name} repeats a color of /api/options' look"
+
+
+def post_json(server, path: str, body: dict) -> tuple[dict, int]:
+    """``(answer, status)`` of a JSON POST; error statuses are returned, not raised."""
+    import urllib.error
+    import urllib.request
+
+    request = urllib.request.Request(server.url + path, data=json.dumps(body).encode(), method="POST",
+                                     headers={"Content-Type": "application/json"})
+    try:
+        with urllib.request.urlopen(request, timeout=120) as response:
+            return json.loads(response.read()), response.status
+    except urllib.error.HTTPError as err:
+        return json.loads(err.read()), err.code
+
+
+def test_a_replay_branched_on_the_server_shares_its_first_steps_and_verifies(server):
+    parent_id = "released--default--astar+bayes_seed2026"
+    answer, status = post_json(server, f"/api/replays/{parent_id}/branch", {"step": 20, "follower": "copy"})
+    assert status == 200 and answer == {"id": f"branches--{parent_id}--branch20-copy"}
+    saved = server.replays_dir / "branches" / f"{parent_id}--branch20-copy.replay.json"
+    assert saved.is_file()
+    branch, parent = (server.get(f"/api/replays/{i}/timeline")[0] for i in (answer["id"], parent_id))
+    assert branch["verified"] is True and branch["steps"] <= parent["steps"]
+    assert branch["boards"][:21] == parent["boards"][:21], "the first 20 steps are the parent's"
+    assert branch["meta"]["branch"]["follower"] == "copy" and branch["agents"]["follower"]["policy"] != \
+        parent["agents"]["follower"]["policy"]
+    mtime = saved.stat().st_mtime
+    assert post_json(server, f"/api/replays/{parent_id}/branch", {"step": 20, "follower": "copy"}) == (answer, 200)
+    assert saved.stat().st_mtime == mtime, "the same branch is reused, not made again"
+    listed = server.get("/api/replays?limit=500")[0]["items"]
+    assert answer["id"] in {i["id"] for i in listed}
+    # errors: a follower that is not offered (names only: never a path), a step out of range, an unknown id
+    for body in ({"step": 20, "follower": "tests/evil.pt"}, {"step": 20, "follower": "astar"}):
+        assert post_json(server, f"/api/replays/{parent_id}/branch", body)[1] == 400
+    for step in (parent["steps"] + 1, -1, 10**9):
+        assert post_json(server, f"/api/replays/{parent_id}/branch", {"step": step, "follower": "copy"})[1] == 422
+    assert post_json(server, f"/api/replays/{parent_id}/branch", {"step": "x", "follower": "copy"})[1] == 422
+    assert post_json(server, "/api/replays/nope/branch", {"step": 0, "follower": "copy"})[1] == 404
+    assert post_json(server, "/api/replays/..%2F..%2Fsecret/branch", {"step": 0, "follower": "copy"})[1] == 404
+    (server.replays_dir / "broken.replay.json").write_text("{")
+    time.sleep(1.1)  # the catalogue's scan is reused for a second
+    assert post_json(server, "/api/replays/broken/branch", {"step": 0, "follower": "copy"})[1] == 422
+    assert not (server.replays_dir / "branches" / "broken--branch0-copy.replay.json").exists()

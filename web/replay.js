@@ -1,7 +1,9 @@
 // The replay player: /replay?id=ID&step=N. Board (same drawing as the play page), transport controls,
-// the episode chart with a synced cursor, trails, the key log of human games, downloads and step links.
+// the episode chart with a synced cursor, trails, the key log of human games, downloads and step links, and
+// "branch here" (branch.js: the replay continued with another follower, drawn beside it at the same step).
 // Colors and agents come with the timeline (`data.look`, agents in index order: the leader first).
 import { drawBoard, drawBelief, setLook } from "./board.js";
+import { setupBranch, showBranch } from "./branch.js";
 import { drawChart, stepAt } from "./chart.js";
 import { queryParam } from "./params.js";
 
@@ -40,6 +42,7 @@ async function main() {
   buildKeyLog();
   const wanted = Number.parseInt(queryParam("step") ?? "0", 10);
   show(Number.isFinite(wanted) ? wanted : 0);
+  await setupBranch(id, data, () => step);
 }
 
 function show(t) {
@@ -62,6 +65,7 @@ function show(t) {
   const probs = data.goal_probs?.[follower.name];
   drawBelief($("belief"), probs ? probs[Math.min(step, data.steps - 1)] : null, data.colors);
   drawChart($("chart"), data, step);
+  showBranch(step);
   const link = new URL(location.href);
   link.searchParams.set("step", step);
   $("step-link").href = link.pathname + link.search;
