@@ -128,7 +128,8 @@ def build_parser() -> argparse.ArgumentParser:
                       "or one replay file (its folder is listed)")
     view.add_argument("--host", default="127.0.0.1")
     view.add_argument("--port", type=int, default=8080, help="0 picks a free port")
-    view.add_argument("--export", metavar="OUT.html", help="write PATH (one replay) as a standalone offline HTML file")
+    view.add_argument("--export", metavar="OUT.html", help="write PATH (one replay) as a standalone offline HTML file "
+                      "(board, step/score/goal panel and belief chart; its slider counts steps)")
     view.set_defaults(func=cmd_view)
 
     from colorgrid_apps.cli_replay import add_replay_commands

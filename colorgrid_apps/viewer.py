@@ -3,25 +3,33 @@
 A viser server on 127.0.0.1 shows a replay's grid as batched meshes (floor, one batch of
 cubes per block color, the two agents with labels), with a per-tab panel: a dropdown of the
 replays in a folder, a step slider, play/pause and speed, step/scores/goal, and a uPlot chart
-of the follower's goal probabilities. Each tab gets its own scene and controls, so tabs scrub
-independently. ``export_html`` writes a standalone offline HTML file (the viser client with
-the recorded scene embedded). viser is pinned in ``pyproject.toml``: client and server must match.
+of the follower's goal probabilities (x in steps, a marker at the current step). Each tab gets
+its own scene, controls and camera, which opens framing the whole board.
+
+``standalone_html`` records a replay into an offline HTML file (the viser client with the
+scene embedded). A recording holds scene messages only, never GUI ones, so the export draws
+the panel and the chart into the scene beside the board (``ScenePanel``), and plays one
+recording second per step: its playback slider and clock count steps. The export button
+sends that file to the browser; ``export_html`` writes it for ``--export``. viser is pinned in
+``pyproject.toml``: client and server must match.
 """
 
 from __future__ import annotations
 
-import base64
+import html
 import threading
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import rich
 import viser
 import viser.uplot
 
 from colorgrid.config import AGENTS, FOLLOWER, SYMBOLS
-from colorgrid.render import AGENT_COLORS, FLOOR, PALETTE
+from colorgrid.render import AGENT_COLORS, FLOOR, GRID_LINE, PALETTE
 from colorgrid.replay import ReplayError, load
 from colorgrid.replay.timeline import timeline
 
@@ -29,6 +37,13 @@ SPEEDS = ("0.25", "0.5", "1", "2", "4", "8")
 BASE_FPS = 8.0
 HIDDEN_Z = -50.0  # where unused block instances wait
 BELIEVER = AGENTS[FOLLOWER]  # whose goal probabilities the panel shows
+STEP_SECONDS = 1.0  # recording time per step: the export's slider and clock read in steps
+FOV = np.deg2rad(50.0)  # vertical field of view of the opening camera
+VIEW_FROM = np.array([0.0, -0.5, np.sqrt(3.0) / 2])  # look-at point to camera: from the south, 60 degrees up
+WORLD_UP = np.array([0.0, 0.0, 1.0])  # viser's scene up direction (+z)
+SQUARE = 1.0  # canvas aspect assumed before a tab reports its own: wider canvases see more
+EXPORT_ASPECT = 4.0 / 3.0  # the export fills the window (no side panel), so it is rarely narrower
+INK = (60, 60, 60)  # the scene chart's frame, ticks and cursor
 
 
 def unit_cube() -> tuple[np.ndarray, np.ndarray]:
@@ -78,6 +93,65 @@ def block_capacity(data: dict) -> list[int]:
         codes = np.frombuffer(board["blocks"].encode(), dtype=np.uint8).astype(np.int64) - ord("0")
         counts = np.maximum(counts, np.bincount(codes[codes >= 0], minlength=len(counts)))
     return counts.tolist()
+
+
+@dataclass(frozen=True)
+class CameraPose:
+    """Where a camera sits and looks, in viser's world coordinates (what ``aim`` hands to viser)."""
+
+    position: np.ndarray  # [3]
+    look_at: np.ndarray  # [3]
+    up: np.ndarray  # [3] world up the camera keeps upright
+    fov: float  # vertical field of view, radians
+
+
+def board_bounds(data: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The corners ``(lo, hi)`` of the box holding the board: goal plate, floor, blocks and agents."""
+    return np.array([-0.5, -0.5, -0.2]), np.array([data["width"] + 0.5, data["height"] + 0.5, 1.0])
+
+
+def framing_camera(lo, hi, aspect: float = SQUARE, fov: float = FOV, margin: float = 1.08) -> CameraPose:
+    """A camera looking from ``VIEW_FROM`` at the box ``lo``..``hi``, just far enough back to see all of it.
+
+    A point is in view when, in camera coordinates, ``|right| <= depth * tan_h`` and ``|up| <= depth * tan_v``;
+    the depth of a corner is the distance plus its offset along the view direction, which gives the
+    closest distance for each of the eight corners in closed form. ``margin`` leaves a border around the box.
+    """
+    lo, hi = np.asarray(lo, dtype=np.float64), np.asarray(hi, dtype=np.float64)
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    look_at = (lo + hi) / 2
+    forward = -VIEW_FROM / np.linalg.norm(VIEW_FROM)
+    right = np.cross(forward, WORLD_UP)
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    tan_v = np.tan(fov / 2) / margin
+    tan_h = aspect * tan_v
+    offset = corners - look_at  # [8, 3]
+    distance = np.max(np.maximum(np.abs(offset @ right) / tan_h, np.abs(offset @ up) / tan_v) - offset @ forward)
+    return CameraPose(look_at - distance * forward, look_at, WORLD_UP.copy(), float(fov))
+
+
+def aim(camera, pose: CameraPose) -> None:
+    """Point a tab's camera (``client.camera``) or the one new tabs and recordings open with
+    (``server.initial_camera``, also the target of the client's "reset view")."""
+    camera.fov = pose.fov
+    if isinstance(camera, viser.CameraHandle):
+        camera.up_direction = pose.up
+    else:
+        camera.up = pose.up
+    camera.position = pose.position  # a tab's camera carries its look-at along; set the look-at after
+    camera.look_at = pose.look_at
+
+
+def canvas_aspect(camera) -> float:
+    """The aspect to frame a tab's canvas for: its reported width over height, at most ``SQUARE``.
+
+    Capped because the canvas narrows just after connecting, when the control panel docks beside it.
+    """
+    try:
+        return min(camera.aspect, SQUARE) if camera.image_height > 0 else SQUARE
+    except AssertionError:  # no camera message from the browser yet
+        return SQUARE
 
 
 class GridScene:
@@ -135,21 +209,126 @@ def load_timeline(path: Path) -> dict:
     return data
 
 
-def belief_series(data: dict) -> tuple[tuple[np.ndarray, ...], tuple]:
-    """uPlot data (steps, then one probability curve per color) of the follower's beliefs; None if it has none."""
+def step_summary(data: dict, t: int, strong=str) -> list[str]:
+    """The panel's lines at step ``t``: step, goal, scores, the follower's beliefs; ``strong`` marks the key values."""
+    board = data["boards"][t]
+    lines = [f"step {strong(t)} / {data['steps']}", f"goal: {strong(data['colors'][board['goal']])}"]
+    scores = board["scores"]
+    if scores is not None:
+        each = ", ".join(f"{name} {score:+.0f}" for name, score in zip(AGENTS, scores))
+        lines.append(f"team {strong(f'{sum(scores):+.0f}')} ({each})")
+    probs = beliefs(data)
+    if probs is not None:
+        row = probs[min(t, len(probs) - 1)]
+        lines.append(f"{BELIEVER} believes: " + ", ".join(f"{c} {p:.2f}" for c, p in zip(data["colors"], row)))
+    return lines
+
+
+def beliefs(data: dict) -> np.ndarray | None:
+    """The follower's goal probabilities, ``[T, colors]`` (one row per action), or None if it logged none."""
     probs = data.get("goal_probs", {}).get(BELIEVER)
-    if not probs:
+    return np.asarray(probs, dtype=np.float64) if probs else None
+
+
+def belief_series(data: dict, t: int) -> tuple[tuple[np.ndarray, ...] | None, tuple]:
+    """uPlot data and series of the belief chart at step ``t``; ``(None, ())`` if the follower has no beliefs.
+
+    x is every step ``0..steps``; then a "now" spike (1 at ``t``, 0 elsewhere, filled) that marks the
+    current step; then one probability curve per color, NaN past the last action (no belief there).
+    """
+    probs = beliefs(data)
+    if probs is None:
         return None, ()
-    arr = np.asarray(probs, dtype=np.float64)
-    x = np.arange(arr.shape[0], dtype=np.float64)
+    x = np.arange(data["steps"] + 1, dtype=np.float64)
+    now = np.zeros_like(x)
+    now[t] = 1.0
+    curves = np.full((len(x), probs.shape[1]), np.nan)
+    curves[: len(probs)] = probs
     series = (viser.uplot.Series(label="step"),
+              viser.uplot.Series(label="now", stroke="rgba(90, 90, 90, 0.6)", fill="rgba(90, 90, 90, 0.3)", width=1,
+                                 points=viser.uplot.Series_Points(show=False)),
               *(viser.uplot.Series(label=name, stroke=data["look"]["palette"][k], width=2)
                 for k, name in enumerate(data["colors"])))
-    return (x, *(arr[:, k] for k in range(arr.shape[1]))), series
+    return (x, now, *curves.T), series
+
+
+def belief_scales(data: dict) -> dict[str, viser.uplot.Scale]:
+    """x in plain steps (uPlot reads x as unix time unless ``time`` is off), y a probability."""
+    return {"x": viser.uplot.Scale(time=False, range=(0.0, float(data["steps"]))),
+            "y": viser.uplot.Scale(range=(0.0, 1.0))}
+
+
+class ScenePanel:
+    """The panel's lines and the belief chart drawn into the scene, right of the board, for recordings.
+
+    A recording keeps scene messages but no GUI, so the export shows its panel this way: a text
+    label rewritten per step, the curves as line segments, and a cursor moved to the current step.
+    """
+
+    def __init__(self, scene, data: dict, title: str, root: str = "/panel"):
+        self.data, self.title = data, title
+        H, W, steps = data["height"], data["width"], data["steps"]
+        self.x0, self.width, self.height = W + 4.5, float(W), H / 2  # the chart's plotting area, from (x0, 0)
+        self.facts = scene.add_label(f"{root}/facts", "", position=(self.x0 - 1.0, H + 0.5, 0.0))
+        self.cursor = None
+        probs = beliefs(data)
+        if probs is not None:
+            self._draw_chart(scene, f"{root}/chart", probs, steps)
+        self.show(0)
+
+    def _draw_chart(self, scene, root: str, probs: np.ndarray, steps: int) -> None:
+        x0, w, h = self.x0, self.width, self.height
+        scene.add_box(f"{root}/paper", dimensions=(w + 5.0, h + 5.0, 0.1),
+                      position=(x0 + w / 2 - 1.0, h / 2 + 0.5, -0.05), color=tuple(int(c) for c in FLOOR))
+        frame = np.array([[(0, 0), (w, 0)], [(w, 0), (w, h)], [(w, h), (0, h)], [(0, h), (0, 0)]], dtype=np.float32)
+        scene.add_line_segments(f"{root}/frame", lift(frame, x0), colors=INK, thickness=1.0, thickness_units="screen")
+        scene.add_line_segments(f"{root}/half", lift(np.array([[(0, h / 2), (w, h / 2)]], dtype=np.float32), x0),
+                                colors=tuple(int(c) for c in GRID_LINE), thickness=1.0, thickness_units="screen")
+        xs = w * np.arange(len(probs)) / steps
+        colors = self.data["colors"]
+        for k, name in enumerate(colors):
+            rgb = tuple(int(c) for c in PALETTE[k])
+            points = np.stack([xs, h * probs[:, k]], axis=1).astype(np.float32)
+            scene.add_line_segments(f"{root}/{name}", lift(np.stack([points[:-1], points[1:]], axis=1), x0),
+                                    colors=rgb, thickness=2.5, thickness_units="screen")
+            left = w * k / len(colors)  # the legend: a colored dash, then the name
+            key = np.array([[(left, h + 1.2), (left + 1.5, h + 1.2)]], dtype=np.float32)
+            scene.add_line_segments(f"{root}/key/{name}", lift(key, x0), colors=rgb, thickness=4.0,
+                                    thickness_units="screen")
+            scene.add_label(f"{root}/key/{name}/label", name, position=(x0 + left + 2.0, h + 1.2, 0.0),
+                            anchor="center-left")
+        scene.add_label(f"{root}/title", f"{BELIEVER}'s goal probabilities", position=(x0, h + 2.8, 0.0),
+                        anchor="center-left")
+        for text, xy, anchor in (("0", (0, -0.6), "top-center"), (str(steps), (w, -0.6), "top-center"),
+                                 ("step", (w / 2, -0.6), "top-center"), ("1", (-0.6, h), "center-right"),
+                                 ("0.5", (-0.6, h / 2), "center-right"), ("0", (-0.6, 0), "center-right")):
+            scene.add_label(f"{root}/ticks/{text}_{anchor}", text, position=(x0 + xy[0], xy[1], 0.0), anchor=anchor)
+        stroke = np.array([[(0, 0, 0.05), (0, h, 0.05)]], dtype=np.float32)  # moved along x by ``show``
+        self.cursor = scene.add_line_segments(f"{root}/now", stroke, colors=INK, thickness=2.0,
+                                              thickness_units="screen")
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """The corners ``(lo, hi)`` of the box holding the board and this panel (what the export frames)."""
+        lo, hi = board_bounds(self.data)
+        return np.array([lo[0], -2.0, lo[2]]), np.array([self.x0 + self.width + 1.5, hi[1], hi[2]])
+
+    def show(self, t: int) -> None:
+        self.facts.text = "\n".join([self.title, *step_summary(self.data, t)])
+        if self.cursor is not None:
+            self.cursor.position = (self.x0 + self.width * t / self.data["steps"], 0.0, 0.0)
+
+
+def lift(segments: np.ndarray, x0: float) -> np.ndarray:
+    """2D chart segments ``[N, 2, 2]`` to scene segments ``[N, 2, 3]``, moved right by ``x0``, just above the paper."""
+    out = np.zeros((*segments.shape[:2], 3), dtype=np.float32)
+    out[..., :2] = segments
+    out[..., 0] += x0
+    out[..., 2] = 0.02
+    return out
 
 
 class TabView:
-    """One browser tab: its own scene, controls, playback state."""
+    """One browser tab: its own scene, controls, camera, playback state."""
 
     def __init__(self, viewer: "ReplayViewer", target, root: str = "/grid"):
         self.viewer, self.target, self.root = viewer, target, root
@@ -157,6 +336,7 @@ class TabView:
         self.grid: GridScene | None = None
         self.data: dict | None = None
         self.chart = None
+        self.framed: tuple[int, int] | None = None  # the board size the camera was last aimed at
         self.playing = False
         self.next_tick = 0.0
         names = viewer.replay_names()
@@ -190,31 +370,35 @@ class TabView:
             self.chart = None
         self.data, self.name = data, name
         self.grid = GridScene(self.target.scene, data, self.root)
+        self.frame_board()
         self.slider.max = data["steps"]
-        series_data, series = belief_series(data)
+        series_data, series = belief_series(data, 0)
         if series_data is not None:
             self.chart = self.target.gui.add_uplot(series_data, series, title=f"{BELIEVER}'s goal probabilities",
-                                                   scales={"y": viser.uplot.Scale(range=(0.0, 1.0))}, aspect=2.0)
+                                                   scales=belief_scales(data), axes=({"label": "step"}, {}), aspect=2.0,
+                                                   padding=(10, 24, 0, 0))
         self.slider.value = 0
         self.show(0)
+
+    def frame_board(self) -> None:
+        """Aim this tab's camera at the whole board, for its own canvas, when a new board size opens."""
+        size = (self.data["width"], self.data["height"])
+        if size == self.framed:
+            return
+        self.framed = size
+        self.viewer.frame_new_tabs(self.data)
+        if isinstance(self.target, viser.ClientHandle):
+            camera = self.target.camera
+            aim(camera, framing_camera(*board_bounds(self.data), aspect=canvas_aspect(camera)))
 
     def show(self, t: int) -> None:
         if self.data is None:
             return
         t = max(0, min(self.data["steps"], t))
-        frame = self.grid.show(t)
-        board = self.data["boards"][t]
-        goal = self.data["colors"][frame.goal]
-        scores = board["scores"]
-        lines = [f"**{self.name}**", f"step **{t}** / {self.data['steps']}", f"goal: **{goal}**"]
-        if scores is not None:
-            each = ", ".join(f"{name} {score:+.0f}" for name, score in zip(AGENTS, scores))
-            lines.append(f"team **{sum(scores):+.0f}** ({each})")
-        probs = self.data.get("goal_probs", {}).get(BELIEVER)
-        if probs:
-            row = probs[min(t, len(probs) - 1)]
-            lines.append(f"{BELIEVER} believes: " + ", ".join(f"{c} {p:.2f}" for c, p in zip(self.data["colors"], row)))
-        self.info.content = "  \n".join(lines)
+        self.grid.show(t)
+        self.info.content = "  \n".join([f"**{self.name}**", *step_summary(self.data, t, strong=lambda s: f"**{s}**")])
+        if self.chart is not None:
+            self.chart.data = belief_series(self.data, t)[0]
         self.step = t
 
     def toggle(self) -> None:
@@ -235,13 +419,14 @@ class TabView:
             self.slider.value = self.step + 1
 
     def export(self) -> None:
+        """Send this replay as a standalone HTML file to the browser (nothing is written on the server's disk)."""
         if self.data is None:
             return
-        out = self.viewer.folder / "exports" / (Path(self.name).name.removesuffix(".replay.json") + ".html")
-        path = export_html(self.viewer.folder / self.name, out)
-        self.export_note.content = f"wrote `{path}`"
-        if hasattr(self.target, "send_file_download"):
-            self.target.send_file_download(path.name, path.read_bytes())
+        filename = Path(self.name).name.removesuffix(".replay.json") + ".html"
+        self.export_note.content = f"preparing `{filename}`..."
+        page = standalone_html(self.data, Path(self.name).name)
+        self.target.send_file_download(filename, page.encode(), save_immediately=True)
+        self.export_note.content = f"sent `{filename}` to the browser"
 
 
 class ReplayViewer:
@@ -253,8 +438,16 @@ class ReplayViewer:
             raise FileNotFoundError(f"{self.folder} is not a folder of replays")
         self.server = viser.ViserServer(host=host, port=port, verbose=False)
         self.server.gui.configure_theme(show_share_button=False, control_width="large")
+        self.server.gui.main_panel.dock_right()  # beside the canvas, not over it: the camera frames what is visible
         self.views: dict[int, TabView] = {}
         self.lock = threading.Lock()
+        self.new_tab_board: tuple[int, int] | None = None  # the board size new tabs open framing
+        names = self.replay_names()
+        if names:  # before any tab connects: a tab resets its view when the opening camera first arrives
+            try:
+                self.frame_new_tabs(load_timeline(self.folder / names[0]))
+            except (ValueError, OSError):
+                pass  # the tab will say why; it frames whatever it opens
         self.server.on_client_connect(self._connect)
         self.server.on_client_disconnect(self._disconnect)
         self._stop = threading.Event()
@@ -267,6 +460,13 @@ class ReplayViewer:
 
     def replay_names(self) -> list[str]:
         return sorted(p.relative_to(self.folder).as_posix() for p in self.folder.rglob("*.replay.json"))
+
+    def frame_new_tabs(self, data: dict) -> None:
+        """Aim the camera that new tabs open with (and "reset view" returns to) at this replay's board."""
+        size = (data["width"], data["height"])
+        if size != self.new_tab_board:
+            self.new_tab_board = size
+            aim(self.server.initial_camera, framing_camera(*board_bounds(data)))
 
     def _connect(self, client) -> None:
         view = TabView(self, client)
@@ -293,26 +493,53 @@ class ReplayViewer:
         self.server.stop()
 
 
-def export_html(replay_path: str | Path, out_path: str | Path, fps: float = BASE_FPS) -> Path:
-    """A standalone, offline HTML file playing the replay in 3D (the viser client with the scene embedded)."""
+_QUIET = threading.Lock()
+
+
+@contextmanager
+def quiet_viser():
+    """Silence viser's console (its address banner, "Server stopped"): it prints through rich's
+    global console whatever ``verbose`` says. One quiet stretch at a time, so each restores what it found."""
+    console = rich.get_console()
+    with _QUIET:
+        was = console.quiet
+        console.quiet = True
+        try:
+            yield
+        finally:
+            console.quiet = was
+
+
+def standalone_html(data: dict, name: str) -> str:
+    """A standalone, offline HTML page playing the replay in 3D, one recording second per step.
+
+    The scene is recorded through a private, silent viser server on a free local port: the board,
+    the panel and chart drawn into the scene (``ScenePanel``), and a camera framing both.
+    """
+    with quiet_viser():
+        server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
+        try:
+            grid = GridScene(server.scene, data)
+            panel = ScenePanel(server.scene, data, title=name)
+            aim(server.initial_camera, framing_camera(*panel.bounds(), aspect=EXPORT_ASPECT))
+            recorder = server.get_scene_serializer()
+            for t in range(data["steps"] + 1):
+                grid.show(t)
+                panel.show(t)
+                recorder.insert_sleep(STEP_SECONDS)
+            page = recorder.as_html()
+        finally:
+            server.stop()
+    return page.replace("<title>Viser</title>", f"<title>ColorGrid replay: {html.escape(name)}</title>", 1)
+
+
+def export_html(replay_path: str | Path, out_path: str | Path) -> Path:
+    """Write ``standalone_html`` of a replay file to ``out_path`` (atomically); return the path."""
     from colorgrid.files import atomic_path
 
     data = load_timeline(Path(replay_path))
-    server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)
-    try:
-        recorder = server.get_scene_serializer()
-        grid = GridScene(server.scene, data)
-        for t in range(data["steps"] + 1):
-            grid.show(t)
-            recorder.insert_sleep(1.0 / fps)
-        payload = base64.b64encode(recorder.serialize()).decode("ascii")
-    finally:
-        server.stop()
-    client = (Path(viser.__file__).parent / "client" / "build" / "index.html").read_text()
-    head = (f"<head><title>ColorGrid replay: {Path(replay_path).name}</title>"
-            f"<script>window.__VISER_EMBED_DATA__ = \"{payload}\";</script>")
-    html = client.replace("<head>", head, 1)
+    page = standalone_html(data, Path(replay_path).name)
     out = Path(out_path)
     with atomic_path(out) as tmp:
-        tmp.write_text(html)
+        tmp.write_text(page)
     return out

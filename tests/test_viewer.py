@@ -1,5 +1,6 @@
 """The 3D replay viewer (viser): scene and chart state without a browser, then a real browser connects."""
 
+import base64
 import glob
 import re
 import subprocess
@@ -7,15 +8,53 @@ import sys
 import time
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
+import zstandard
 
 from colorgrid.replay import load, save
 from colorgrid.replay.timeline import timeline
-from colorgrid_apps.viewer import ReplayViewer, TabView, block_capacity, export_html, frame_at
+from colorgrid_apps.viewer import (STEP_SECONDS, ReplayViewer, TabView, block_capacity, board_bounds, export_html,
+                                   frame_at, framing_camera)
 
 ROOT = Path(__file__).resolve().parents[1]
 BAYES = sorted(glob.glob(str(ROOT / "replays/default/astar+bayes*.replay.json")))[0]
+
+
+def in_view(points, position, look_at, up, fov, aspect) -> np.ndarray:
+    """Where ``points`` land on a pinhole camera's image, in [-1, 1] when inside its frustum: ``[N, 2]``."""
+    forward = np.asarray(look_at, float) - position
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, up)
+    right /= np.linalg.norm(right)
+    image_up = np.cross(right, forward)
+    rel = np.asarray(points, float) - position
+    depth = rel @ forward
+    assert (depth > 0).all(), "a point behind the camera"
+    half = np.tan(fov / 2)
+    return np.stack([rel @ right / (depth * half * aspect), rel @ image_up / (depth * half)], axis=1)
+
+
+def board_corners(data) -> np.ndarray:
+    """The four corners of the board (its goal-colored rim), on the floor."""
+    W, H = data["width"], data["height"]
+    return np.array([[-0.5, -0.5, 0.0], [W + 0.5, -0.5, 0.0], [-0.5, H + 0.5, 0.0], [W + 0.5, H + 0.5, 0.0]])
+
+
+def read_recording(page: str) -> tuple[dict, list[bytes]]:
+    """The viser recording embedded in a standalone page: its messages and binary buffers (viser's
+    ``StateSerializer.serialize`` layout: zstd of [msgpack length][msgpack][8-byte aligned buffers])."""
+    payload = base64.b64decode(re.search(r'__VISER_EMBED_DATA__="([^"]+)"', page).group(1))
+    inner = zstandard.ZstdDecompressor().decompress(payload[8:], max_output_size=int.from_bytes(payload[:8], "little"))
+    n = int.from_bytes(inner[:8], "little")
+    recording = msgspec.msgpack.decode(inner[8:8 + n])
+    buffers, offset = [], 8 + n
+    for length in recording["binaryBufferLengths"]:
+        offset += -offset % 8
+        buffers.append(inner[offset:offset + length])
+        offset += length
+    return recording, buffers
 
 
 @pytest.fixture()
@@ -50,11 +89,14 @@ def test_scene_follows_the_slider_and_the_chart_holds_the_beliefs(viewer):
             assert sorted(cells) == [i for i, ch in enumerate(board["blocks"]) if ch == str(k)]
         assert f"step **{t}** / 128" in tab.info.content
     assert tab.chart is not None
-    x, *curves = tab.chart.data
-    assert len(x) == 128 and len(curves) == 3
+    assert [s["label"] for s in tab.chart.series] == ["step", "now", "red", "green", "blue"]
+    assert tab.chart.scales["x"]["time"] is False  # uPlot reads x as unix time otherwise: "1/1/70 12:00am"
+    x, now, *curves = tab.chart.data
+    assert np.array_equal(x, np.arange(129)) and len(curves) == 3
+    assert np.flatnonzero(now).tolist() == [128]  # the marker follows the slider
     probs = np.asarray(data["goal_probs"]["follower"])
     for k, curve in enumerate(curves):
-        assert np.allclose(curve, probs[:, k])
+        assert np.allclose(curve[:128], probs[:, k]) and np.isnan(curve[128])  # no belief after the last action
 
 
 def test_a_tampered_replay_is_refused_with_its_reason(viewer):
@@ -93,11 +135,50 @@ def test_frames_place_every_block_once(viewer):
     assert sum(int((p[:, 2] > 0).sum()) for p in frame.block_positions) == 102
 
 
-def test_standalone_html_export_plays_offline(tmp_path, browser):
+def test_the_opening_camera_frames_the_whole_board(viewer):
+    tab = TabView(viewer, viewer.server)  # what every new tab opens with (and "reset view" returns to)
+    camera = viewer.server.initial_camera
+    spots = in_view(board_corners(tab.data), camera.position, camera.look_at, camera.up, camera.fov, aspect=1.0)
+    assert (np.abs(spots) <= 1).all(), spots  # a square canvas sees all four corners; wider ones see more
+    assert np.abs(spots).max() > 0.7, "the board fills the view, not a speck in it"
+    tall = framing_camera(*board_bounds(tab.data), aspect=0.6)
+    spots = in_view(board_corners(tab.data), tall.position, tall.look_at, tall.up, tall.fov, aspect=0.6)
+    assert (np.abs(spots) <= 1).all(), spots  # a tab reporting a narrow canvas is framed for it
+
+
+def test_standalone_html_export_carries_the_panel_and_chart_and_counts_steps(tmp_path, browser):
     out = export_html(BAYES, tmp_path / "replay.html")
     html = out.read_text()
-    assert "__VISER_EMBED_DATA__" in html
     assert not re.search(r"""(src|href)=["']https?://""", html), "the export must not load anything from the web"
+    recording, buffers = read_recording(html)
+    data = timeline(load(BAYES))
+    assert recording["durationSeconds"] == (data["steps"] + 1) * STEP_SECONDS == 129  # slider and clock read steps
+    messages = recording["messages"]
+    facts = {}  # recording time -> the panel's text then
+    for at, message in messages:
+        if message.get("name") == "/panel/facts" and "text" in message.get("updates", {}):
+            facts[at] = message["updates"]["text"]
+    for t in (0, 40, 128):
+        board = data["boards"][t]
+        assert f"step {t} / 128" in facts[t * STEP_SECONDS]
+        assert f"goal: {data['colors'][board['goal']]}" in facts[t * STEP_SECONDS]
+        assert f"team {sum(board['scores']):+.0f}" in facts[t * STEP_SECONDS]
+    labels = {m["props"]["text"] for _, m in messages if m["type"] == "LabelMessage"}
+    assert {"follower's goal probabilities", "red", "green", "blue", "step", "0", "128"} <= labels
+    probs = np.asarray(data["goal_probs"]["follower"])
+    curves = {m["name"]: m["props"]["points"] for _, m in messages if m["type"] == "LineSegmentsMessage"}
+    for k, name in enumerate(data["colors"]):
+        placeholder = curves[f"/panel/chart/{name}"]
+        segments = np.frombuffer(buffers[placeholder["__binary_index"]], dtype=placeholder["dtype"]).reshape(-1, 2, 3)
+        heights = np.append(segments[:, 0, 1], segments[-1, 1, 1]) / (data["height"] / 2)
+        assert np.allclose(heights, probs[:, k], atol=1e-5)
+    cursor = {}  # recording time -> the chart cursor's x then
+    for at, message in messages:
+        if message.get("name") == "/panel/chart/now" and "position" in message:
+            cursor[at] = message["position"][0]
+    left, right = cursor[0.0], cursor[128 * STEP_SECONDS]
+    assert (cursor[40 * STEP_SECONDS] - left) / (right - left) == pytest.approx(40 / 128)
+
     page = browser.new_page()
     requests = []
     page.on("request", lambda r: requests.append(r.url))
@@ -106,6 +187,60 @@ def test_standalone_html_export_plays_offline(tmp_path, browser):
     page.wait_for_timeout(500)
     assert all(u.startswith(("file:", "data:", "blob:")) for u in requests), requests
     page.close()
+
+
+def test_export_command_prints_only_what_it_wrote(tmp_path):
+    out = tmp_path / "replay.html"
+    done = subprocess.run([sys.executable, "-m", "colorgrid_apps", "view", BAYES, "--export", str(out)],
+                          capture_output=True, text=True, cwd=ROOT, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout == f"wrote {out}\n"  # no address of the private server it recorded through
+    assert "__VISER_EMBED_DATA__" in out.read_text()
+
+
+def test_the_export_button_sends_the_file_to_the_browser_and_writes_nothing(viewer, monkeypatch):
+    tab = TabView(viewer, viewer.server)
+    before = sorted(viewer.folder.rglob("*"))
+    sent = []
+    monkeypatch.setattr(viewer.server, "send_file_download",
+                        lambda name, content, **kw: sent.append((name, content, kw)))
+    tab.export()
+    assert sorted(viewer.folder.rglob("*")) == before
+    [(name, content, kw)] = sent
+    assert name == "a.html" and kw == {"save_immediately": True}
+    assert b"__VISER_EMBED_DATA__" in content and b"<title>ColorGrid replay: a.replay.json</title>" in content
+    assert "a.html" in tab.export_note.content
+
+
+def test_a_browser_tab_opens_on_the_whole_board_with_a_step_chart(viewer, browser):
+    page = browser.new_page(viewport={"width": 1280, "height": 800})
+    try:
+        page.goto(f"http://127.0.0.1:{viewer.port}/")
+        page.get_by_text("play / pause").wait_for(timeout=30000)
+        data = timeline(load(BAYES))
+        center = np.array([data["width"] / 2, data["height"] / 2, 0.4])
+        deadline = time.monotonic() + 30
+        camera = None
+        while time.monotonic() < deadline:  # until the browser reports the camera it was given
+            clients = list(viewer.server.get_clients().values())
+            if clients and np.allclose(clients[0].camera.look_at, center, atol=1e-3):
+                camera = clients[0].camera
+                break
+            time.sleep(0.1)
+        assert camera is not None, "the tab's camera was aimed at the board"
+        page.wait_for_timeout(500)  # the panel docks beside the canvas; the camera report follows
+        spots = in_view(board_corners(data), camera.position, camera.look_at, camera.up_direction, camera.fov,
+                        camera.aspect)
+        assert (np.abs(spots) <= 1).all(), (spots, camera.aspect)
+        view = viewer.views[clients[0].client_id]
+        view.slider.value = 60
+        chart = "Object.values(window.__viserTestpoints.uplots)[0].chart"
+        page.wait_for_function(f"() => {chart}.data[1][60] === 1", timeout=30000)  # the marker moved to step 60
+        ticks = f"{chart}.axes[0].values({chart}, [0, 64, 128], 0, 50, 64)"  # the x axis's label formatter
+        time_scale, ticks = page.evaluate(f"() => [{chart}.scales.x.time, {ticks}]")
+        assert time_scale is False and ticks == ["0", "64", "128"], ticks  # x labels are steps, not "1/1/70 12:00am"
+    finally:
+        page.close()
 
 
 def test_view_command_serves_a_page_a_browser_connects_to(tmp_path, browser):
