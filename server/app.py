@@ -8,9 +8,12 @@ import logging
 import re
 import time
 from contextlib import asynccontextmanager
+from pathlib import Path
 from urllib.parse import urlsplit
 
+import fastapi_offline
 from fastapi import FastAPI, HTTPException, Query, WebSocket, WebSocketDisconnect
+from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Field, ValidationError
@@ -28,6 +31,7 @@ from server.replays import ID_PATTERN, SUFFIX, ReplayCatalogue
 from server.settings import REPO_ROOT, ServerSettings
 
 WEB_DIR = REPO_ROOT / "web"
+DOCS_ASSETS = Path(fastapi_offline.__file__).parent / "static"  # Swagger UI 5 and ReDoc, so /docs works offline
 CLOSE_POLICY = 1008  # a flood, or a page from an origin that is not allowed
 CLOSE_GOING_AWAY = 1001  # idle without a game
 CLOSE_RESTART = 1012  # the server is stopping (after game_over)
@@ -41,6 +45,37 @@ class BranchRequest(BaseModel):
 
     step: int = Field(ge=0, le=MAX_HORIZON, description="the step the follower takes over at (0..the replay's steps)")
     follower: str = Field(max_length=200, description="one of /api/options' followers")
+
+
+FOLLOWER_INFO = {
+    "ippo": ("Trained assistant (IPPO)", "learned from play beside a scripted leader; reads the goal from your moves",
+             True),
+    "ippo-leader": ("Trained leader (IPPO)", "the trained leader playing the follower's part: for researchers", True),
+    "bayes": ("Bayesian assistant", "works out the goal from your moves and pickups, and collects once it is sure",
+              True),
+    "bayes-people": ("Bayesian assistant for people", "the Bayesian assistant, forgiving of late turns and slips, "
+                                                      "so a wrong move is not taken for a goal switch", True),
+    "copy": ("Copycat", "collects the color of the last block you took that paid", False),
+    "oracle": ("Oracle", "sees the goal: for researchers", False),
+    "idle": ("Bystander", "walks about and never collects: you play alone", False),
+    "random": ("Random mover", "moves at random and collects whatever it steps on", False),
+}
+"""How the play page names each scripted or shipped follower: label, one-line description, whether it holds a
+belief over the goal (that the page may draw)."""
+
+
+def follower_info(name: str) -> dict:
+    """``{value, label, description, has_belief}`` for a follower name. Parameters (``bayes:lapse=0.2``) are
+    added to the label; a name not in ``FOLLOWER_INFO`` (a checkpoint path) is labelled by its file name."""
+    base, _, params = name.partition(":")
+    known = FOLLOWER_INFO.get(base)
+    if known is None:
+        what = "a trained follower loaded from" if name.endswith(".pt") else "the follower"
+        label, description, has_belief = name.rsplit("/", 1)[-1], f"{what} {name}", True
+    else:
+        label, description, has_belief = known
+        label += f" ({params})" if params else ""
+    return {"value": name, "label": label, "description": description, "has_belief": has_belief}
 
 
 def file_part(name: str) -> str:
@@ -68,7 +103,9 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
             await shutdown(app)
             jobs.close()
 
-    app = FastAPI(title="ColorGrid play server", version=__version__, lifespan=lifespan)
+    # The documentation pages are served with local assets (FastAPI's defaults load them from a CDN).
+    app = FastAPI(title="ColorGrid play server", version=__version__, lifespan=lifespan,
+                  docs_url=None, redoc_url=None)
     app.state.hub, app.state.settings, app.state.sockets = hub, settings, sockets
     # Requests naming another host are refused (a page on another site cannot reach us by DNS rebinding).
     app.add_middleware(TrustedHostMiddleware, allowed_hosts=settings.hosts, www_redirect=False)
@@ -86,6 +123,23 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
         return FileResponse(WEB_DIR / "replay.html")
 
     app.mount("/static", StaticFiles(directory=WEB_DIR), name="static")
+    app.mount("/docs-assets", StaticFiles(directory=DOCS_ASSETS), name="docs-assets")
+
+    @app.get("/favicon.ico", include_in_schema=False)
+    async def favicon():
+        return FileResponse(WEB_DIR / "favicon.ico", media_type="image/x-icon")
+
+    @app.get("/docs", include_in_schema=False)
+    async def swagger_ui():
+        return get_swagger_ui_html(openapi_url=app.openapi_url, title=f"{app.title}: API",
+                                   swagger_js_url="/docs-assets/swagger-ui-bundle.js",
+                                   swagger_css_url="/docs-assets/swagger-ui.css", swagger_favicon_url="/favicon.ico")
+
+    @app.get("/redoc", include_in_schema=False)
+    async def redoc():
+        return get_redoc_html(openapi_url=app.openapi_url, title=f"{app.title}: API",
+                              redoc_js_url="/docs-assets/redoc.standalone.js", redoc_favicon_url="/favicon.ico",
+                              with_google_fonts=False)
 
     @app.get("/api/health")
     async def health():
@@ -102,10 +156,12 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
 
     @app.get("/api/options")
     async def options():
-        """What a new game may choose (followers, presets with their rewards, modes, the horizon's limit) and
-        the defaults, plus what the page needs to draw and play: the look of boards and the move keys."""
+        """What a new game may choose (followers, with labels and descriptions in ``follower_info``, presets with
+        their rewards, modes, the horizon's limit) and the defaults, plus what the page needs to draw and play:
+        the look of boards and the move keys."""
         presets = {name: env_config(name) for name in sorted(PRESETS)}
         return {"followers": list(settings.follower_choices), "default_follower": settings.follower,
+                "follower_info": [follower_info(name) for name in settings.follower_choices],
                 "presets": list(presets), "default_preset": settings.preset,
                 "preset_settings": {name: {"goal_reward": c.goal_reward, "wrong_penalty": c.wrong_penalty,
                                            "horizon": c.horizon} for name, c in presets.items()},

@@ -1,5 +1,6 @@
 """A real browser (Debian chromium, driven by playwright) plays a short game and finds its replay."""
 
+import re
 from urllib.parse import quote
 
 from playwright.sync_api import expect
@@ -28,7 +29,7 @@ def test_play_a_short_game_in_the_browser(server, browser):
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.goto(server.url + "/")
     options = server.get("/api/options")[0]
-    expect(page.locator("#follower option")).to_have_count(6)
+    expect(page.locator("#follower option")).to_have_count(len(options["followers"]))
     expect(page.locator("#follower")).to_have_value("ippo")
     # the setup form is the server's: its modes, the horizon's limits, the chosen preset's rewards, the letters
     assert page.locator("#mode option").all_text_contents() == [m["label"] for m in options["modes"]]
@@ -312,4 +313,118 @@ def test_branch_here_draws_the_branch_beside_the_replay_on_one_cursor(server, br
     expect(page.locator("#branch-status")).to_contain_text("follower must be one of", timeout=30_000)
     expect(page.locator("#branch-panel")).to_be_hidden()
     assert errors == []
+    page.close()
+
+
+def test_a_newcomer_reads_how_to_play_and_what_each_follower_does_before_starting(server, browser):
+    page = browser.new_page()
+    page.goto(server.url + "/")
+    options = server.get("/api/options")[0]
+    how_to = page.locator("#how-to")
+    expect(how_to).to_be_visible()
+    expect(how_to).to_contain_text("↑ or W, ↓ or S, ← or A, → or D")  # from /api/options' keys
+    expect(how_to).to_contain_text("frame around the board")
+    expect(how_to).to_contain_text("goal color")
+    page.select_option("#preset", "reward_4_1")  # the chosen preset's numbers
+    expect(how_to.locator("#goal-reward")).to_have_text("+4")
+    expect(how_to.locator("#wrong-penalty")).to_have_text("\u22121")
+    page.select_option("#mode", "realtime")
+    expect(page.locator("#mode-help")).to_contain_text("countdown")
+    info = {f["value"]: f for f in options["follower_info"]}
+    assert page.locator("#follower option").all_text_contents() == [f["label"] for f in options["follower_info"]]
+    expect(page.locator("#follower-description")).to_have_text(info["ippo"]["description"])
+    page.select_option("#follower", "oracle")
+    expect(page.locator("#follower-description")).to_have_text(info["oracle"]["description"])
+    expect(page.locator("#follower option[value='oracle']")).to_have_attribute("title", info["oracle"]["description"])
+    page.close()
+
+
+def test_end_game_goes_once_the_game_is_over_and_the_belief_toggle_only_for_followers_with_one(server, browser):
+    page = browser.new_page()
+    page.goto(server.url + "/")
+    page.select_option("#follower", "copy")  # no belief to show
+    page.select_option("#mode", "turn")
+    page.fill("#horizon", "2")
+    page.click("#start")
+    expect(page.locator("#game")).to_be_visible()
+    expect(page.locator("#follower-label")).to_have_text("Copycat")
+    expect(page.locator("#belief-toggle")).to_be_hidden()
+    expect(page.locator("#quit")).to_be_visible()
+    page.keyboard.press("ArrowUp")
+    expect(page.locator("#board")).to_have_attribute("data-step", "1")
+    page.keyboard.press("ArrowDown")
+    expect(page.locator("#over")).to_be_visible()
+    expect(page.locator("#quit")).to_be_hidden()
+    expect(page.locator("#status")).to_have_text("Game over.")
+    page.click("#again")
+    page.select_option("#follower", "bayes")
+    page.click("#start")
+    expect(page.locator("#board")).to_have_attribute("data-step", "0")
+    expect(page.locator("#belief-toggle")).to_be_visible()
+    expect(page.locator("#quit")).to_be_visible()
+    page.click("#quit")
+    expect(page.locator("#quit")).to_be_hidden()
+    expect(page.locator("#status")).to_have_text("You ended the game.")
+    page.close()
+
+
+def test_a_bad_number_of_steps_is_explained_in_plain_words(server, browser):
+    page = browser.new_page()
+    page.goto(server.url + "/")
+    page.select_option("#mode", "turn")
+    page.fill("#horizon", "5000")
+    page.click("#start")
+    expect(page.locator("#status")).to_have_text("Steps must be between 1 and 1000.")
+    expect(page.locator("#setup")).to_be_visible()
+    # the server's own refusal (a page whose limit is out of date) reads the same; its words stay in the title
+    page.locator("#horizon").evaluate("el => el.removeAttribute('max')")
+    page.click("#start")
+    expect(page.locator("#status")).to_have_attribute("title", re.compile(r"^invalid_message: new_game: horizon"))
+    expect(page.locator("#status")).to_have_text("Steps must be between 1 and 1000.")
+    expect(page.locator("#setup")).to_be_visible()
+    expect(page.locator("#game")).to_be_hidden()
+    page.close()
+
+
+def test_real_time_starts_after_a_3_2_1_countdown(server, browser):
+    page = browser.new_page()
+    page.goto(server.url + "/")
+    page.select_option("#follower", "copy")
+    page.select_option("#mode", "realtime")
+    page.fill("#horizon", "200")
+    page.click("#start")
+    countdown = page.locator("#countdown")
+    expect(countdown).to_have_text("3")
+    expect(page.locator("#setup")).to_be_hidden()
+    page.keyboard.press("ArrowUp")  # keys before "go" count for nothing
+    expect(countdown).to_have_text("2")
+    assert server.get("/api/health")[0]["games"] == 0, "no world moves during the countdown"
+    expect(countdown).to_have_text("1")
+    expect(page.locator("#game")).to_be_hidden()
+    expect(countdown).to_have_text("go")
+    expect(page.locator("#game")).to_be_visible()
+    expect(countdown).to_be_hidden()
+    board = page.locator("#board")
+    expect(board).not_to_have_attribute("data-step", "0")  # now the world moves on the server's clock
+    page.click("#quit")
+    expect(page.locator("#over")).to_be_visible()
+    page.close()
+
+
+def test_the_api_docs_render_without_internet(server, browser):
+    page = browser.new_page()
+    outside = []
+
+    def local_only(route):
+        if route.request.url.startswith(server.url):
+            route.continue_()
+        else:
+            outside.append(route.request.url)
+            route.abort()
+
+    page.route("**/*", local_only)
+    page.goto(server.url + "/docs")
+    expect(page.locator(".swagger-ui .info .title")).to_contain_text("ColorGrid play server")
+    expect(page.locator(".opblock-summary-path", has_text="/api/options")).to_be_visible()
+    assert outside == []
     page.close()

@@ -307,3 +307,39 @@ def test_a_replay_branched_on_the_server_shares_its_first_steps_and_verifies(ser
     time.sleep(1.1)  # the catalogue's scan is reused for a second
     assert post_json(server, "/api/replays/broken/branch", {"step": 0, "follower": "copy"})[1] == 422
     assert not (server.replays_dir / "branches" / "broken--branch0-copy.replay.json").exists()
+
+
+def test_the_api_docs_load_only_local_assets_and_the_favicon_is_served(server):
+    import re
+
+    for path in ("/docs", "/redoc"):
+        html, status, kind = server.get(path)
+        assert status == 200 and "html" in kind
+        html = html.decode()
+        urls = re.findall(r"""(?:src|href)\s*=\s*["']([^"']+)["']""", html)
+        assert urls, f"{path} names its assets"
+        assert not re.search(r"https?://|//cdn", html), f"{path} loads nothing from another site (works offline)"
+        for url in urls:
+            assert url.startswith("/"), url
+            assert server.get(url)[1] == 200, url
+        assert "/openapi.json" in html
+    icon, status, kind = server.get("/favicon.ico")
+    assert status == 200 and kind == "image/x-icon" and icon[:4] == b"\x00\x00\x01\x00"
+    assert '<link rel="icon" href="/favicon.ico"' in (ROOT / "web" / "index.html").read_text()
+
+
+def test_options_name_and_describe_each_follower(server):
+    from server.app import follower_info
+
+    options = server.get("/api/options")[0]
+    info = options["follower_info"]
+    assert [f["value"] for f in info] == options["followers"], "one entry per offered follower, in the same order"
+    assert all(f["label"] and f["description"] for f in info)
+    by_name = {f["value"]: f for f in info}
+    assert by_name["ippo"]["label"] == "Trained assistant (IPPO)" and by_name["ippo"]["has_belief"] is True
+    assert by_name["bayes-people"]["has_belief"] is True
+    assert [n for n, f in by_name.items() if not f["has_belief"]] == ["copy", "oracle", "idle", "random"]
+    assert "researchers" in by_name["oracle"]["description"]
+    checkpoint = follower_info("runs/exp1/follower.pt")
+    assert checkpoint["label"] == "follower.pt" and checkpoint["has_belief"] is True
+    assert follower_info("bayes:lapse=0.2")["label"] == "Bayesian assistant (lapse=0.2)"

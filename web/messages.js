@@ -1,0 +1,48 @@
+// What the server says, in words a player understands. The protocol's own text (code: message) stays
+// available to researchers: callers put it in the status line's `title` and the console.
+
+const RELOAD = "The page and the server do not understand each other: reload the page.";
+const NOT_OFFERED = "That choice is not offered any more: reload the page.";
+
+export function stepsMessage(maxHorizon) {
+  return `Steps must be between 1 and ${maxHorizon}.`;
+}
+
+// `msg` is an `error` or `full` message; `maxHorizon` is /api/options' horizon.max.
+export function plainError(msg, maxHorizon) {
+  const text = msg.message ?? "";
+  if (msg.type === "full") {
+    return /shutting down/.test(text) ? "The server is restarting: try again in a minute."
+      : "The server is full: try again in a minute.";
+  }
+  switch (msg.code) {
+    case "invalid_message":
+      if (/^new_game: horizon\b/.test(text)) return stepsMessage(maxHorizon);
+      if (/^new_game: (follower|preset|mode)\b/.test(text)) return NOT_OFFERED;
+      return RELOAD;
+    case "rejected": {
+      const wait = text.match(/too many new games.*try again in (\d+) s/);
+      if (wait) return `You started many games in a short time: wait ${wait[1]} s and start again.`;
+      if (/^no live game/.test(text)) return "This game is over: start a new one.";
+      if (/already has a live game/.test(text)) return "A game is already running in this tab.";
+      if (/^no game with that id/.test(text)) return "Your last game could not be resumed (it ended or waited too long): start a new one.";
+      if (/unknown (follower|preset)|must be one of/.test(text)) return NOT_OFFERED;
+      return "The server could not do that: start a new game or reload the page.";
+    }
+    case "rate_limited": return "Too many keys at once: some were skipped.";
+    case "bad_key": return "Move with the arrow keys or W A S D.";
+    case "internal": return "Something went wrong on the server; the game goes on.";
+    default: return RELOAD;  // bad_json, unknown_type, too_large: the page itself sent something wrong
+  }
+}
+
+// A `game_over` reason as a sentence.
+export function plainEnding(reason) {
+  return {
+    complete: "Game over.",
+    quit: "You ended the game.",
+    idle: "The game ended: no key was pressed for a long while.",
+    disconnected: "The game ended: the connection was lost for too long.",
+    server_shutdown: "The server stopped: your game was saved.",
+  }[reason] ?? `The game ended (${reason}).`;
+}
