@@ -50,6 +50,8 @@ class BranchRequest(BaseModel):
 FOLLOWER_INFO = {
     "ippo": ("Trained assistant (IPPO)", "learned from play beside a scripted leader; reads the goal from your moves",
              True),
+    "ippo-people": ("Trained assistant for people (IPPO)", "trained further beside leaders that slip, turn late "
+                                                             "and make mistakes", True),
     "ippo-leader": ("Trained leader (IPPO)", "the trained leader playing the follower's part: for researchers", True),
     "bayes": ("Bayesian assistant", "works out the goal from your moves and pickups, and collects once it is sure",
               True),

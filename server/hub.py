@@ -12,6 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
+from colorgrid.policies import SCRIPTED
 from colorgrid.presets import env_config
 from colorgrid.config import EnvConfig
 from colorgrid.replay import save
@@ -60,6 +61,9 @@ class GameHub:
         self._tasks: list[asyncio.Task] = []
         self._seed_counter = int(time.time())
         self.stopped = False
+        # pools never freed: the default's, and the trained followers' (building one would stall the inference thread)
+        self.keep_warm = {settings.follower, *(f for f in settings.follower_choices
+                                               if f.partition(":")[0] not in SCRIPTED)}
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -68,14 +72,16 @@ class GameHub:
                        asyncio.create_task(self._warm_up())]
 
     async def _warm_up(self) -> None:
-        """Load the default follower for both modes before the first player waits on it (a trained
-        network's first call pays for loading torch and the weights; games must not)."""
-        for mode in Mode:
-            try:
-                pool = await self.pool_for(self.settings.follower, self.make_config(self.settings.preset, mode, None))
-                await asyncio.get_running_loop().run_in_executor(self.executor, pool.warm_up)
-            except Exception:  # a bad default follower is reported when a game asks for it
-                log.exception("could not warm up follower %s", self.settings.follower)
+        """Load the default follower, and every offered trained one, for both modes before the first player
+        waits on it: a trained network's first call pays for loading torch and the weights, and a pool is
+        built on the inference thread, where games must not wait for it."""
+        for follower in sorted(self.keep_warm, key=lambda f: f != self.settings.follower):  # the default first
+            for mode in Mode:
+                try:
+                    pool = await self.pool_for(follower, self.make_config(self.settings.preset, mode, None))
+                    await asyncio.get_running_loop().run_in_executor(self.executor, pool.warm_up)
+                except Exception:  # a bad follower is reported when a game asks for it
+                    log.exception("could not warm up follower %s", follower)
         gc.freeze()  # what start-up loaded (torch, the networks) is never collected: shorter pauses in games
         self.ready = True
 
@@ -271,7 +277,7 @@ class GameHub:
             elif now - game.last_key_at > self.settings.idle_timeout_s:
                 await self.finish(game, "idle")
         for key, pool in list(self.pools.items()):
-            if key[0] != self.settings.follower and pool.idle_for() > POOL_IDLE_S:
+            if key[0] not in self.keep_warm and pool.idle_for() > POOL_IDLE_S:
                 del self.pools[key]
 
     # ------------------------------------------------------------ ending

@@ -23,9 +23,10 @@ class ServerSettings:
     """Interface to listen on (loopback by default)."""
     port: int = 8000
     """TCP port (0 picks a free one)."""
-    follower: str = "ippo"
-    """Default follower: a scripted name or a checkpoint path; players may pick another allowed one."""
-    followers: tuple[str, ...] = ("ippo", "bayes", "bayes-people", "copy", "oracle", "idle", "random")
+    follower: str = "bayes-people"
+    """Default follower: the best assistant for people on the held-out population (docs/EVALUATION.md); a
+    policy name or a checkpoint path. Players may pick another allowed one."""
+    followers: tuple[str, ...] = ("bayes-people", "ippo-people", "ippo", "bayes", "copy", "oracle", "idle", "random")
     """Followers a player may choose from (the default is always allowed)."""
     preset: str = "default"
     """Default environment preset (see ``colorgrid.presets.PRESETS``)."""

@@ -30,7 +30,7 @@ def test_play_a_short_game_in_the_browser(server, browser):
     page.goto(server.url + "/")
     options = server.get("/api/options")[0]
     expect(page.locator("#follower option")).to_have_count(len(options["followers"]))
-    expect(page.locator("#follower")).to_have_value("ippo")
+    expect(page.locator("#follower")).to_have_value(options["default_follower"])
     # the setup form is the server's: its modes, the horizon's limits, the chosen preset's rewards, the letters
     assert page.locator("#mode option").all_text_contents() == [m["label"] for m in options["modes"]]
     expect(page.locator("#horizon")).to_have_attribute("max", str(options["horizon"]["max"]))
@@ -332,7 +332,7 @@ def test_a_newcomer_reads_how_to_play_and_what_each_follower_does_before_startin
     expect(page.locator("#mode-help")).to_contain_text("countdown")
     info = {f["value"]: f for f in options["follower_info"]}
     assert page.locator("#follower option").all_text_contents() == [f["label"] for f in options["follower_info"]]
-    expect(page.locator("#follower-description")).to_have_text(info["ippo"]["description"])
+    expect(page.locator("#follower-description")).to_have_text(info[options["default_follower"]]["description"])
     page.select_option("#follower", "oracle")
     expect(page.locator("#follower-description")).to_have_text(info["oracle"]["description"])
     expect(page.locator("#follower option[value='oracle']")).to_have_attribute("title", info["oracle"]["description"])

@@ -406,3 +406,22 @@ def test_exact_training_tests_also_hold_on_a_second_cpu_path():
                           timeout=600, cwd=CARDS.parent)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]
     assert re.search(r"\b6 passed", done.stdout) and "failed" not in done.stdout, done.stdout[-2000:]
+
+
+def test_the_people_follower_reproduces_its_card_and_its_held_out_matrix():
+    """The card's rows (beside the training population) and one cell of the held-out matrix it ships."""
+    from colorgrid_apps.evaluate import evaluate
+    from colorgrid_apps.matrix import cell
+
+    follower = str(CARDS / "follower_people.pt")
+    report = evaluate(EnvConfig(), "population:people#training", follower, episodes=100, seed=0)
+    assert_reproduces(report, card_report("follower_people", "population", "checkpoints/follower_people.pt"))
+    matrix = json.loads((CARDS / "follower_people.held_out.json").read_text())
+    leader = matrix["leaders"]["late_8"]
+    metrics, _ = cell(EnvConfig(), leader, "ippo-people", 100, 0)
+    expected = matrix["cells"]["late_8"]["ippo-people"]
+    assert metrics["net_pickups"] == expected["net_pickups"] and metrics["wrong_pickups"] == expected["wrong_pickups"]
+    assert metrics["belief_accuracy"] == expected["belief_accuracy"]
+    net = metrics["net_pickups"]
+    copy = matrix["paired_difference"]["ippo-people"]["late_8"]
+    assert net["mean"] > 0 and copy["mean"] - copy["ci95"] > 0  # better than the copy follower beside this leader

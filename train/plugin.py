@@ -11,8 +11,9 @@ from pathlib import Path
 from train.model_cache import ModelCache
 
 CHECKPOINTS_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
-SHIPPED = {"ippo": "follower.pt", "ippo-leader": "leader.pt"}
-"""Trained agents that ship in ``checkpoints/``, by name: the IPPO follower and leader (see their model cards)."""
+SHIPPED = {"ippo": "follower.pt", "ippo-people": "follower_people.pt", "ippo-leader": "leader.pt"}
+"""Trained agents that ship in ``checkpoints/``, by name: the IPPO follower (trained beside A*), the same follower
+trained further beside a population of person-like leaders, and the IPPO leader (see their model cards)."""
 
 
 def shipped_policy(name: str, role: str | None, cache: ModelCache | None = None):
