@@ -133,13 +133,8 @@ class PersonLeader(Seeker):
 
     def boltzmann(self, wanted, block_color, me, other, beta: float) -> np.ndarray:
         """Moves drawn with probability proportional to exp(-beta * distance to a wanted block after the move)."""
-        B, H, W = block_color.shape
-        has_block = block_color >= 0
-        is_wanted = has_block & np.take_along_axis(wanted, np.maximum(block_color, 0).reshape(B, -1), axis=1
-                                                   ).reshape(B, H, W)
-        other_mask = np.zeros((B, H * W), dtype=bool)
-        other_mask[np.arange(B), other] = True
-        passable = self.allowed[None] & ~other_mask.reshape(B, H, W) & ~(has_block & ~is_wanted)
+        B = block_color.shape[0]
+        is_wanted, _, passable = self.cells(wanted, block_color, other)
         dist = distance_field(is_wanted, passable, start_cell=me).reshape(B, -1)
         nxt, moves = self.mover.neighbours(me, other)
         values = dist[np.arange(B)[:, None], nxt]

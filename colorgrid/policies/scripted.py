@@ -37,6 +37,18 @@ class Seeker(Policy):
         block_color, agent_cell = decode(inp.observation, self.config)
         return block_color, agent_cell[:, self.agent_index], agent_cell[:, self.partner_index]
 
+    def cells(self, wanted: np.ndarray, block_color: np.ndarray, other: np.ndarray):
+        """``[B, H, W]`` masks: blocks of a wanted color, cells this agent may enter (its half, not the other
+        agent's cell), and those of them without an unwanted block."""
+        B, H, W = block_color.shape
+        has_block = block_color >= 0
+        is_wanted = has_block & np.take_along_axis(wanted, np.maximum(block_color, 0).reshape(B, -1), axis=1
+                                                   ).reshape(B, H, W)
+        other_mask = np.zeros((B, H * W), dtype=bool)
+        other_mask[np.arange(B), other] = True
+        open_cells = self.allowed[None] & ~other_mask.reshape(B, H, W)
+        return is_wanted, open_cells, open_cells & ~(has_block & ~is_wanted)
+
     def seek(self, wanted: np.ndarray, block_color: np.ndarray, me: np.ndarray, other: np.ndarray,
              avoid_unwanted: bool = True) -> tuple[np.ndarray, np.ndarray]:
         """Actions toward the nearest block whose color is wanted.
@@ -45,14 +57,8 @@ class Seeker(Policy):
         around them exists; otherwise the path may cross unwanted blocks. Returns
         ``actions [B]`` and ``found [B]`` (a path to a wanted block exists).
         """
-        B, H, W = block_color.shape
-        has_block = block_color >= 0
-        is_wanted = has_block & np.take_along_axis(wanted, np.maximum(block_color, 0).reshape(B, -1), axis=1
-                                                   ).reshape(B, H, W)
-        other_mask = np.zeros((B, H * W), dtype=bool)
-        other_mask[np.arange(B), other] = True
-        open_cells = self.allowed[None] & ~other_mask.reshape(B, H, W)
-        passable = open_cells & ~(has_block & ~is_wanted) if avoid_unwanted else open_cells
+        is_wanted, open_cells, clean = self.cells(wanted, block_color, other)
+        passable = clean if avoid_unwanted else open_cells
         dist = distance_field(is_wanted, passable, start_cell=me)
         actions, found = self.mover.descend(dist, me, other)
         if avoid_unwanted and not found.all():  # no clean path: allow crossing unwanted blocks
