@@ -425,3 +425,18 @@ def test_the_people_follower_reproduces_its_card_and_its_held_out_matrix():
     net = metrics["net_pickups"]
     copy = matrix["paired_difference"]["ippo-people"]["late_8"]
     assert net["mean"] > 0 and copy["mean"] - copy["ci95"] > 0  # better than the copy follower beside this leader
+
+
+def test_resume_with_a_population_partner_continues_exactly(tmp_path):
+    """Population play resumes with each env's drawn member and every member's own state."""
+    changes = dict(leader={"policy": "population:people#held_out"}, total_steps=4 * 64, env={"horizon": 12})
+    straight = Trainer(tiny(**changes), tmp_path / "a", progress=False, tensorboard=False)
+    straight.train()
+    first = Trainer(tiny(**{**changes, "total_steps": 2 * 64}), tmp_path / "b", progress=False, tensorboard=False)
+    first.train()
+    resumed = Trainer(tiny(**changes), tmp_path / "b", progress=False, tensorboard=False)
+    resumed.restore(tmp_path / "b" / "checkpoints" / "latest.pt")
+    resumed.train()
+    assert (straight.partners[0].member == resumed.partners[0].member).all()
+    for key, value in weights(straight.learners[1].model).items():
+        assert torch.equal(value, resumed.learners[1].model.state_dict()[key]), key
