@@ -105,7 +105,7 @@ def rescore(files: list[Path], followers: list[str], seed: int | None = None) ->
     used = []
     for path in files:
         parent = load(path)
-        if parent.kind != "actions":
+        if parent.kind != "actions" or "branch_of" in parent.meta:  # a branch's leader moves are open-loop copies
             continue
         used.append(str(path))
         for follower in followers:

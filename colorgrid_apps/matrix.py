@@ -3,6 +3,10 @@
 Every (leader, follower) pair plays the same episodes (env ``i`` seeded ``seed + i``), so two
 followers beside one leader face the same boards and goal switches: their difference per
 episode is a paired sample, and its 95% interval is much tighter than the two means' own.
+A person-like leader's own random draws (slips, detours) come from one generator per policy,
+drawn for the whole batch each step: they are the same for two followers only while the
+episodes unfold alike, so the pairing is exact for the environment and close, not exact, for
+the leader's randomness (the interval stays valid; it is a little wider than it could be).
 """
 
 from __future__ import annotations

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import hashlib
 import json
 import logging
 import re
@@ -12,7 +13,7 @@ from pathlib import Path
 from urllib.parse import urlsplit
 
 import fastapi_offline
-from fastapi import FastAPI, HTTPException, Query, WebSocket, WebSocketDisconnect
+from fastapi import FastAPI, HTTPException, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import FileResponse, JSONResponse
 from fastapi.staticfiles import StaticFiles
@@ -81,9 +82,16 @@ def follower_info(name: str) -> dict:
 
 
 def file_part(name: str) -> str:
-    """A follower's name as part of a file name (a checkpoint path by its file's stem)."""
-    stem = name.rsplit("/", 1)[-1].removesuffix(".pt")
-    return re.sub(r"[^A-Za-z0-9_.+-]+", "_", stem) or "follower"
+    """A follower's name as part of a file name: readable, and unique (a checkpoint path by its file's stem and
+    a short hash of the whole name, so that two ``latest.pt`` in different runs never share a branch)."""
+    stem = re.sub(r"[^A-Za-z0-9_.+-]+", "_", name.rsplit("/", 1)[-1].removesuffix(".pt")) or "follower"
+    return stem if stem == name else f"{stem}-{hashlib.sha256(name.encode()).hexdigest()[:8]}"
+
+
+BRANCHES_PER_MINUTE = 30
+"""Branches one client address may ask for a minute."""
+MAX_BRANCHES = 2000
+"""Branch files the server keeps in ``recordings/branches/``; past it, new branches are refused (503)."""
 
 
 def create_app(settings: ServerSettings | None = None) -> FastAPI:
@@ -253,9 +261,10 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
         return FileResponse(out, media_type=media, filename=f"{replay_id}.{format}")
 
     branching: dict = {}  # branch file -> the job making it: requests for the same branch share one
+    branch_limits = AddressLimits(BRANCHES_PER_MINUTE / 60.0, burst=BRANCHES_PER_MINUTE)
 
-    @app.post("/api/replays/{replay_id}/branch", responses={400: {}, 404: {}, 422: {}, 503: {}})
-    async def branch_replay(replay_id: str, body: BranchRequest):
+    @app.post("/api/replays/{replay_id}/branch", responses={400: {}, 404: {}, 422: {}, 429: {}, 503: {}})
+    async def branch_replay(replay_id: str, body: BranchRequest, request: Request):
         """The replay continued from ``step`` with another of the server's followers (the leader replays its
         recorded moves), saved under ``branches/`` in the recordings folder and made once: ``{"id": ...}``."""
         entry = await entry_or_404(replay_id)
@@ -264,6 +273,10 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
         if body.follower not in settings.follower_choices:  # names only: a path from the web would read files
             raise HTTPException(400, f"follower must be one of {list(settings.follower_choices)}, "
                                      f"got {body.follower!r}")
+        if replay_id.startswith("branches--"):
+            raise HTTPException(422, "a branch cannot be branched again: branch the original replay")
+        if not branch_limits.bucket(request.client.host if request.client else "?").allow():
+            raise HTTPException(429, f"too many branches from this address: at most {BRANCHES_PER_MINUTE} a minute")
         steps = entry.summary["steps"]
         if not 0 <= body.step <= steps:
             raise HTTPException(422, f"step must be in [0, {steps}] (the replay has {steps} steps), got {body.step}")
@@ -272,6 +285,8 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
         if not ID_PATTERN.match(branch_id):
             raise HTTPException(422, f"replay {replay_id!r} cannot be branched: its branch's id would be too long")
         out = settings.replays_dir / "branches" / f"{name}{SUFFIX}"
+        if not out.exists() and sum(1 for _ in out.parent.glob(f"*{SUFFIX}")) >= MAX_BRANCHES:
+            raise Busy(f"{MAX_BRANCHES} branches already: remove some from {out.parent}", retry_after_s=60)
         if not out.exists():
             running = branching.get(out)
             if running is None:
@@ -377,7 +392,12 @@ class Connection:
         while True:
             message = await self.outbox.get()
             try:
-                await self.ws.send_text(json.dumps(message, allow_nan=False))
+                text = json.dumps(message, allow_nan=False)
+            except ValueError:  # e.g. a follower's belief gone NaN: this message is lost, the socket is not
+                log.exception("could not encode a %s message", message.get("type"))
+                text = json.dumps(error("internal", "the server could not send a message; the game goes on"))
+            try:
+                await self.ws.send_text(text)
             finally:
                 self.outbox.task_done()
 

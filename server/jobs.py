@@ -95,6 +95,8 @@ def branch_file(path: str, out: str, step: int, follower: str, parent_id: str, m
         save(branch(load(path, max_bytes=max_bytes), step, follower, parent_name=parent_id), out)
     except (ReplayError, ValueError) as err:  # a file that does not load or is not an actions replay; a bad step
         return getattr(err, "problem", None) or str(err)
+    except OSError as err:  # a follower's checkpoint gone, a full disk
+        return f"cannot be written or read: {err.strerror or err}"
     return None
 
 

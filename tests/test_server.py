@@ -344,3 +344,16 @@ def test_options_name_and_describe_each_follower(server):
     checkpoint = follower_info("runs/exp1/follower.pt")
     assert checkpoint["label"] == "follower.pt" and checkpoint["has_belief"] is True
     assert follower_info("bayes:lapse=0.2")["label"] == "Bayesian assistant (lapse=0.2)"
+
+
+def test_branches_are_named_apart_and_a_branch_is_not_branched_again(server):
+    from server.app import file_part
+
+    assert file_part("copy") == "copy" and file_part("bayes-people") == "bayes-people"
+    a, b = file_part("runs/a/latest.pt"), file_part("runs/b/latest.pt")
+    assert a != b and a.startswith("latest-") and b.startswith("latest-")
+    first, status = post_json(server, "/api/replays/released--default--astar+bayes_seed2026/branch",
+                              {"step": 5, "follower": "copy"})
+    assert status == 200, first
+    again, status = post_json(server, f"/api/replays/{first['id']}/branch", {"step": 6, "follower": "copy"})
+    assert status == 422 and "cannot be branched again" in again["detail"]

@@ -155,18 +155,23 @@ def read_recordings(folders: list[str | Path], warn: Callable[[str], None]) -> l
     """The leader's view of every usable actions replay under ``folders``; files that do not load are skipped
     with one warning line. Refuses (``ValueError``, one line) when nothing usable is left."""
     files = replay_files(folders)
-    episodes, bad, frames = [], [], 0
+    episodes, bad, frames, branches = [], [], 0, 0
     for path in files:
         try:
             replay = load(path)
             if replay.kind != "actions":
                 frames += 1
                 continue
+            if "branch_of" in replay.meta:  # what-if branches: after the branch step the leader's moves are
+                branches += 1               # open-loop copies, not play
+                continue
             episodes.append(leader_episode(replay, path))
         except ReplayError as err:
             bad.append(err)
     if bad:
         warn(f"warning: skipped {len(bad)} of {len(files)} replay files that do not load (first: {bad[0]})")
+    if branches:
+        warn(f"skipped {branches} what-if branches (meta.branch_of): their leader moves are not play")
     if not episodes:
         if frames:
             raise ValueError(f"none of the {len(files)} replays in {', '.join(map(str, folders))} holds actions "

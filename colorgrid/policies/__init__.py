@@ -69,10 +69,20 @@ def parse_params(kind, text: str, name: str):
     return dataclasses.replace(default, **values) if default is not None else params(**values)
 
 
+_OPENING: list[str] = []  # populations being built, innermost last (one naming itself would never end)
+
+
 def make_population(spec: str, role: str | None = None) -> PopulationPolicy:
     """A ``PopulationPolicy`` of ``FILE[#PART]`` (see ``colorgrid.policies.population``)."""
-    members = load_population(spec)
-    return PopulationPolicy({name: make_policy(member, role) for name, member in members.items()}, spec)
+    file = spec.partition("#")[0]
+    if file in _OPENING:
+        raise ValueError(f"population {file!r} contains itself (through {' -> '.join(_OPENING)})")
+    _OPENING.append(file)
+    try:
+        members = load_population(spec)
+        return PopulationPolicy({name: make_policy(member, role) for name, member in members.items()}, spec)
+    finally:
+        _OPENING.pop()
 
 
 __all__ = ["SCRIPTED", "AgentInput", "AStarLeader", "BayesConfig", "BayesFollower", "CopyFollower", "IdleFollower",

@@ -56,6 +56,13 @@ def transition(belief: np.ndarray, switch_prob: float) -> np.ndarray:
     return (1 - switch_prob) * belief + switch_prob * (1 - belief) / (C - 1)
 
 
+def normalized(post: np.ndarray, prior: np.ndarray, axis) -> np.ndarray:
+    """``post`` scaled to sum to 1 over ``axis``; where evidence ruled out every hypothesis (all zero, e.g. a
+    leader model with no lapse beside a leader that slipped) the ``prior`` is kept instead of dividing by 0."""
+    total = post.sum(axis=axis, keepdims=True)
+    return np.where(total > 0, post / np.where(total > 0, total, 1.0), prior)
+
+
 def goal_transition(joint: np.ndarray, switch_prob: float) -> np.ndarray:
     """[B, C, C] -> [B, C, C]: ``transition`` of the goal (middle axis) of a joint belief over (goal, pursued)."""
     C = joint.shape[1]
@@ -160,12 +167,12 @@ class BayesFollower(Seeker):
             move, reward = self._evidence(inp, rows[go], go, block_color, agent_cell)
             if self.params.notice_rate == 1.0 and self.params.distraction == 0.0:  # the leader pursues the goal
                 post = belief[go] * move * reward
-                post /= post.sum(axis=1, keepdims=True)
+                post = normalized(post, belief[go], axis=1)
                 belief[go] = transition(post, cfg.switch_prob)
                 joint[go] = belief[go][:, :, None] * np.eye(cfg.num_colors)[None]
             else:  # moves show the color pursued, rewards the goal
                 post = joint[go] * reward[:, :, None] * move[:, None, :]
-                post /= post.sum(axis=(1, 2), keepdims=True)
+                post = normalized(post, joint[go], axis=(1, 2))
                 joint[go] = leader_transition(goal_transition(post, cfg.switch_prob), self.params.notice_rate,
                                               self.params.distraction)
                 belief[go] = joint[go].sum(axis=2)
