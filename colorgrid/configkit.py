@@ -220,26 +220,18 @@ def _coerce(cls, path: list[str], value, text: str):
 
 # ----------------------------------------------------------------- presets
 class Presets:
-    """Named bundles of settings: built in (a dict) and/or one JSON file each in ``folder``."""
+    """Named bundles of settings, one JSON file each in ``folder``."""
 
-    def __init__(self, builtin: Mapping[str, dict] | None = None, folder: Path | None = None, what: str = "preset"):
-        self.builtin, self.folder, self.what = dict(builtin or {}), folder, what
+    def __init__(self, folder: Path, what: str = "preset"):
+        self.folder, self.what = folder, what
 
     def names(self) -> list[str]:
-        files = [p.stem for p in self.folder.glob("*.json")] if self.folder else []
-        return sorted({*self.builtin, *files})
-
-    def __contains__(self, name: str) -> bool:
-        return name in self.names()
+        return sorted(p.stem for p in self.folder.glob("*.json"))
 
     def load(self, name: str) -> dict:
-        """A preset's plain data by name, or (with a folder) a JSON file's by path."""
+        """A preset's plain data by name, or a JSON file's by path."""
         from colorgrid.files import JSONFileError, read_json_object
 
-        if name in self.builtin:
-            return dict(self.builtin[name])
-        if self.folder is None:
-            raise ConfigError(f"unknown {self.what} {name!r}; choose one of {self.names()}")
         path = Path(name)
         if not path.suffix:
             path = self.folder / f"{name}.json"

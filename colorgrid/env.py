@@ -82,7 +82,6 @@ class BatchEnv:
         self._block_color = np.arange(cfg.num_blocks) // cfg.blocks_per_color
         self._obs_cells = self._obs.reshape(B, cfg.num_planes, H * W)  # a view, for the compiled step
         self._params = kernel.pack(cfg, self._penalty_coef)
-        self._sees_goal = np.array(cfg.sees_goal, dtype=np.uint8)
         self._needs_reset = np.ones(B, dtype=bool)
         self.state: EnvState | None = None
         self._pending_seed = seed
@@ -239,7 +238,7 @@ class BatchEnv:
             self._needs_reset[envs] = True
 
     def _refresh_goal_info(self, envs: np.ndarray) -> None:
-        kernel.write_goal_infos(self._goal_info, envs, self.state.goal, self._sees_goal)
+        kernel.write_goal_infos(self._goal_info, envs, self.state.goal, self._params[0]["sees_goal"])
 
     def _observations(self) -> dict:
         return {"observation": self._obs, "goal_info": self._goal_info}

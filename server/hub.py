@@ -82,7 +82,7 @@ class GameHub:
                     await asyncio.get_running_loop().run_in_executor(self.executor, pool.warm_up)
                 except Exception:  # a bad follower is reported when a game asks for it
                     log.exception("could not warm up follower %s", follower)
-        gc.freeze()  # what start-up loaded (torch, the networks) is never collected: shorter pauses in games
+        gc.freeze()  # what start-up loaded (torch, the networks) is left out of later collections
         self.ready = True
 
     async def stop(self) -> list[Client]:

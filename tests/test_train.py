@@ -172,9 +172,8 @@ def test_lstm_log_probs_recomputed_at_update_match_the_rollout(fusion):
 
 
 # --------------------------------------------------------------------- runs
-def test_resume_continues_exactly_like_an_uninterrupted_run(tmp_path):
-    changes = dict(leader={"policy": "astar"}, follower={"net": {"lstm": True, "extra_inputs": True}},
-                   schedule={"penalty_start": 0, "penalty_end": 200}, total_steps=4 * 64)
+def straight_and_resumed(tmp_path, changes: dict) -> tuple[Trainer, Trainer]:
+    """A run of 4 iterations in ``tmp_path/a``, and one stopped after 2 and resumed in ``tmp_path/b``."""
     straight = Trainer(tiny(**changes), tmp_path / "a", progress=False, tensorboard=False)
     straight.train()
     first = Trainer(tiny(**{**changes, "total_steps": 2 * 64}), tmp_path / "b", progress=False, tensorboard=False)
@@ -183,6 +182,13 @@ def test_resume_continues_exactly_like_an_uninterrupted_run(tmp_path):
     resumed.restore(tmp_path / "b" / "checkpoints" / "latest.pt")
     assert resumed.step == 128
     resumed.train()
+    return straight, resumed
+
+
+def test_resume_continues_exactly_like_an_uninterrupted_run(tmp_path):
+    changes = dict(leader={"policy": "astar"}, follower={"net": {"lstm": True, "extra_inputs": True}},
+                   schedule={"penalty_start": 0, "penalty_end": 200}, total_steps=4 * 64)
+    straight, resumed = straight_and_resumed(tmp_path, changes)
     for key, value in weights(straight.learners[1].model).items():
         assert torch.equal(value, resumed.learners[1].model.state_dict()[key]), key
     rows = lambda d: [json.loads(x) for x in (d / "metrics.jsonl").read_text().splitlines()]  # noqa: E731
@@ -430,13 +436,7 @@ def test_the_people_follower_reproduces_its_card_and_its_held_out_matrix():
 def test_resume_with_a_population_partner_continues_exactly(tmp_path):
     """Population play resumes with each env's drawn member and every member's own state."""
     changes = dict(leader={"policy": "population:people#held_out"}, total_steps=4 * 64, env={"horizon": 12})
-    straight = Trainer(tiny(**changes), tmp_path / "a", progress=False, tensorboard=False)
-    straight.train()
-    first = Trainer(tiny(**{**changes, "total_steps": 2 * 64}), tmp_path / "b", progress=False, tensorboard=False)
-    first.train()
-    resumed = Trainer(tiny(**changes), tmp_path / "b", progress=False, tensorboard=False)
-    resumed.restore(tmp_path / "b" / "checkpoints" / "latest.pt")
-    resumed.train()
+    straight, resumed = straight_and_resumed(tmp_path, changes)
     assert (straight.partners[0].member == resumed.partners[0].member).all()
     for key, value in weights(straight.learners[1].model).items():
         assert torch.equal(value, resumed.learners[1].model.state_dict()[key]), key
