@@ -8,6 +8,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
@@ -273,6 +274,8 @@ def test_config_errors_name_the_field_and_what_is_allowed():
         ({"env": {"height": 2}}, "height"),
         ({"follower": {"net": {"goal_fusion": "planes", "belief_input": True}}}, "set net.lstm=true and"),
         ({"follower": {"train_reward": "team"}}, "'env' (the env's reward) or 'own'"),
+        ({"follower": {"wrong_weight": 2.0}}, "1.0 unless train_reward='own'"),
+        ({"follower": {"train_reward": "own", "wrong_weight": -1}}, "follower.wrong_weight=-1 is invalid"),
     ]
     for change, message in cases:
         with pytest.raises(ValueError) as err:
@@ -281,6 +284,17 @@ def test_config_errors_name_the_field_and_what_is_allowed():
     with pytest.raises(TrainConfigError, match="expected KEY=VALUE"):
         parse_override("ppo.lr")
     assert parse_override("follower.net.lstm=true") == {"follower": {"net": {"lstm": True}}}
+
+
+def test_a_caution_weight_scales_only_the_learners_own_wrong_blocks(tmp_path):
+    trainer = Trainer(tiny(leader={"policy": "astar"}, follower={"train_reward": "own", "wrong_weight": 3.0}),
+                      tmp_path / "run", progress=False, tensorboard=False)
+    team = np.array([[2.0, 2.0], [-1.0, -1.0], [0.0, 0.0]], dtype=np.float32)  # shared: both get the sum
+    own = np.array([[1.0, 1.0], [0.0, -1.0], [1.0, -1.0]], dtype=np.float32)
+    infos = {"block_reward": own, "distance_shaping": np.zeros_like(own), "potential_shaping": np.zeros_like(own)}
+    out = trainer._training_rewards(team, infos, shaping=False)
+    np.testing.assert_array_equal(out[:, 1], [1.0, -3.0, -3.0])  # the follower: own goals +1, own wrongs x3
+    np.testing.assert_array_equal(out[:, 0], team[:, 0])  # the scripted leader's column is untouched
 
 
 def test_checkpoint_errors_are_clear(tmp_path):

@@ -90,6 +90,10 @@ class AgentConfig:
     """What this agent learns from: ``env`` (the env's reward for it: the team reward in ``shared`` mode) or
     ``own`` (its own block reward, plus shaping). ``own`` gives a cleaner credit signal while the env, and so
     the agent's inputs and all metrics, stay in the configured reward mode."""
+    wrong_weight: float = 1.0
+    """With ``train_reward='own'``: each wrong block this agent collects costs it ``wrong_weight`` times the
+    env's penalty in its learning signal (a caution weight: above 1 it collects a block only when surer of
+    the goal). The env's rewards, the agent's inputs and every metric are unchanged."""
 
     @property
     def learns(self) -> bool:
@@ -109,6 +113,9 @@ class AgentConfig:
             fail(self, "init", "warm-starting only applies to policy='learn'")
         check_number(self, "aux_coef", "a number in [0, 100]", _between(0.0, 100.0))
         check_choice(self, "train_reward", ("env", "own"), "'env' (the env's reward) or 'own' (own block reward)")
+        check_number(self, "wrong_weight", "a number in [0, 100]", _between(0.0, 100.0))
+        if self.wrong_weight != 1.0 and self.train_reward != "own":
+            fail(self, "wrong_weight", "1.0 unless train_reward='own' (it weighs the agent's own wrong blocks)")
         check_number(self, "lr", "a number in (0, 1), or null to use ppo.lr", _between(0.0, 1.0, True, True),
                      optional=True)
 

@@ -247,7 +247,8 @@ class Trainer:
         out = rewards - shaped
         for i, agent in enumerate(self.config.agents):
             if agent.train_reward == "own":
-                out[:, i] = infos["block_reward"][:, i]
+                own = infos["block_reward"][:, i]
+                out[:, i] = np.where(own < 0, agent.wrong_weight * own, own)
         return out + shaped if shaping else out
 
     def _inputs(self, i: int, true_goal: np.ndarray | None = None):
