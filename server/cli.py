@@ -12,7 +12,7 @@ FLAGS = {
     "show_belief": Flag(name="--hide-belief", invert=True, help="never show players the follower's belief"),
     "allowed_hosts": Flag(name="--allowed-host", extend_default=True),
     "allowed_origins": Flag(name="--allowed-origin", extend_default=True),
-    "follower": Flag(help="default follower: ippo (the shipped trained one), a scripted name or a checkpoint .pt"),
+    "follower": Flag(help="default follower: bayes-people (the people-robust Bayesian one), any follower name, a named spec or a checkpoint .pt"),
 }
 """Where a flag differs from the one generated from its ``ServerSettings`` field."""
 
