@@ -26,7 +26,7 @@ from colorgrid.render import look
 from server.hub import GameHub, ServerFull
 from server.jobs import Busy, ReplayJobs, branch_file, summaries
 from server.limits import AddressLimits, FloodRule, TokenBucket
-from server.protocol import (CLIENT_TYPES, KEY_ACTIONS, MAX_HORIZON, Key, Mode, NewGame, Ping, Quit, Rejoin,
+from server.protocol import (CLIENT_TYPES, KEY_ACTIONS, MAX_HORIZON, Key, Mode, NewGame, PageEvent, Ping, Quit, Rejoin,
                              client_message, error)
 from server.replays import ID_PATTERN, SUFFIX, ReplayCatalogue
 from server.settings import REPO_ROOT, ServerSettings
@@ -94,13 +94,18 @@ MAX_BRANCHES = 2000
 """Branch files the server keeps in ``recordings/branches/``; past it, new branches are refused (503)."""
 
 
-def create_app(settings: ServerSettings | None = None) -> FastAPI:
+def create_app(settings: ServerSettings | None = None, study=None) -> FastAPI:
+    """The play server; with ``study`` (a ``server.study.run.StudySetup``) it serves that study instead of free play."""
     settings = settings or ServerSettings()
     hub = GameHub(settings)
     catalogue = ReplayCatalogue(settings.replays_dir, settings.released_dir)
     jobs = ReplayJobs(settings.max_exports, int(settings.export_cache_mb * 1e6))
     max_bytes = int(settings.max_replay_mb * 1e6)
     sockets = SocketRegistry(settings)
+
+    service = study.service() if study is not None else None
+    if service is not None:
+        hub.listeners.append(service)
 
     @asynccontextmanager
     async def lifespan(app: FastAPI):
@@ -112,11 +117,18 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
             warm.cancel()
             await shutdown(app)
             jobs.close()
+            if service is not None:
+                service.store.close()
 
     # The documentation pages are served with local assets (FastAPI's defaults load them from a CDN).
     app = FastAPI(title="ColorGrid play server", version=__version__, lifespan=lifespan,
                   docs_url=None, redoc_url=None)
     app.state.hub, app.state.settings, app.state.sockets = hub, settings, sockets
+    if service is not None:
+        from server.study.routes import mount_study
+
+        mount_study(app, service, study.admin_token, WEB_DIR, jobs, study.study_file, settings.replays_dir,
+                    lambda: sum(g.study is not None for g in hub.games.values()))
     # Requests naming another host are refused (a page on another site cannot reach us by DNS rebinding).
     app.add_middleware(TrustedHostMiddleware, allowed_hosts=settings.hosts, www_redirect=False)
 
@@ -312,7 +324,7 @@ def create_app(settings: ServerSettings | None = None) -> FastAPI:
             await ws.close(refusal[0], refusal[1])
             return
         await ws.accept()
-        conn = Connection(ws, settings, sockets.new_games.bucket(ws.client.host if ws.client else "?"))
+        conn = Connection(ws, settings, sockets.new_games.bucket(ws.client.host if ws.client else "?"), service)
         sockets.open.add(conn)
         writer = asyncio.create_task(conn.writer())
         try:
@@ -367,8 +379,8 @@ class SocketRegistry:
 class Connection:
     """One browser tab's WebSocket: validation, rate limits, and an outgoing queue per socket."""
 
-    def __init__(self, ws: WebSocket, settings: ServerSettings, new_games: TokenBucket):
-        self.ws, self.settings, self.new_games = ws, settings, new_games
+    def __init__(self, ws: WebSocket, settings: ServerSettings, new_games: TokenBucket, study=None):
+        self.ws, self.settings, self.new_games, self.study = ws, settings, new_games, study
         self.game = None
         self.closed = False
         self.outbox: asyncio.Queue = asyncio.Queue(maxsize=256)
@@ -491,7 +503,7 @@ class Connection:
                     raise ValueError(f"too many new games from this address: at most "
                                      f"{self.settings.new_games_per_minute:g} a minute; try again in "
                                      f"{self.new_games.retry_after():.0f} s")
-                self.game = await hub.new_game(msg.follower, msg.preset, msg.mode, msg.horizon, msg.show_belief, self)
+                self.game = await self.new_game(hub, msg)
             else:
                 self.game = await hub.rejoin(msg.game_id, msg.token, self)
         elif self.game is None or not hub.controls(self.game, self):
@@ -500,5 +512,27 @@ class Connection:
             problem = await hub.key(self.game, msg.key, msg.seq, msg.t_client)
             if problem:
                 await self.send(error("bad_key", problem))
+        elif isinstance(msg, PageEvent):
+            self.game.page_event(msg.event, msg.visible, msg.t_client)
         elif isinstance(msg, Quit):
+            if self.game.study is not None:
+                raise ValueError("a study's game cannot be ended early")
             await hub.finish(self.game, "quit")
+
+    async def new_game(self, hub: GameHub, msg: NewGame):
+        client_info = {"user_agent": self.ws.headers.get("user-agent", "")[:500],
+                       "viewport": list(msg.viewport) if msg.viewport else None}
+        if self.study is None:
+            if msg.study is not None:
+                raise ValueError("this server runs no study")
+            return await hub.new_game(msg.follower, msg.preset, msg.mode, msg.horizon, msg.show_belief, self,
+                                      client_info=client_info)
+        if msg.study is None:
+            raise ValueError("this server runs a study: games start from the study page")
+        try:
+            game, meta = await asyncio.get_running_loop().run_in_executor(
+                None, self.study.game_for, msg.study.participant, msg.study.session)
+        except (StudyRefused, StudyInvalid) as err:
+            raise ValueError(str(err)) from None
+        return await hub.new_game(game.follower, game.preset, Mode(game.mode), game.horizon, game.show_belief, self,
+                                  tick_hz=game.tick_hz, study=meta, client_info=client_info)

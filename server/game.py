@@ -20,6 +20,10 @@ from server.protocol import KEY_ACTIONS, Mode
 STAY = ACTION_NAMES.index("stay")
 
 
+MAX_PAGE_EVENTS = 1000
+"""Focus and visibility changes recorded per game; later ones are counted in ``meta.page_events_dropped``."""
+
+
 def now_ms() -> float:
     return time.time() * 1000.0
 
@@ -40,6 +44,9 @@ class Game:
     created: float = field(default_factory=time.time)
     pool: object = field(default=None, repr=False)  # the FollowerPool serving this game
     max_key_log: int = 20_000  # key presses recorded; later ones still move the leader and are counted
+    tick_hz: float = 5.0  # real time: steps a second
+    study: dict | None = None  # a study's game: participant, condition, trial index... (recorded in the replay)
+    client: dict = field(default_factory=dict)  # the page's user agent and viewport
 
     def __post_init__(self) -> None:
         self.mode = Mode(self.mode)
@@ -64,6 +71,8 @@ class Game:
         self.finished = False
         self.replay_id: str | None = None
         self.last_events: list[dict] = []
+        self.page_events: list[dict] = []  # the page's focus and visibility changes
+        self.page_events_dropped = 0
 
     # ------------------------------------------------------------ keys
     def press(self, key: str, seq: int, t_client: float) -> str | None:
@@ -86,6 +95,14 @@ class Game:
         self._log(entry)
         self.last_key_at = time.monotonic()
         return None
+
+    def page_event(self, event: str, visible: bool | None, t_client: float) -> None:
+        """Record that the page lost or got focus, was hidden or shown (capped like the key log)."""
+        if len(self.page_events) < MAX_PAGE_EVENTS:
+            self.page_events.append({"event": event, "visible": visible, "t_client": t_client,
+                                     "t_server": now_ms(), "step": int(self.env.state.t[0])})
+        else:
+            self.page_events_dropped += 1
 
     def _log(self, entry: dict) -> None:
         if len(self.key_log) < self.max_key_log:
@@ -141,12 +158,12 @@ class Game:
             self.finished = True
 
     # ------------------------------------------------------------ views
-    def welcome(self, tick_hz: float) -> dict:
+    def welcome(self) -> dict:
         cfg = self.config
         return {
             "type": "welcome", "game_id": self.game_id, "token": self.token, "mode": self.mode.value,
             "follower": self.follower, "preset": self.preset,
-            "tick_hz": tick_hz if self.mode == Mode.REALTIME else None,
+            "tick_hz": self.tick_hz if self.mode == Mode.REALTIME else None,
             "height": cfg.height, "width": cfg.width, "colors": list(cfg.color_names), "horizon": cfg.horizon,
             "show_belief": self.show_belief, "keys": sorted(KEY_ACTIONS), "look": look(cfg),
         }
@@ -180,5 +197,9 @@ class Game:
             state_hashes=self.hashes, ended=ended, key_events=self.key_log,
             meta={"game_id": self.game_id, "mode": self.mode.value, "preset": self.preset,
                   "deadline_misses": self.deadline_misses, "state_sent_ms": self.state_sent_ms,
-                  "key_events_dropped": self.keys_dropped},
+                  "key_events_dropped": self.keys_dropped, "show_belief": self.show_belief,
+                  "tick_hz": self.tick_hz if self.mode == Mode.REALTIME else None,
+                  "client": self.client, "page_events": self.page_events,
+                  "page_events_dropped": self.page_events_dropped,
+                  **({"study": self.study} if self.study else {})},
         )

@@ -59,6 +59,8 @@ class GameHub:
                       "save_failures": 0}
         self.lateness_ms: list[float] = []
         self._tasks: list[asyncio.Task] = []
+        self._clocks: dict[float, asyncio.Task] = {}
+        self.listeners: list = []  # told game_started(game) and game_over(game, reason, scores): a study's records
         self._seed_counter = int(time.time())
         self.stopped = False
         # pools never freed: the default's, and the trained followers' (building one would stall the inference thread)
@@ -68,8 +70,8 @@ class GameHub:
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         Path(self.settings.replays_dir).mkdir(parents=True, exist_ok=True)
-        self._tasks = [asyncio.create_task(self._tick_loop()), asyncio.create_task(self._sweep_loop()),
-                       asyncio.create_task(self._warm_up())]
+        self._tasks = [asyncio.create_task(self._sweep_loop()), asyncio.create_task(self._warm_up())]
+        self.clock(self.settings.tick_hz)
 
     async def _warm_up(self) -> None:
         """Load the default follower, and every offered trained one, for both modes before the first player
@@ -134,8 +136,17 @@ class GameHub:
         self.pools.setdefault(key, pool)
         return self.pools[key]
 
+    def clock(self, tick_hz: float) -> None:
+        """Make sure real-time games at ``tick_hz`` have a clock (one per rate in use; studies may vary it)."""
+        if tick_hz not in self._clocks:
+            self._clocks[tick_hz] = asyncio.create_task(self._tick_loop(tick_hz))
+            self._tasks.append(self._clocks[tick_hz])
+
     async def new_game(self, follower: str | None, preset: str | None, mode: Mode, horizon: int | None,
-                       show_belief: bool, client: Client) -> Game:
+                       show_belief: bool, client: Client, tick_hz: float | None = None, study: dict | None = None,
+                       client_info: dict | None = None) -> Game:
+        """Start a game for ``client``. ``tick_hz`` (default: the server's) sets a real-time game's clock;
+        ``study`` is what a study's game records about itself (its replay's ``meta.study``)."""
         follower = follower or self.settings.follower
         if follower not in self.settings.follower_choices:
             raise ValueError(f"unknown follower {follower!r}; choose one of {list(self.settings.follower_choices)}")
@@ -149,17 +160,26 @@ class GameHub:
         self.reserved += 1
         try:
             pool = await self.pool_for(follower, config)
+            if self.stopped:
+                raise ServerFull("the server is shutting down; try again in a minute")
+            self._seed_counter += 1
+            game = Game(config=config, mode=mode, follower=follower, preset=preset, seed=self._seed_counter,
+                        show_belief=show_belief and self.settings.show_belief, slot=pool.acquire(), pool=pool,
+                        max_key_log=self.settings.max_key_log, tick_hz=tick_hz or self.settings.tick_hz,
+                        study=study, client=client_info or {})
+            try:
+                for listener in self.listeners:  # recorded before the player sees the game
+                    await asyncio.get_running_loop().run_in_executor(self.saver, listener.game_started, game)
+            except BaseException:
+                pool.release(game.slot)
+                raise
+            self.games[game.game_id] = game  # counted here before the reservation ends: no gap
         finally:
             self.reserved -= 1
-        if self.stopped:
-            raise ServerFull("the server is shutting down; try again in a minute")
-        self._seed_counter += 1
-        game = Game(config=config, mode=mode, follower=follower, preset=preset, seed=self._seed_counter,
-                    show_belief=show_belief and self.settings.show_belief, slot=pool.acquire(), pool=pool,
-                    max_key_log=self.settings.max_key_log)
-        self.games[game.game_id] = game
+        if game.mode == Mode.REALTIME:
+            self.clock(game.tick_hz)
         self.clients[game.game_id] = client
-        await client.send(game.welcome(self.settings.tick_hz))
+        await client.send(game.welcome())
         await client.send(game.state_message())
         return game
 
@@ -176,7 +196,7 @@ class GameHub:
         game.disconnected_at = None
         game.last_key_at = time.monotonic()
         self.clients[game_id] = client
-        await client.send(game.welcome(self.settings.tick_hz))
+        await client.send(game.welcome())
         await client.send(game.state_message())
         return game
 
@@ -232,13 +252,14 @@ class GameHub:
         log.warning("follower %s missed its %.0f ms deadline for %d game(s)", pool.name, deadline * 1000, len(slots))
         return pool.fallback(inputs, slots), None, True
 
-    async def _tick_loop(self) -> None:
-        period = 1.0 / self.settings.tick_hz
+    async def _tick_loop(self, tick_hz: float) -> None:
+        period = 1.0 / tick_hz
         next_tick = time.perf_counter() + period
         while True:
             await asyncio.sleep(max(0.0, next_tick - time.perf_counter()))
             lateness = (time.perf_counter() - next_tick) * 1000.0
-            live = [g for g in self.games.values() if g.mode == Mode.REALTIME and g.disconnected_at is None]
+            live = [g for g in self.games.values()
+                    if g.mode == Mode.REALTIME and g.tick_hz == tick_hz and g.disconnected_at is None]
             if live:  # lateness matters to games: ticks with none to step are not counted
                 self._record_lateness(lateness)
             if live and lateness > 50:
@@ -294,6 +315,12 @@ class GameHub:
             except Exception:
                 self.stats["save_failures"] += 1
                 log.exception("could not save game %s (%s)", game.game_id, reason)
+        for listener in self.listeners:
+            try:
+                await asyncio.get_running_loop().run_in_executor(self.saver, listener.game_over, game, reason,
+                                                                 scores(game.env.state))
+            except Exception:
+                log.exception("a listener failed on the end of game %s", game.game_id)
         client = self.clients.pop(game.game_id, None)
         if client is not None:
             s = game.env.state

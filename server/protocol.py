@@ -37,6 +37,13 @@ class _Message(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
+class StudyRef(_Message):
+    """Who plays a study's game: the server picks its settings from the participant's current page."""
+
+    participant: str = Field(max_length=64)
+    session: str = Field(max_length=128)
+
+
 class NewGame(_Message):
     """Start a game (the server answers ``welcome`` then ``state``)."""
 
@@ -46,6 +53,9 @@ class NewGame(_Message):
     mode: Mode = Mode.TURN
     horizon: int | None = Field(default=None, ge=1, le=MAX_HORIZON)
     show_belief: bool = True
+    study: StudyRef | None = None
+    viewport: tuple[Annotated[int, Field(ge=0, le=100_000)], Annotated[int, Field(ge=0, le=100_000)]] | None = None
+    """The page's inner width and height in CSS pixels (recorded in the replay)."""
 
 
 class Rejoin(_Message):
@@ -65,6 +75,15 @@ class Key(_Message):
     t_client: float = Field(default=0.0, ge=-1e15, le=1e15)
 
 
+class PageEvent(_Message):
+    """The page lost or got focus, or was hidden or shown (recorded in the game's replay)."""
+
+    type: Literal["page_event"]
+    event: Literal["blur", "focus", "visibilitychange"]
+    visible: bool | None = None
+    t_client: float = Field(default=0.0, ge=-1e15, le=1e15)
+
+
 class Ping(_Message):
     type: Literal["ping"]
 
@@ -75,8 +94,8 @@ class Quit(_Message):
     type: Literal["quit"]
 
 
-ClientMessage = Annotated[Union[NewGame, Rejoin, Key, Ping, Quit], Field(discriminator="type")]
-CLIENT_TYPES = ("new_game", "rejoin", "key", "ping", "quit")
+ClientMessage = Annotated[Union[NewGame, Rejoin, Key, PageEvent, Ping, Quit], Field(discriminator="type")]
+CLIENT_TYPES = ("new_game", "rejoin", "key", "page_event", "ping", "quit")
 client_message = TypeAdapter(ClientMessage)
 
 

@@ -71,9 +71,9 @@ class PlayServer(uvicorn.Server):
         await super().shutdown(sockets)
 
 
-def serve(settings: ServerSettings, log_level: str = "info") -> None:
-    """Run the play server until interrupted."""
-    app = create_app(settings)
+def serve(settings: ServerSettings, log_level: str = "info", study=None) -> None:
+    """Run the play server until interrupted (serving ``study``, a ``StudySetup``, when given)."""
+    app = create_app(settings, study)
     protocol = type("Protocol", (HeaderTimeoutProtocol,), {"header_timeout_s": settings.header_timeout_s})
     config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=log_level, ws_max_size=65536,
                             http=protocol, timeout_graceful_shutdown=10)

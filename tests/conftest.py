@@ -34,15 +34,15 @@ class RunningServer:
             return (json.loads(body) if "json" in kind else body), response.status, kind
 
 
-def start_server(tmp: Path, *flags: str) -> RunningServer:
+def start_server(tmp: Path, *flags: str, command: tuple[str, ...] = ("play",), env: dict | None = None) -> RunningServer:
     port = free_port()
     replays_dir = tmp / "recordings"
     log_path = tmp / "server.log"
     log = open(log_path, "w")
     process = subprocess.Popen(
-        [sys.executable, "-m", "colorgrid_apps", "play", "--port", str(port), "--replays-dir", str(replays_dir),
+        [sys.executable, "-m", "colorgrid_apps", *command, "--port", str(port), "--replays-dir", str(replays_dir),
          "--log-level", "warning", *flags],
-        cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+        cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
     )
     server = RunningServer(port, replays_dir, process, log_path)
     deadline = time.monotonic() + 180  # a fresh checkout compiles the env step and loads torch first

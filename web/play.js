@@ -169,7 +169,8 @@ $("start").addEventListener("click", async () => {
     return;
   }
   const request = { type: "new_game", follower: $("follower").value, preset: $("preset").value, mode: $("mode").value,
-                    horizon: $("horizon").value ? Number($("horizon").value) : null, show_belief: true };
+                    horizon: $("horizon").value ? Number($("horizon").value) : null, show_belief: true,
+                    viewport: [window.innerWidth, window.innerHeight] };
   seq = 0;
   game = null;
   status("");

@@ -1,0 +1,99 @@
+"""``colorgrid study run STUDY_FILE`` and ``colorgrid study export STUDY_FILE --out DIR``."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import logging
+import os
+import secrets
+from dataclasses import dataclass
+from pathlib import Path
+
+from colorgrid.configkit import add_arguments, from_args
+from server.cli import FLAGS, check_follower, check_writable
+from server.settings import ServerSettings
+from server.study.config import Study, load_study
+
+ADMIN_TOKEN_ENV = "COLORGRID_ADMIN_TOKEN"
+"""Set it to fix the admin token (a deployment); otherwise a new one is printed at every start."""
+
+
+@dataclass(frozen=True)
+class StudySetup:
+    """What the play server needs to serve a study."""
+
+    study: Study
+    study_file: Path
+    db_path: Path
+    admin_token: str
+
+    def service(self):
+        from server.study.service import StudyService, study_hash
+        from server.study.store import StudyStore
+
+        store = StudyStore(self.db_path, self.study.id, study_hash(self.study))
+        if store.changed_study:
+            logging.getLogger("colorgrid.server").warning(
+                "%s was made with another version of %s: participants who started keep their assignment, but "
+                "changed pages or conditions apply to everyone from now on", self.db_path, self.study_file)
+        return StudyService(self.study, store)
+
+
+def study_folder(study: Study, replays_dir: Path | None) -> Path:
+    """Where a study's replays and database live: ``recordings/<study id>`` unless given."""
+    return replays_dir if replays_dir is not None else ServerSettings().replays_dir / study.id
+
+
+def add_study_commands(sub) -> None:
+    study = sub.add_parser("study", help="run a human study from a study file, and export its data")
+    commands = study.add_subparsers(dest="study_command", required=True)
+    run = commands.add_parser("run", help="serve the study: participants open /study?PROLIFIC_PID=..., the admin /study/admin")
+    run.add_argument("study_file", type=Path, help="the study file (TOML; see studies/ and docs/STUDIES.md)")
+    run.add_argument("--db", type=Path, help="the study's SQLite database (default: study.sqlite in the replays folder)")
+    add_arguments(run, ServerSettings, FLAGS, skip=("replays_dir",))
+    run.add_argument("--replays-dir", type=Path, help="where the games are recorded (default: recordings/STUDY_ID)")
+    run.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
+    run.set_defaults(func=cmd_run)
+    export = commands.add_parser("export", help="write the study's tables (Parquet and CSV) for analysis")
+    export.add_argument("study_file", type=Path, help="the study file the study ran with")
+    export.add_argument("--out", type=Path, required=True, help="the folder to write the tables to")
+    export.add_argument("--replays-dir", type=Path, help="the study's replays folder (default: recordings/STUDY_ID)")
+    export.add_argument("--db", type=Path, help="the study's database (default: study.sqlite in the replays folder)")
+    export.set_defaults(func=cmd_export)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from server.run import serve
+
+    study = load_study(args.study_file)
+    folder = study_folder(study, args.replays_dir)
+    settings = from_args(ServerSettings, args, FLAGS, skip=("replays_dir",), replays_dir=folder)
+    followers = tuple(dict.fromkeys((*settings.followers, *sorted(study.followers))))
+    settings = dataclasses.replace(settings, followers=followers)
+    check_writable(folder, "--replays-dir")
+    for follower in sorted(study.followers):
+        check_follower(follower)
+    token = os.environ.get(ADMIN_TOKEN_ENV) or secrets.token_urlsafe(18)
+    setup = StudySetup(study, args.study_file.resolve(), args.db or folder / "study.sqlite", token)
+    base = f"http://{settings.host}:{settings.port}"
+    print(f"ColorGrid study {study.id!r}: {len(study.conditions)} conditions, {study.design.assignment} subjects; "
+          f"data in {setup.db_path} and {folder}", flush=True)
+    print(f"  participants: {base}/study?{study.id_params[0]}=PARTICIPANT_ID", flush=True)
+    print(f"  admin:        {base}/study/admin   token: {token}  (never put it in a participant's link)", flush=True)
+    serve(settings, log_level=args.log_level, study=setup)
+    return 0
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from server.study.export import write_tables
+
+    study = load_study(args.study_file)
+    folder = study_folder(study, args.replays_dir)
+    db = args.db or folder / "study.sqlite"
+    if not db.is_file():
+        raise ValueError(f"{db}: no study database (run the study first, or pass --db / --replays-dir)")
+    counts = write_tables(study, db, folder, args.out)
+    print(f"wrote {', '.join(f'{name} ({n} rows)' for name, n in counts.items())} to {args.out} "
+          "as .parquet and .csv", flush=True)
+    return 0

@@ -1,0 +1,345 @@
+"""The study file: what a researcher writes to run a human study (TOML, checked on load).
+
+A study is a list of pages shown in order (consent, instructions, a practice game, the trials,
+questionnaires, a debrief), a set of conditions (the product of its factors' levels over the
+trial defaults) and an assignment of conditions to participants. ``load_study`` reads a file and
+raises ``StudyError`` with the field's place in the file and what is allowed
+(``pages[3].questions[0].scale=1 is invalid: a whole number in 2..11``). See docs/STUDIES.md.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import re
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from colorgrid.configkit import ConfigError, check_bool, check_choice, check_int, check_number, check_strings, fail
+from colorgrid.configkit import from_dict
+from colorgrid.presets import PRESETS
+from server.protocol import MAX_HORIZON
+
+PAGE_KINDS = ("consent", "instructions", "practice", "trials", "questionnaire", "debrief")
+QUESTION_KINDS = ("likert", "choice", "text")
+FACTORS = ("follower", "show_belief", "mode", "preset", "horizon", "tick_hz")
+"""What a condition may vary: the fields of ``GameSettings``."""
+ID_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
+ID_ALLOWED = "1 to 64 letters, digits, '_', '.' or '-'"
+
+
+class StudyError(ConfigError):
+    """The study file is wrong; the message names the place in the file and what is allowed."""
+
+
+@dataclass(frozen=True)
+class GameSettings:
+    """One game of the study: a trial's condition, or the practice game."""
+
+    follower: str = "bayes-people"
+    """The AI follower: any name ``colorgrid play --follower`` takes (``ippo-people``, ``copy``, a ``.pt``)."""
+    show_belief: bool = True
+    """Whether the participant sees what the follower believes the goal is."""
+    mode: str = "realtime"
+    """``realtime`` (the world moves ``tick_hz`` steps a second; a 3-2-1 countdown first) or ``turn``."""
+    preset: str = "default"
+    """The environment preset (``colorgrid presets``)."""
+    horizon: int = 100
+    """Steps in the game."""
+    tick_hz: float = 5.0
+    """Steps a second in real time."""
+
+    def __post_init__(self):
+        if not isinstance(self.follower, str) or not self.follower:
+            fail(self, "follower", "a follower name (e.g. 'bayes-people', 'ippo-people', 'copy')")
+        check_bool(self, "show_belief")
+        check_choice(self, "mode", ("realtime", "turn"), "'realtime' or 'turn'")
+        check_choice(self, "preset", PRESETS, f"one of {sorted(PRESETS)}")
+        check_int(self, "horizon", 1, MAX_HORIZON, allowed=f"a whole number in 1..{MAX_HORIZON}")
+        check_number(self, "tick_hz", "a number in [0.5, 60]", lambda v: 0.5 <= v <= 60)
+
+    def label(self) -> str:
+        return ", ".join(f"{k}={v}" for k, v in dataclasses.asdict(self).items())
+
+
+@dataclass(frozen=True)
+class Question:
+    """One question of a questionnaire."""
+
+    id: str
+    """Its name in the exported ``answers`` table (unique within its questionnaire)."""
+    kind: str
+    """``likert`` (a scale of ``scale`` points), ``choice`` (one of ``options``) or ``text`` (free text)."""
+    prompt: str
+    """The question as the participant reads it."""
+    required: bool = True
+    """Whether the page can be left without an answer."""
+    scale: int = 7
+    """``likert``: the number of points (answers are 1..scale)."""
+    labels: tuple[str, ...] = ()
+    """``likert``: the words under the lowest and the highest point (two, or none)."""
+    options: tuple[str, ...] = ()
+    """``choice``: the options, in the order shown."""
+    max_length: int = 2000
+    """``text``: the longest answer taken, in characters."""
+
+    def __post_init__(self):
+        if not isinstance(self.id, str) or not ID_PATTERN.match(self.id):
+            fail(self, "id", ID_ALLOWED)
+        check_choice(self, "kind", QUESTION_KINDS, f"one of {list(QUESTION_KINDS)}")
+        if not isinstance(self.prompt, str) or not self.prompt.strip():
+            fail(self, "prompt", "the question's text (a non-empty string)")
+        check_bool(self, "required")
+        check_int(self, "scale", 2, 11, allowed="a whole number in 2..11")
+        check_strings(self, "labels")
+        if self.kind == "likert" and len(self.labels) not in (0, 2):
+            fail(self, "labels", "two words (the lowest and the highest point) or none")
+        check_strings(self, "options", distinct=True)
+        if self.kind == "choice" and len(self.options) < 2:
+            fail(self, "options", "at least two distinct options for a 'choice' question")
+        if self.kind != "choice" and self.options:
+            fail(self, "options", "only for kind='choice'")
+        check_int(self, "max_length", 1, 100_000, allowed="a whole number in 1..100000")
+
+    def problem(self, value: Any) -> str | None:
+        """What is wrong with ``value`` as an answer (None: it is a valid answer, or a skipped optional one)."""
+        if value is None or value == "":
+            return "an answer is required" if self.required else None
+        if self.kind == "likert":
+            ok = isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= self.scale
+            return None if ok else f"a whole number in 1..{self.scale}"
+        if self.kind == "choice":
+            return None if value in self.options else f"one of {list(self.options)}"
+        if not isinstance(value, str):
+            return "text"
+        return None if len(value) <= self.max_length else f"at most {self.max_length} characters"
+
+
+@dataclass(frozen=True)
+class Page:
+    """One page of the study, shown in order."""
+
+    kind: str
+    """``consent`` (text and an agree button), ``instructions``, ``practice`` (one game), ``trials`` (every trial
+    of the participant's assignment, in its order), ``questionnaire`` or ``debrief`` (the completion code)."""
+    id: str = ""
+    """A name for the page (questionnaires: the name its answers carry in the export; default: its kind)."""
+    title: str = ""
+    """The heading shown."""
+    text: str = ""
+    """Markdown shown on the page (consent, instructions, debrief, or above a questionnaire)."""
+    questions: tuple[Question, ...] = ()
+    """``questionnaire``: its questions."""
+    after_each: tuple[Question, ...] = ()
+    """``trials``: questions asked after every trial (answers carry the trial's index)."""
+    game: GameSettings | None = None
+    """``practice``: its game (default: the trial defaults, belief shown)."""
+
+    def __post_init__(self):
+        check_choice(self, "kind", PAGE_KINDS, f"one of {list(PAGE_KINDS)}")
+        if not isinstance(self.id, str) or (self.id and not ID_PATTERN.match(self.id)):
+            fail(self, "id", ID_ALLOWED)
+        for name in ("title", "text"):
+            if not isinstance(getattr(self, name), str):
+                fail(self, name, "a string")
+        if self.kind == "consent" and not self.text.strip():
+            fail(self, "text", "the consent text (Markdown), which the participant agrees to")
+        if self.kind == "questionnaire" and not self.questions:
+            fail(self, "questions", "at least one question for a questionnaire page")
+        if self.kind != "questionnaire" and self.questions:
+            fail(self, "questions", "only on a questionnaire page (a trials page asks 'after_each')")
+        if self.kind != "trials" and self.after_each:
+            fail(self, "after_each", "only on the trials page")
+        if self.game is not None and self.kind != "practice":
+            fail(self, "game", "only on the practice page (trials take their settings from the conditions)")
+        for name in ("questions", "after_each"):
+            ids = [q.id for q in getattr(self, name)]
+            if len(set(ids)) != len(ids):
+                fail(self, name, f"questions with distinct ids (got {ids})", value="...")
+
+    @property
+    def name(self) -> str:
+        return self.id or self.kind
+
+
+@dataclass(frozen=True)
+class Design:
+    """How conditions reach participants."""
+
+    assignment: str = "within"
+    """``within`` (every participant plays every condition, in a counterbalanced order) or ``between`` (one
+    condition per participant)."""
+    order: str = "latin_square"
+    """``within``: ``latin_square`` (balanced for first-order carry-over: Williams' design), ``random`` (a fresh
+    random order each) or ``fixed`` (the conditions' order)."""
+    balance: str = "balanced"
+    """How an arm (a condition, or an order within subjects) is picked: ``balanced`` (the arm with the fewest
+    participants so far, ties at random) or ``random``."""
+    trials_per_condition: int = 1
+    """Trials of each condition (within: the order is repeated; between: that many trials)."""
+    quota: int | None = None
+    """At most this many participants per arm (None: no quota)."""
+    seed: int = 0
+    """Seed of the random choices (ties, random orders)."""
+
+    def __post_init__(self):
+        check_choice(self, "assignment", ("within", "between"), "'within' or 'between'")
+        check_choice(self, "order", ("latin_square", "random", "fixed"), "'latin_square', 'random' or 'fixed'")
+        check_choice(self, "balance", ("balanced", "random"), "'balanced' or 'random'")
+        check_int(self, "trials_per_condition", 1, 100, allowed="a whole number in 1..100")
+        check_int(self, "quota", 1, optional=True, allowed="a positive whole number, or leave it out")
+        check_int(self, "seed", 0, 2**63 - 1, allowed="a whole number >= 0")
+
+
+@dataclass(frozen=True)
+class Study:
+    """A whole study file."""
+
+    id: str
+    """The study's name: its database and recordings are kept under it."""
+    title: str
+    """Shown at the top of every page."""
+    pages: tuple[Page, ...]
+    """The pages, in order; exactly one ``trials`` page."""
+    factors: dict = field(default_factory=dict)
+    """Condition factors: a field of ``GameSettings`` -> its levels (``follower = ["bayes-people", "ippo-people"]``).
+    The conditions are every combination, in the order written."""
+    defaults: GameSettings = field(default_factory=GameSettings)
+    """Game settings of every trial, where no factor sets them."""
+    design: Design = field(default_factory=Design)
+    """How conditions are assigned."""
+    max_participants: int = 100
+    """Participants who may start; the next one is told the study is full."""
+    returning: str = "refuse"
+    """A participant id that has started, arriving from a browser without its session: ``refuse`` (it cannot
+    start over or continue elsewhere) or ``resume`` (it continues where it was). The same browser always
+    resumes."""
+    id_params: tuple[str, ...] = ("PROLIFIC_PID", "pid")
+    """URL parameters holding the participant id, the first present wins (Prolific: ``PROLIFIC_PID``)."""
+    keep_params: tuple[str, ...] = ("STUDY_ID", "SESSION_ID")
+    """Further URL parameters recorded with the participant (Prolific's study and session ids)."""
+    anonymous: bool = False
+    """Let a participant without an id in the URL take part (a random id is made)."""
+    completion_code: str = ""
+    """Shown on the debrief page (and put into ``redirect_url`` as ``{code}``)."""
+    redirect_url: str = ""
+    """Where the debrief page sends the participant (``https://app.prolific.com/submissions/complete?cc={code}``)."""
+
+    ERROR_STYLE = "{name}={value!r} is invalid: {allowed}"
+
+    def __post_init__(self):
+        if not isinstance(self.id, str) or not ID_PATTERN.match(self.id):
+            fail(self, "id", ID_ALLOWED)
+        if not isinstance(self.title, str) or not self.title.strip():
+            fail(self, "title", "a non-empty string")
+        if not self.pages:
+            fail(self, "pages", "at least one [[pages]] entry", value=[])
+        kinds = [p.kind for p in self.pages]
+        if kinds.count("trials") != 1:
+            fail(self, "pages", f"exactly one page of kind 'trials' (got {kinds.count('trials')})", value=kinds)
+        if kinds.count("debrief") > 1 or ("debrief" in kinds and kinds[-1] != "debrief"):
+            fail(self, "pages", "at most one 'debrief' page, and it comes last", value=kinds)
+        names = [p.name for p in self.pages]
+        if len(set(names)) != len(names):
+            fail(self, "pages", f"pages with distinct ids (two pages of one kind need an id each: {names})",
+                 value=kinds)
+        if not isinstance(self.factors, dict):
+            fail(self, "factors", "a table: factor = [levels]")
+        for name, levels in self.factors.items():
+            if name not in FACTORS:
+                raise StudyError(f"factors.{name} is not a factor: choose from {list(FACTORS)}", f"factors.{name}")
+            if not isinstance(levels, (list, tuple)) or not levels or len(set(map(repr, levels))) != len(levels):
+                raise StudyError(f"factors.{name}={levels!r} is invalid: a list of distinct levels",
+                                 f"factors.{name}")
+            for level in levels:
+                try:
+                    dataclasses.replace(self.defaults, **{name: level})
+                except ConfigError as err:
+                    raise StudyError(f"factors.{name}: level {level!r} is invalid: "
+                                     f"{str(err).split(': ', 1)[-1]}", f"factors.{name}") from None
+        check_int(self, "max_participants", 1, allowed="a positive whole number")
+        check_choice(self, "returning", ("refuse", "resume"), "'refuse' or 'resume'")
+        check_strings(self, "id_params", distinct=True)
+        check_strings(self, "keep_params", distinct=True)
+        check_bool(self, "anonymous")
+        for name in ("completion_code", "redirect_url"):
+            if not isinstance(getattr(self, name), str):
+                fail(self, name, "a string")
+        if self.redirect_url and not re.match(r"^https?://", self.redirect_url):
+            fail(self, "redirect_url", "an http:// or https:// address (with {code} where the code goes)")
+
+    # ---------------------------------------------------------------- derived
+    @property
+    def conditions(self) -> list[GameSettings]:
+        """Every combination of the factors' levels, the first factor varying slowest."""
+        names = list(self.factors)
+        return [dataclasses.replace(self.defaults, **dict(zip(names, combo)))
+                for combo in itertools.product(*(self.factors[n] for n in names))]
+
+    @property
+    def trials_page(self) -> Page:
+        return next(p for p in self.pages if p.kind == "trials")
+
+    @property
+    def followers(self) -> set[str]:
+        """Every follower a game of this study uses."""
+        games = self.conditions + [p.game or GameSettings() for p in self.pages if p.kind == "practice"]
+        return {g.follower for g in games}
+
+    def practice_game(self, page: Page) -> GameSettings:
+        return page.game or dataclasses.replace(self.defaults, show_belief=True)
+
+
+def _build(cls, data: Any, where: str):
+    """``from_dict`` for the study's nested tables, lists of tables included."""
+    try:
+        if cls is Page and isinstance(data, dict):
+            data = dict(data)
+            for name in ("questions", "after_each"):
+                if isinstance(data.get(name), list):
+                    data[name] = tuple(_build(Question, q, f"{where}.{name}[{i}]")
+                                       for i, q in enumerate(data[name]))
+            if isinstance(data.get("game"), dict):
+                data["game"] = _build(GameSettings, data["game"], f"{where}.game")
+        return from_dict(cls, data, where)
+    except StudyError:
+        raise
+    except ConfigError as err:
+        message = str(err)
+        if where and not message.startswith(where):
+            message = f"{where}: {message}"
+        raise StudyError(message) from None
+    except TypeError as err:  # a required field is missing
+        missing = re.findall(r"'(\w+)'", str(err))
+        raise StudyError(f"{where or 'the study'}: missing {', '.join(missing) or 'fields'} "
+                         f"(fields: {[f.name for f in dataclasses.fields(cls)]})") from None
+
+
+def parse_study(data: dict) -> Study:
+    """A ``Study`` from the parsed file."""
+    data = dict(data)
+    if isinstance(data.get("pages"), list):
+        data["pages"] = tuple(_build(Page, p, f"pages[{i}]") for i, p in enumerate(data["pages"]))
+    for name, cls in (("defaults", GameSettings), ("design", Design)):
+        if isinstance(data.get(name), dict):
+            data[name] = _build(cls, data[name], name)
+    return _build(Study, data, "")
+
+
+def load_study(path: str | Path) -> Study:
+    """Read and check a study file; ``StudyError`` (one line, naming the file) when it is wrong."""
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise StudyError(f"{path}: no such study file") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise StudyError(f"{path}: cannot be read ({err})") from None
+    except tomllib.TOMLDecodeError as err:
+        raise StudyError(f"{path}: not valid TOML ({err})") from None
+    try:
+        return parse_study(data)
+    except StudyError as err:
+        raise StudyError(f"{path}: {err}") from None

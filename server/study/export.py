@@ -1,0 +1,123 @@
+"""``colorgrid study export``: a study's database and replays as analysis-ready tables.
+
+Six tables, each written as Parquet and CSV (columns in docs/STUDIES.md, "Data dictionary"):
+``participants``, ``trials`` (one row per game played, practice included), ``steps`` (one row
+per game step), ``keys`` (the key log with reaction times), ``answers`` and ``focus`` (the page's
+focus and visibility changes during games). Games are read back from their replay files and
+re-simulated, so positions come from the rules, not from what the page showed.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from colorgrid.config import AGENTS, FOLLOWER, LEADER
+from colorgrid.replay import load
+from colorgrid.replay.simulate import replay_states
+from colorgrid.replay.timeline import reaction_times
+from server.study.config import Study
+
+TABLES = ("participants", "trials", "steps", "keys", "answers", "focus")
+
+
+def read_db(db: Path) -> dict[str, list[dict]]:
+    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
+    con.row_factory = sqlite3.Row
+    try:
+        return {name: [dict(r) for r in con.execute(f"SELECT * FROM {name}")]
+                for name in ("participants", "games", "answers")}
+    finally:
+        con.close()
+
+
+def _time(seconds) -> pd.Timestamp | None:
+    return pd.Timestamp(seconds, unit="s", tz="UTC") if seconds is not None else None
+
+
+def tables(study: Study, db: Path, replays_dir: Path) -> dict[str, pd.DataFrame]:
+    """The six tables as pandas DataFrames."""
+    data = read_db(db)
+    participants = pd.DataFrame([{
+        "participant": p["pid"], "status": p["status"], "arm": p["arm"],
+        "conditions": json.dumps(json.loads(p["conditions"])), "step": p["step"],
+        **{f"url_{k}": v for k, v in json.loads(p["url_params"]).items()},
+        "user_agent": p["user_agent"], "started": _time(p["started"]), "completed": _time(p["completed"]),
+        "minutes": (p["completed"] - p["started"]) / 60 if p["completed"] else None,
+    } for p in data["participants"]])
+    trials, steps, keys, focus = [], [], [], []
+    for g in sorted(data["games"], key=lambda g: (g["pid"], g["step"], g["attempt"])):
+        settings = json.loads(g["settings"])
+        scores = json.loads(g["scores"]) if g["scores"] else {}
+        row = {"participant": g["pid"], "kind": g["kind"], "trial_index": g["trial_index"],
+               "condition_index": g["condition"], "attempt": g["attempt"], "page_step": g["step"],
+               **{f"condition_{k}": v for k, v in settings.items()},
+               "game_id": g["game_id"], "replay_id": g["replay_id"], "ended": g["ended"],
+               "started": _time(g["started"]), "finished": _time(g["finished"]),
+               "team_score": scores.get("team"), "leader_score": scores.get(AGENTS[LEADER]),
+               "follower_score": scores.get(AGENTS[FOLLOWER])}
+        path = replays_dir / f"{g['replay_id']}.replay.json" if g["replay_id"] else None
+        if path is None or not path.is_file():
+            trials.append({**row, "replay_found": False})
+            continue
+        replay = load(path)
+        final = replay.final()
+        follower = AGENTS[FOLLOWER]
+        beliefs = replay.goal_probs.get(follower) or []
+        correct = [int(np.argmax(b)) == replay.goal[t] for t, b in enumerate(beliefs)]
+        trials.append({**row, "replay_found": True, "steps": replay.num_steps,
+                       "follower_goal_pickups": final[f"{follower}_goal_pickups"],
+                       "follower_wrong_pickups": final[f"{follower}_wrong_pickups"],
+                       "follower_net_pickups": final[f"{follower}_goal_pickups"] - final[f"{follower}_wrong_pickups"],
+                       "leader_goal_pickups": final[f"{AGENTS[LEADER]}_goal_pickups"],
+                       "leader_wrong_pickups": final[f"{AGENTS[LEADER]}_wrong_pickups"],
+                       "belief_accuracy": float(np.mean(correct)) if correct else None,
+                       "deadline_misses": len(replay.meta.get("deadline_misses", [])),
+                       "viewport": json.dumps((replay.meta.get("client") or {}).get("viewport")),
+                       "user_agent": (replay.meta.get("client") or {}).get("user_agent")})
+        states = replay_states(replay, path)
+        base = {"participant": g["pid"], "trial_index": g["trial_index"], "kind": g["kind"], "attempt": g["attempt"]}
+        for t in range(replay.num_steps):
+            pos = states[t].agent_pos[0]
+            step = {**base, "t": t, "goal": replay.goal[t], "goal_switched": bool(replay.goal_switched[t]),
+                    "team_reward": replay.team_reward[t]}
+            for i, name in enumerate(AGENTS):
+                step[f"{name}_row"], step[f"{name}_col"] = int(pos[i][0]), int(pos[i][1])
+                step[f"{name}_action"] = replay.actions[t][i]
+                step[f"{name}_reward"] = replay.block_reward[t][i]
+                step[f"{name}_picked"] = replay.picked_color[t][i]
+            for c, p in enumerate(beliefs[t] if t < len(beliefs) else []):
+                step[f"belief_{c}"] = p
+            steps.append(step)
+        for k in reaction_times(replay.key_events or [], replay.meta.get("state_sent_ms")):
+            keys.append({**base, "seq": k.get("seq"), "key": k.get("key"), "action": k.get("action"),
+                         "status": k.get("status"), "applied_step": k.get("applied_step"),
+                         "t_client_ms": k.get("t_client"), "t_server_ms": k.get("t_server"),
+                         "shown_step": k.get("shown_step"), "reaction_ms": k.get("reaction_ms")})
+        for e in replay.meta.get("page_events", []):
+            focus.append({**base, "event": e["event"], "visible": e.get("visible"), "step": e.get("step"),
+                          "t_client_ms": e.get("t_client"), "t_server_ms": e.get("t_server")})
+    answers = [{"participant": a["pid"], "page": a["page"], "trial_index": a["trial_index"], "question": a["question"],
+                "value": json.loads(a["value"]) if a["value"] is not None else None, "answered": _time(a["answered"])}
+               for a in sorted(data["answers"], key=lambda a: (a["pid"], a["step"], a["question"]))]
+    for a in answers:  # one column type: numbers as text where a questionnaire mixes kinds
+        a["value"] = None if a["value"] is None else str(a["value"])
+    return {"participants": participants, "trials": pd.DataFrame(trials), "steps": pd.DataFrame(steps),
+            "keys": pd.DataFrame(keys), "answers": pd.DataFrame(answers), "focus": pd.DataFrame(focus)}
+
+
+def write_tables(study: Study, db: Path, replays_dir: Path, out: Path) -> dict[str, int]:
+    """Write every table as ``out/NAME.parquet`` and ``out/NAME.csv``; returns the row counts."""
+    if not db.is_file():
+        raise FileNotFoundError(f"{db}: no study database (has the study run? see --replays-dir)")
+    out.mkdir(parents=True, exist_ok=True)
+    counts = {}
+    for name, frame in tables(study, db, replays_dir).items():
+        frame.to_parquet(out / f"{name}.parquet", index=False)
+        frame.to_csv(out / f"{name}.csv", index=False)
+        counts[name] = len(frame)
+    return counts

@@ -1,0 +1,133 @@
+"""The study's HTTP API and pages, added to the play server by ``colorgrid study run``.
+
+Participants: ``/study?PROLIFIC_PID=...`` (the page), ``/api/study/info``, ``join``, ``view`` and
+``advance``; their games go over the play WebSocket with ``new_game.study``. The admin:
+``/study/admin`` (the page) and ``/api/study/admin/*``, which need ``Authorization: Bearer TOKEN``
+with the token printed at start. While a study runs, the free-play page sends visitors to the
+study and the replay pages are not served (replays name participants).
+"""
+
+from __future__ import annotations
+
+import secrets
+import shutil
+import tempfile
+from pathlib import Path
+
+from fastapi import FastAPI, Header, HTTPException, Request
+from fastapi.responses import FileResponse, JSONResponse, RedirectResponse
+from pydantic import BaseModel, ConfigDict, Field
+from starlette.background import BackgroundTask
+
+from server.study.service import Invalid, Refused, StudyService
+
+NOT_SERVED = ("/replays", "/replay", "/api/replays")
+
+
+class _Body(BaseModel):
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+
+class Join(_Body):
+    params: dict[str, str] = Field(default_factory=dict, max_length=32)
+    """The study link's URL parameters (``PROLIFIC_PID``, ``STUDY_ID``, ``SESSION_ID``, ``pid``)."""
+    session: str | None = Field(default=None, max_length=128)
+    """The session key this browser got when it joined before."""
+
+
+class Who(_Body):
+    pid: str = Field(max_length=64)
+    session: str = Field(max_length=128)
+
+
+class Advance(Who):
+    step: int = Field(ge=0, le=100_000)
+    answers: dict[str, int | str | None] | None = None
+    agree: bool = False
+
+
+def export_zip(study_file: str, db: str, replays_dir: str, out: str) -> str:
+    """In a worker process: the study's tables (Parquet and CSV) in one zip file; returns its path."""
+    from server.study.config import load_study
+    from server.study.export import write_tables
+
+    folder = Path(out).with_suffix("")
+    write_tables(load_study(study_file), Path(db), Path(replays_dir), folder)
+    archive = shutil.make_archive(str(folder), "zip", folder)
+    shutil.rmtree(folder, ignore_errors=True)
+    return archive
+
+
+def mount_study(app: FastAPI, service: StudyService, admin_token: str, web_dir: Path, jobs, study_file: Path,
+                replays_dir: Path, live_games) -> None:
+    study = service.study
+
+    @app.middleware("http")
+    async def study_only(request: Request, call_next):
+        path = request.url.path
+        if path == "/":
+            query = f"?{request.url.query}" if request.url.query else ""
+            return RedirectResponse(f"/study{query}", status_code=307)
+        if any(path == p or path.startswith(p + "/") for p in NOT_SERVED):
+            return JSONResponse({"detail": "not served while a study runs (replays name participants); the "
+                                           "admin downloads the data from /study/admin"}, status_code=404)
+        return await call_next(request)
+
+    def run(fn, *args):
+        try:
+            return fn(*args)
+        except Refused as err:
+            raise HTTPException(403, str(err)) from None
+        except Invalid as err:
+            raise HTTPException(409, str(err)) from None
+
+    @app.get("/study", include_in_schema=False)
+    async def study_page():
+        return FileResponse(web_dir / "study.html")
+
+    @app.get("/study/admin", include_in_schema=False)
+    async def admin_page():
+        return FileResponse(web_dir / "study_admin.html")
+
+    @app.get("/api/study/info", tags=["study"])
+    async def info() -> dict:
+        """The study's title and which URL parameters carry the participant id."""
+        return {"id": study.id, "title": study.title, "id_params": list(study.id_params),
+                "anonymous": study.anonymous}
+
+    @app.post("/api/study/join", tags=["study"])
+    def join(body: Join, request: Request) -> dict:
+        """Start, or resume, the participant the link names; answers their session key and current page."""
+        who = run(service.join, body.params, body.session, request.headers.get("user-agent", ""))
+        return {**who, "view": run(service.view, who["pid"], who["session"])}
+
+    @app.post("/api/study/view", tags=["study"])
+    def view(body: Who) -> dict:
+        """The participant's current page."""
+        return run(service.view, body.pid, body.session)
+
+    @app.post("/api/study/advance", tags=["study"])
+    def advance(body: Advance) -> dict:
+        """Finish the current page (consent agreed, answers, a game over) and get the next one."""
+        return run(service.advance, body.pid, body.session, body.step, body.answers, body.agree)
+
+    def admin(authorization: str | None):
+        scheme, _, token = (authorization or "").partition(" ")
+        if scheme.lower() != "bearer" or not secrets.compare_digest(token.encode(), admin_token.encode()):
+            raise HTTPException(401, "the admin pages need the token printed when the study started "
+                                     "(Authorization: Bearer TOKEN)", headers={"WWW-Authenticate": "Bearer"})
+
+    @app.get("/api/study/admin/summary", tags=["study"])
+    def summary(authorization: str | None = Header(default=None)) -> dict:
+        """Participants by status and arm, quotas, completion times and live games."""
+        admin(authorization)
+        return service.summary(live_games())
+
+    @app.get("/api/study/admin/export.zip", tags=["study"])
+    async def export(authorization: str | None = Header(default=None)):
+        """Every table of ``colorgrid study export`` (Parquet and CSV) in one zip file."""
+        admin(authorization)
+        out = Path(tempfile.mkdtemp(prefix="colorgrid-study-export-")) / f"{study.id}-data"
+        archive = await jobs.run(export_zip, str(study_file), str(service.store.path), str(replays_dir), str(out))
+        return FileResponse(archive, filename=f"{study.id}-data.zip", media_type="application/zip",
+                            background=BackgroundTask(shutil.rmtree, str(out.parent), True))

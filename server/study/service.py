@@ -1,0 +1,284 @@
+"""A running study: who is where, what they see next, and what each of their games is.
+
+Pages are expanded per participant into **steps**: the trials page becomes one step per trial
+(and one per ``after_each`` questionnaire). A participant's ``step`` only moves forward, and only
+when the current step is done (consent agreed, answers valid, the game over); a lost game
+(disconnected past the grace, server stopped) is played again as a new attempt. Everything a
+participant did is in the database before the page is told it worked.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import random
+import secrets
+import statistics
+import time
+from dataclasses import dataclass
+
+from markdown_it import MarkdownIt
+
+from server.study.assign import arms, choose_arm, trial_order
+from server.study.config import ID_ALLOWED, ID_PATTERN, GameSettings, Page, Question, Study
+from server.study.store import StudyStore
+
+LOST = ("disconnected", "server_shutdown")
+"""Game endings that do not count: the participant plays that game again."""
+_markdown = MarkdownIt("commonmark", {"html": False})  # raw HTML in a study file is shown as text, never run
+
+
+class Refused(Exception):
+    """The participant cannot go on (full, id already used, no id, wrong session); the message says why."""
+
+
+class Invalid(Exception):
+    """The request does not fit the participant's current step; the message names the problem."""
+
+
+@dataclass(frozen=True)
+class Step:
+    """One screen of one participant's study."""
+
+    kind: str  # consent, instructions, practice, trial, questions (after a trial), questionnaire, debrief
+    page: Page
+    trial_index: int | None = None
+    condition: int | None = None
+
+    @property
+    def questions(self) -> tuple[Question, ...]:
+        return self.page.after_each if self.kind == "questions" else self.page.questions
+
+    @property
+    def answers_page(self) -> str:
+        return "after_trial" if self.kind == "questions" else self.page.name
+
+    @property
+    def has_game(self) -> bool:
+        return self.kind in ("practice", "trial")
+
+
+def study_hash(study: Study) -> str:
+    return hashlib.sha256(json.dumps(dataclasses.asdict(study), sort_keys=True, default=str).encode()).hexdigest()
+
+
+class StudyService:
+    def __init__(self, study: Study, store: StudyStore):
+        self.study, self.store = study, store
+        self.rng = random.Random(study.design.seed)
+        self.arms = arms(study)
+        self.live: dict[str, object] = {}  # pid -> its live Game (for a page that reloads)
+
+    # ---------------------------------------------------------------- steps
+    def steps(self, conditions: list[int]) -> list[Step]:
+        out = []
+        for page in self.study.pages:
+            if page.kind != "trials":
+                out.append(Step(page.kind, page))
+                continue
+            for i, c in enumerate(conditions):
+                out.append(Step("trial", page, i, c))
+                if page.after_each:
+                    out.append(Step("questions", page, i, c))
+        return out
+
+    def game_settings(self, step: Step) -> GameSettings:
+        if step.kind == "practice":
+            return self.study.practice_game(step.page)
+        return self.study.conditions[step.condition]
+
+    # ---------------------------------------------------------------- joining
+    def participant_id(self, params: dict) -> str:
+        for name in self.study.id_params:
+            value = params.get(name)
+            if value:
+                if not ID_PATTERN.match(value):
+                    raise Refused(f"the participant id in the link ({name}) is not valid: {ID_ALLOWED}")
+                return value
+        if self.study.anonymous:
+            return "anon-" + secrets.token_hex(6)
+        raise Refused("this link has no participant id: open the study from the link you were given "
+                      f"(it carries {' or '.join(self.study.id_params)})")
+
+    def join(self, params: dict, session: str | None, user_agent: str) -> dict:
+        """Start or resume a participant; the answer carries their session key and the step to show."""
+        pid = params.get("_pid")  # an anonymous participant coming back: only with its session
+        if not (self.study.anonymous and pid and session and self.store.participant(pid) is not None):
+            pid = self.participant_id(params)
+        with self.store.transaction() as db:
+            row = db.execute("SELECT * FROM participants WHERE pid = ?", (pid,)).fetchone()
+            if row is not None:
+                if session and secrets.compare_digest(session, row["session"]):
+                    self.store.log(db, pid, "resumed")
+                elif self.study.returning == "resume":
+                    self.store.log(db, pid, "resumed", new_browser=True, user_agent=user_agent[:300])
+                else:
+                    self.store.log(db, pid, "refused", reason="already started")
+                    raise Refused("this participant id has already started the study; it cannot start again")
+                return {"pid": pid, "session": row["session"]}
+            started = db.execute("SELECT COUNT(*) FROM participants").fetchone()[0]
+            if started >= self.study.max_participants:
+                raise Refused("the study is full: thank you for your interest")
+            arm = choose_arm(self.store.arm_counts(db, len(self.arms)), self.study.design.quota,
+                             self.study.design.balance, self.rng)
+            if arm is None:
+                raise Refused("the study is full: thank you for your interest")
+            conditions = trial_order(self.study, arm, self.rng)
+            kept = {k: str(params[k])[:200] for k in (*self.study.id_params, *self.study.keep_params) if params.get(k)}
+            session, now = secrets.token_urlsafe(24), time.time()
+            db.execute("INSERT INTO participants (pid, session, arm, conditions, status, step, url_params, user_agent,"
+                       " started, updated) VALUES (?, ?, ?, ?, 'active', 0, ?, ?, ?, ?)",
+                       (pid, session, arm, json.dumps(conditions), json.dumps(kept), user_agent[:500], now, now))
+            self.store.log(db, pid, "joined", arm=arm)
+        return {"pid": pid, "session": session}
+
+    def check(self, pid: str, session: str):
+        row = self.store.participant(pid) if isinstance(pid, str) else None
+        if row is None or not isinstance(session, str) or not secrets.compare_digest(session, row["session"]):
+            raise Refused("unknown participant or session: open the study from your link again")
+        return row
+
+    # ---------------------------------------------------------------- what the page shows
+    def view(self, pid: str, session: str) -> dict:
+        row = self.check(pid, session)
+        steps = self.steps(json.loads(row["conditions"]))
+        step = steps[row["step"]]
+        trials = sum(s.kind == "trial" for s in steps)
+        out = {"pid": pid, "step": row["step"], "steps": len(steps), "kind": step.kind,
+               "title": f"About game {step.trial_index + 1}" if step.kind == "questions" else step.page.title,
+               "study": self.study.title, "html": _markdown.render(step.page.text) if step.kind != "questions" else "",
+               "trial_index": step.trial_index, "trials": trials}
+        if step.questions:
+            out["questions"] = [dataclasses.asdict(q) for q in step.questions]
+        if step.has_game:
+            settings = self.game_settings(step)
+            out["game"] = {"mode": settings.mode, "show_belief": settings.show_belief, "horizon": settings.horizon,
+                           "tick_hz": settings.tick_hz}
+            last = self.last_game(pid, row["step"])
+            live = self.live.get(pid)
+            if live is not None and not live.finished:
+                out["live"] = {"game_id": live.game_id, "token": live.token}
+            elif last is not None and last["ended"] and last["ended"] not in LOST:
+                out["done"] = {"ended": last["ended"], "scores": json.loads(last["scores"] or "null")}
+        if step.kind == "debrief":
+            code = self.study.completion_code
+            out["completion_code"] = code
+            out["redirect_url"] = self.study.redirect_url.replace("{code}", code) if self.study.redirect_url else ""
+        return out
+
+    def last_game(self, pid: str, step: int):
+        rows = self.store.rows("SELECT * FROM games WHERE pid = ? AND step = ? ORDER BY attempt DESC LIMIT 1",
+                               pid, step)
+        return rows[0] if rows else None
+
+    # ---------------------------------------------------------------- moving on
+    def advance(self, pid: str, session: str, step_index: int, answers: dict | None, agree: bool) -> dict:
+        row = self.check(pid, session)
+        steps = self.steps(json.loads(row["conditions"]))
+        if step_index != row["step"]:
+            raise Invalid(f"this page is not the participant's current one (step {row['step']} of {len(steps)});"
+                          " reload to continue")
+        step = steps[step_index]
+        if step.kind == "debrief":
+            raise Invalid("the study is complete: there is no page after the debrief")
+        if step.kind == "consent" and agree is not True:
+            raise Invalid("consent: agree to take part (or close the page to leave the study)")
+        clean = {}
+        if step.questions:
+            if not isinstance(answers, dict):
+                raise Invalid("answers: an object of question id -> answer")
+            unknown = sorted(set(answers) - {q.id for q in step.questions})
+            if unknown:
+                raise Invalid(f"answers: unknown question(s) {unknown}")
+            for q in step.questions:
+                problem = q.problem(answers.get(q.id))
+                if problem:
+                    raise Invalid(f"{q.id}: {problem}")
+                clean[q.id] = answers.get(q.id) if answers.get(q.id) != "" else None
+        if step.has_game:
+            last = self.last_game(pid, step_index)
+            if last is None or not last["ended"] or last["ended"] in LOST:
+                raise Invalid("the game on this page is not over yet")
+        now = time.time()
+        with self.store.transaction() as db:
+            current = db.execute("SELECT step FROM participants WHERE pid = ?", (pid,)).fetchone()["step"]
+            if current != step_index:  # a second tab moved on meanwhile
+                raise Invalid("this page was already completed; reload to continue")
+            for qid, value in clean.items():
+                db.execute("INSERT OR REPLACE INTO answers VALUES (?, ?, ?, ?, ?, ?, ?)",
+                           (pid, step_index, step.answers_page, step.trial_index, qid, json.dumps(value), now))
+            nxt = step_index + 1
+            done = nxt == len(steps) or steps[nxt].kind == "debrief"
+            db.execute("UPDATE participants SET step = ?, updated = ?, status = ?, completed = ? WHERE pid = ?",
+                       (min(nxt, len(steps) - 1), now, "completed" if done else "active", now if done else None, pid))
+            self.store.log(db, pid, "consented" if step.kind == "consent" else "advanced", step=step_index)
+            if done:
+                self.store.log(db, pid, "completed")
+        if nxt == len(steps):  # no debrief page: the study ends on the last page
+            return {**self.view(pid, session), "finished": True}
+        return self.view(pid, session)
+
+    # ---------------------------------------------------------------- games
+    def game_for(self, pid: str, session: str) -> tuple[GameSettings, dict]:
+        """The settings of the game the participant's current step plays, and what its replay records."""
+        row = self.check(pid, session)
+        steps = self.steps(json.loads(row["conditions"]))
+        step = steps[row["step"]]
+        if not step.has_game:
+            raise Invalid("the participant's current page has no game")
+        live = self.live.get(pid)
+        if live is not None and not live.finished:
+            raise Invalid("this participant's game is still running: rejoin it")
+        last = self.last_game(pid, row["step"])
+        if last is not None and (not last["ended"] or last["ended"] not in LOST):
+            raise Invalid("the game on this page was already played")
+        settings = self.game_settings(step)
+        meta = {"study": self.study.id, "participant": pid, "step": row["step"], "kind": step.kind,
+                "trial_index": step.trial_index, "condition_index": step.condition,
+                "condition": dataclasses.asdict(settings), "show_belief": settings.show_belief,
+                "attempt": 0 if last is None else last["attempt"] + 1, "arm": row["arm"]}
+        return settings, meta
+
+    def game_started(self, game) -> None:
+        m = game.study
+        self.live[m["participant"]] = game
+        with self.store.transaction() as db:
+            db.execute("INSERT INTO games (pid, step, attempt, kind, trial_index, condition, settings, game_id, started)"
+                       " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                       (m["participant"], m["step"], m["attempt"], m["kind"], m["trial_index"], m["condition_index"],
+                        json.dumps(m["condition"]), game.game_id, time.time()))
+
+    def game_over(self, game, reason: str, scores: dict) -> None:
+        m = game.study
+        if self.live.get(m["participant"]) is game:
+            del self.live[m["participant"]]
+        with self.store.transaction() as db:
+            db.execute("UPDATE games SET replay_id = ?, ended = ?, scores = ?, finished = ? "
+                       "WHERE pid = ? AND step = ? AND attempt = ?",
+                       (game.replay_id, reason, json.dumps(scores), time.time(), m["participant"], m["step"],
+                        m["attempt"]))
+
+    # ---------------------------------------------------------------- the admin's view
+    def summary(self, live_games: int) -> dict:
+        rows = self.store.rows("SELECT pid, arm, status, step, started, completed, updated FROM participants")
+        labels = [" → ".join(f"C{c + 1}" for c in arm) if self.study.design.assignment == "within"
+                  else f"C{arm[0] + 1}" for arm in self.arms]
+        by_arm = [{"arm": a, "label": labels[a], "active": 0, "completed": 0} for a in range(len(self.arms))]
+        for r in rows:
+            if 0 <= r["arm"] < len(by_arm):
+                by_arm[r["arm"]][r["status"]] += 1
+        minutes = [(r["completed"] - r["started"]) / 60 for r in rows if r["completed"]]
+        return {
+            "study": self.study.id, "title": self.study.title,
+            "conditions": [{"label": f"C{i + 1}", **dataclasses.asdict(c)} for i, c in enumerate(self.study.conditions)],
+            "arms": by_arm, "quota": self.study.design.quota, "max_participants": self.study.max_participants,
+            "participants": {"total": len(rows), "active": sum(r["status"] == "active" for r in rows),
+                             "completed": sum(r["status"] == "completed" for r in rows)},
+            "completion_minutes": {"median": statistics.median(minutes) if minutes else None,
+                                   "values": sorted(round(m, 2) for m in minutes)},
+            "live_games": live_games,
+            "recent": [{"pid": r["pid"], "arm": r["arm"], "status": r["status"], "step": r["step"],
+                        "started": r["started"], "updated": r["updated"], "completed": r["completed"]}
+                       for r in sorted(rows, key=lambda r: -r["updated"])[:200]],
+        }

@@ -1,0 +1,349 @@
+"""The study layer: study files, assignment, the database, the study server and its export, for real."""
+
+from __future__ import annotations
+
+import copy
+import json
+import subprocess
+import sys
+import tomllib
+import urllib.error
+import urllib.request
+from collections import Counter
+from itertools import pairwise
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from websockets.sync.client import connect
+
+from colorgrid.replay import load, verify
+from server.study.assign import williams
+from server.study.config import StudyError, load_study, parse_study
+from server.study.service import Refused, StudyService, study_hash
+from server.study.store import StudyStore
+from tests.conftest import ROOT, start_server, stop_server
+
+EXAMPLE = ROOT / "studies" / "belief_display.toml"
+TOKEN = "admin-token-for-tests"
+FAST = """
+[defaults]
+mode = "turn"
+horizon = 4
+
+[[pages]]
+kind = "practice"
+game = { mode = "realtime", horizon = 4, tick_hz = 10.0, follower = "copy" }
+"""
+
+
+def example() -> dict:
+    return tomllib.loads(EXAMPLE.read_text())
+
+
+def fast_study(tmp: Path) -> Path:
+    """The example study with short games (turn-based trials of 4 steps, a real-time practice of 4)."""
+    data = example()
+    data["defaults"] = {"mode": "turn", "horizon": 4}
+    data["factors"]["follower"] = ["copy", "bayes"]
+    for page in data["pages"]:
+        if page["kind"] == "practice":
+            page["game"] = {"mode": "realtime", "horizon": 4, "tick_hz": 10.0, "follower": "copy"}
+    path = tmp / "study.toml"
+    path.write_text(toml(data))
+    return path
+
+
+def toml(data: dict) -> str:
+    """Just enough TOML for study files (tables, arrays of tables, inline game tables)."""
+    def value(v):
+        if isinstance(v, bool):
+            return "true" if v else "false"
+        if isinstance(v, (int, float)):
+            return repr(v)
+        if isinstance(v, str):
+            return json.dumps(v)
+        if isinstance(v, list):
+            return "[" + ", ".join(value(x) for x in v) + "]"
+        if isinstance(v, dict):
+            return "{ " + ", ".join(f"{k} = {value(x)}" for k, x in v.items()) + " }"
+        raise TypeError(v)
+
+    lines = [f"{k} = {value(v)}" for k, v in data.items() if not isinstance(v, (dict, list)) or
+             (isinstance(v, list) and not (v and isinstance(v[0], dict)))]
+    for k, v in data.items():
+        if isinstance(v, dict):
+            lines += [f"[{k}]", *(f"{a} = {value(b)}" for a, b in v.items())]
+    for page in data.get("pages", []):
+        lines.append("[[pages]]")
+        lines += [f"{a} = {value(b)}" for a, b in page.items() if not isinstance(b, list)]
+        for name in ("questions", "after_each"):
+            for q in page.get(name, []):
+                lines.append(f"[[pages.{name}]]")
+                lines += [f"{a} = {value(b)}" for a, b in q.items()]
+    return "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------- the study file
+def test_the_example_study_loads_and_round_trips_through_the_test_writer():
+    study = load_study(EXAMPLE)
+    assert len(study.conditions) == 4 and study.design.assignment == "within"
+    assert parse_study(tomllib.loads(toml(example()))) == study
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda d: d.update(id="has space"), "id='has space' is invalid: 1 to 64 letters"),
+    (lambda d: d["pages"].pop(3), "exactly one page of kind 'trials' (got 0)"),
+    (lambda d: d["pages"][0].update(kind="welcome"), "pages[0].kind='welcome' is invalid: one of ['consent'"),
+    (lambda d: d["pages"][3]["after_each"][0].update(scale=1), "pages[3].after_each[0].scale=1 is invalid: a whole number in 2..11"),
+    (lambda d: d["pages"][4]["questions"][0].update(options=["only"]), "pages[4].questions[0].options=('only',) is invalid: at least two"),
+    (lambda d: d["pages"][4]["questions"][0].pop("prompt"), "pages[4].questions[0]: missing prompt"),
+    (lambda d: d["factors"].update(speed=[1, 2]), "factors.speed is not a factor: choose from ['follower'"),
+    (lambda d: d["factors"].update(horizon=[50, 5000]), "factors.horizon: level 5000 is invalid: a whole number in 1..1000"),
+    (lambda d: d["design"].update(assignment="mixed"), "design.assignment='mixed' is invalid: 'within' or 'between'"),
+    (lambda d: d["design"].update(quota=0), "design.quota=0 is invalid: a positive whole number"),
+    (lambda d: d.update(redirect_url="prolific.com"), "redirect_url='prolific.com' is invalid: an http:// or https://"),
+    (lambda d: d["pages"].append({"kind": "instructions", "text": "late"}), "at most one 'debrief' page, and it comes last"),
+    (lambda d: d["pages"][0].update(text=""), "pages[0].text='' is invalid: the consent text"),
+    (lambda d: d.update(colour="red"), "unknown field(s) ['colour']"),
+])
+def test_each_kind_of_mistake_in_a_study_file_gets_its_clear_message(change, message, tmp_path):
+    data = copy.deepcopy(example())
+    change(data)
+    path = tmp_path / "study.toml"
+    path.write_text(toml(data))
+    with pytest.raises(StudyError) as err:
+        load_study(path)
+    assert str(err.value).startswith(f"{path}: ") and message in str(err.value), str(err.value)
+    assert "\n" not in str(err.value)
+
+
+def test_the_cli_names_a_broken_study_file_in_one_line(tmp_path):
+    path = tmp_path / "broken.toml"
+    path.write_text("id = 'x'\ntitle = [\n")
+    result = subprocess.run([sys.executable, "-m", "colorgrid_apps", "study", "run", str(path)], cwd=ROOT,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert "not valid TOML" in result.stderr and str(path) in result.stderr
+
+
+# ---------------------------------------------------------------- assignment
+@pytest.mark.parametrize("n", [2, 3, 4, 5])
+def test_williams_squares_balance_positions_and_neighbours(n):
+    rows = williams(n)
+    assert all(sorted(r) == list(range(n)) for r in rows)
+    for position in range(n):
+        assert Counter(r[position] for r in rows) == Counter({c: len(rows) // n for c in range(n)})
+    neighbours = Counter(pair for r in rows for pair in pairwise(r))
+    assert set(neighbours.values()) == {len(rows) // n}  # every ordered pair follows equally often
+    assert len(neighbours) == n * (n - 1)
+
+
+def test_assignment_is_balanced_over_many_participants_and_quotas_hold(tmp_path):
+    data = example()
+    data["max_participants"] = 1000
+    data["design"]["quota"] = 60
+    study = parse_study(data)
+    service = StudyService(study, StudyStore(tmp_path / "s.sqlite", study.id, study_hash(study)))
+    for i in range(150):
+        service.join({"PROLIFIC_PID": f"p{i}"}, None, "test")
+    arms = Counter(r["arm"] for r in service.store.rows("SELECT arm FROM participants"))
+    assert sorted(arms) == [0, 1, 2, 3] and max(arms.values()) - min(arms.values()) <= 1, arms
+    for i in range(150, 240):
+        service.join({"PROLIFIC_PID": f"p{i}"}, None, "test")
+    with pytest.raises(Refused, match="the study is full"):  # 4 arms x quota 60
+        service.join({"PROLIFIC_PID": "one-too-many"}, None, "test")
+    orders = {tuple(json.loads(r["conditions"])) for r in service.store.rows("SELECT conditions FROM participants")}
+    assert orders == {tuple(r) for r in williams(4)}
+
+
+def test_a_participant_id_cannot_start_over_and_its_own_browser_resumes(tmp_path):
+    study = load_study(EXAMPLE)
+    service = StudyService(study, StudyStore(tmp_path / "s.sqlite", study.id, study_hash(study)))
+    first = service.join({"PROLIFIC_PID": "p1", "STUDY_ID": "s1"}, None, "browser A")
+    assert service.join({"PROLIFIC_PID": "p1"}, first["session"], "browser A") == first
+    with pytest.raises(Refused, match="already started the study; it cannot start again"):
+        service.join({"PROLIFIC_PID": "p1"}, None, "browser B")
+    with pytest.raises(Refused, match="already started"):
+        service.join({"PROLIFIC_PID": "p1"}, "a guess", "browser B")
+    with pytest.raises(Refused, match="no participant id"):
+        service.join({"other": "x"}, None, "browser C")
+    resuming = parse_study({**example(), "returning": "resume"})
+    again = StudyService(resuming, StudyStore(tmp_path / "s.sqlite", study.id, study_hash(resuming)))
+    assert again.join({"PROLIFIC_PID": "p1"}, None, "browser B")["session"] == first["session"]
+
+
+# ---------------------------------------------------------------- the study server
+def post(server, path: str, body: dict, token: str | None = None):
+    request = urllib.request.Request(server.url + path, data=json.dumps(body).encode(), method="POST",
+                                     headers={"Content-Type": "application/json"})
+    try:
+        with urllib.request.urlopen(request, timeout=30) as response:
+            return response.status, json.loads(response.read())
+    except urllib.error.HTTPError as err:
+        return err.code, json.loads(err.read())
+
+
+def get(server, path: str, token: str | None = None):
+    headers = {"Authorization": f"Bearer {token}"} if token is not None else {}
+    try:
+        with urllib.request.urlopen(urllib.request.Request(server.url + path, headers=headers), timeout=60) as r:
+            return r.status, r.read()
+    except urllib.error.HTTPError as err:
+        return err.code, err.read()
+
+
+@pytest.fixture(scope="module")
+def study_server(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("study")
+    server = start_server(tmp, "--rejoin-grace-s", "30", command=("study", "run", str(fast_study(tmp))),
+                          env={"COLORGRID_ADMIN_TOKEN": TOKEN})
+    server.study_file = tmp / "study.toml"
+    yield server
+    stop_server(server)
+
+
+def test_the_admin_pages_refuse_a_missing_or_wrong_token(study_server):
+    for token in (None, "wrong", ""):
+        status, body = get(study_server, "/api/study/admin/summary", token)
+        assert status == 401 and b"token printed when the study started" in body
+    status, body = get(study_server, "/api/study/admin/summary", TOKEN)
+    assert status == 200 and json.loads(body)["study"] == "belief_display"
+
+
+def test_free_play_and_replays_are_closed_while_a_study_runs(study_server):
+    assert get(study_server, "/api/replays")[0] == 404
+    with connect(study_server.ws_url, open_timeout=20) as ws:
+        ws.send(json.dumps({"type": "new_game", "mode": "turn"}))
+        reply = json.loads(ws.recv(timeout=20))
+        assert reply["code"] == "rejected" and "games start from the study page" in reply["message"]
+
+
+def play_turns(ws, study_ref: dict, keys: int = 4) -> dict:
+    ws.send(json.dumps({"type": "new_game", "study": study_ref, "viewport": [1280, 800]}))
+    welcome = json.loads(ws.recv(timeout=30))
+    assert welcome["type"] == "welcome", welcome
+    ws.send(json.dumps({"type": "page_event", "event": "blur", "visible": True, "t_client": 1.0}))
+    for seq in range(keys):
+        ws.send(json.dumps({"type": "key", "key": "ArrowUp", "seq": seq, "t_client": 2.0 + seq}))
+    while True:
+        msg = json.loads(ws.recv(timeout=30))
+        if msg["type"] == "game_over":
+            return {"welcome": welcome, **msg}
+
+
+def test_a_participant_goes_through_the_api_and_the_data_is_recorded(study_server):
+    status, joined = post(study_server, "/api/study/join", {"params": {"PROLIFIC_PID": "api-1", "SESSION_ID": "s9"}})
+    assert status == 200
+    who = {"pid": "api-1", "session": joined["session"]}
+    view = joined["view"]
+    assert view["kind"] == "consent" and "<strong>I agree</strong>" in view["html"]
+    status, body = post(study_server, "/api/study/advance", {**who, "step": 0})
+    assert status == 409 and "agree to take part" in body["detail"]
+    view = post(study_server, "/api/study/advance", {**who, "step": 0, "agree": True})[1]
+    view = post(study_server, "/api/study/advance", {**who, "step": 1})[1]
+    assert view["kind"] == "practice" and view["game"]["mode"] == "realtime"
+    status, body = post(study_server, "/api/study/advance", {**who, "step": 2})
+    assert status == 409 and "not over yet" in body["detail"]
+    ref = {"participant": "api-1", "session": joined["session"]}
+    with connect(study_server.ws_url, open_timeout=20) as ws:
+        ws.send(json.dumps({"type": "new_game", "study": ref}))
+        while json.loads(ws.recv(timeout=30))["type"] != "game_over":
+            pass
+        view = post(study_server, "/api/study/advance", {**who, "step": 2})[1]
+        assert view["kind"] == "trial" and view["trial_index"] == 0
+        over = play_turns(ws, ref)
+        assert over["welcome"]["mode"] == "turn" and over["reason"] == "complete"
+    view = post(study_server, "/api/study/advance", {**who, "step": 3})[1]
+    assert view["kind"] == "questions"
+    status, body = post(study_server, "/api/study/advance", {**who, "step": 4, "answers": {"helpful": 9}})
+    assert status == 409 and body["detail"] == "helpful: a whole number in 1..7"
+    status, body = post(study_server, "/api/study/advance", {**who, "step": 4, "answers": {"helpful": 5}})
+    assert status == 409 and body["detail"] == "understood: an answer is required"
+    view = post(study_server, "/api/study/advance", {**who, "step": 4, "answers": {"helpful": 5, "understood": 6}})[1]
+    assert view["kind"] == "trial" and view["trial_index"] == 1
+    replay_path = next(study_server.replays_dir.glob(f"*{over['welcome']['game_id']}.replay.json"))
+    replay = load(replay_path)
+    assert verify(replay).ok
+    meta = replay.meta
+    assert meta["study"]["participant"] == "api-1" and meta["study"]["trial_index"] == 0
+    assert meta["show_belief"] == meta["study"]["condition"]["show_belief"]
+    assert meta["client"]["viewport"] == [1280, 800] and meta["page_events"][0]["event"] == "blur"
+
+
+def test_two_participants_in_chromium_one_reloading_mid_trial(study_server, browser, tmp_path):
+    from playwright.sync_api import expect
+
+    def go_through(pid: str, reload_in_trial: int | None):
+        context = browser.new_context(viewport={"width": 1200, "height": 900})
+        page = context.new_page()
+        page.goto(f"{study_server.url}/study?PROLIFIC_PID={pid}&STUDY_ID=st&SESSION_ID=se")
+        expect(page.locator("#page-title")).to_have_text("Consent")
+        page.click("#next")
+        expect(page.locator("#page-title")).to_have_text("How to play")
+        page.click("#next")
+        expect(page.locator("#page-title")).to_have_text("Practice game")
+        page.click("#play")
+        expect(page.locator("#countdown")).to_have_text("3")  # real time: a visible 3-2-1 first
+        expect(page.locator("#page-title")).to_have_text("Practice game", timeout=30_000)  # back when it ends
+        expect(page.locator("#next")).to_be_visible(timeout=30_000)
+        page.click("#next")
+        for trial in range(4):
+            expect(page.locator("#page-title")).to_have_text(f"Game {trial + 1} of 4")
+            page.click("#play")
+            expect(page.locator("#board")).to_be_visible()
+            page.locator("#board").focus()
+            for i in range(4):
+                if trial == reload_in_trial and i == 2:
+                    page.reload()  # resumes the same game
+                    expect(page.locator("#board")).to_be_visible(timeout=20_000)
+                    expect(page.locator("#board")).to_have_attribute("data-step", "2")
+                    page.locator("#board").focus()
+                expect(page.locator("#board")).to_have_attribute("data-step", str(i))
+                page.keyboard.press("ArrowLeft" if i % 2 else "ArrowUp")
+            expect(page.locator("#next")).to_be_visible(timeout=20_000)
+            page.click("#next")
+            page.locator("fieldset[data-id=helpful] input[value='6']").check()
+            page.click("#next")
+            expect(page.locator("#status")).to_have_text("understood: an answer is required")
+            page.locator("fieldset[data-id=understood] input[value='5']").check()
+            page.click("#next")
+        expect(page.locator("#page-title")).to_have_text("A few last questions")
+        page.locator("fieldset[data-id=belief_display] input[value='it helped']").check()
+        page.click("#next")
+        expect(page.locator("#completion-code")).to_have_text("CG7QX2")
+        assert "cc=CG7QX2" in page.locator("#redirect").get_attribute("href")
+        context.close()
+
+    go_through("browser-1", reload_in_trial=None)
+    go_through("browser-2", reload_in_trial=1)
+    summary = json.loads(get(study_server, "/api/study/admin/summary", TOKEN)[1])
+    completed = {p["pid"] for p in summary["recent"] if p["status"] == "completed"}
+    assert {"browser-1", "browser-2"} <= completed and summary["completion_minutes"]["median"] > 0
+
+    out = tmp_path / "export"
+    result = subprocess.run([sys.executable, "-m", "colorgrid_apps", "study", "export", str(study_server.study_file),
+                             "--replays-dir", str(study_server.replays_dir), "--out", str(out)],
+                            cwd=ROOT, capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    tables = {name: pd.read_parquet(out / f"{name}.parquet") for name in
+              ("participants", "trials", "steps", "keys", "answers", "focus")}
+    for name, frame in tables.items():
+        assert len(pd.read_csv(out / f"{name}.csv")) == len(frame)
+    ours = ["browser-1", "browser-2"]
+    trials = tables["trials"][tables["trials"].participant.isin(ours)]
+    assert len(trials[trials.kind == "trial"]) == 8 and len(trials[trials.kind == "practice"]) == 2
+    assert {"condition_follower", "condition_show_belief", "follower_net_pickups", "follower_wrong_pickups",
+            "belief_accuracy", "team_score"} <= set(trials.columns)
+    steps = tables["steps"][tables["steps"].participant.isin(ours)]
+    assert len(steps) == 10 * 4 and {"leader_row", "follower_col", "leader_action", "belief_0"} <= set(steps.columns)
+    keys = tables["keys"][tables["keys"].participant.isin(ours)]
+    assert (keys.status == "applied").sum() == 8 * 4 and keys.reaction_ms.notna().all()
+    answers = tables["answers"][tables["answers"].participant.isin(ours)]
+    assert len(answers) == 2 * (4 * 2 + 2)  # two after each trial, two at the end
+    assert answers[answers.question == "comments"].value.isna().all()  # the optional one, skipped
+    participants = tables["participants"].set_index("participant")
+    assert participants.loc["browser-2", "url_STUDY_ID"] == "st" and participants.loc["browser-2", "status"] == "completed"
+    assert (tables["focus"].participant == "api-1").any()
+    status, archive = get(study_server, "/api/study/admin/export.zip", TOKEN)
+    assert status == 200 and archive[:2] == b"PK"

@@ -1,0 +1,210 @@
+// The participant's page of a study: it shows the page the server says the participant is on
+// (consent, instructions, a game, questions, the debrief) and reports what they did. The server
+// keeps the progress, so a reload continues where the participant was. See docs/STUDIES.md.
+import { drawBoard, drawBelief, setLook } from "./board.js";
+import { countdown } from "./countdown.js";
+import { plainEnding } from "./messages.js";
+
+const $ = (id) => document.getElementById(id);
+const params = Object.fromEntries(new URLSearchParams(location.search));
+let info = null, who = null, view = null, socket = null, game = null, seq = 0;
+
+function status(text, kind = "") {
+  $("status").textContent = text;
+  $("status").className = kind;
+}
+
+async function api(path, body) {
+  const response = await fetch(`/api/study/${path}`, {
+    method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body),
+  });
+  const data = await response.json();
+  if (!response.ok) throw new Error(typeof data.detail === "string" ? data.detail : "the request was refused");
+  return data;
+}
+
+function storageKey() {
+  const id = info.id_params.map((name) => params[name]).find(Boolean) ?? "anonymous";
+  return `colorgrid-study:${info.id}:${id}`;
+}
+
+async function join() {
+  info = await (await fetch("/api/study/info")).json();
+  document.title = info.title;
+  $("study-title").textContent = info.title;
+  const saved = JSON.parse(localStorage.getItem(storageKey()) ?? "null");
+  const sent = { ...params, ...(saved && info.anonymous ? { _pid: saved.pid } : {}) };
+  const joined = await api("join", { params: sent, session: saved?.session ?? null });
+  who = { pid: joined.pid, session: joined.session };
+  localStorage.setItem(storageKey(), JSON.stringify(who));
+  show(joined.view);
+}
+
+function show(next) {
+  view = next;
+  $("page").hidden = false;
+  $("game").hidden = true;
+  $("page-title").textContent = view.title || { consent: "Consent", instructions: "Instructions", practice: "Practice",
+    trial: "Game", questions: "Questions", questionnaire: "Questions", debrief: "Thank you" }[view.kind];
+  if (view.kind === "trial") $("page-title").textContent += ` ${view.trial_index + 1} of ${view.trials}`;
+  $("page-text").innerHTML = view.html;  // rendered by the server from the study file (raw HTML is escaped)
+  $("progress").textContent = `page ${view.step + 1} of ${view.steps}`;
+  $("questions").replaceChildren(...(view.questions ?? []).map(questionField));
+  $("completion").hidden = view.kind !== "debrief";
+  if (view.kind === "debrief") {
+    $("completion-code").textContent = view.completion_code;
+    $("redirect").hidden = !view.redirect_url;
+    $("redirect").href = view.redirect_url || "#";
+  }
+  const gamePage = Boolean(view.game);
+  $("play").hidden = !gamePage || Boolean(view.done);
+  $("next").hidden = view.kind === "debrief" || (gamePage && !view.done);
+  $("next").textContent = view.kind === "consent" ? "I agree" : "Continue";
+  status(view.done ? `game over: ${plainEnding(view.done.ended)}` : "");
+  if (view.live) connect({ type: "rejoin", game_id: view.live.game_id, token: view.live.token });
+}
+
+function questionField(q) {
+  const box = document.createElement("fieldset");
+  box.className = "question";
+  box.dataset.id = q.id;
+  const legend = document.createElement("legend");
+  legend.textContent = q.prompt + (q.required ? "" : " (optional)");
+  box.append(legend);
+  if (q.kind === "text") {
+    const area = document.createElement("textarea");
+    area.name = q.id;
+    area.maxLength = q.max_length;
+    area.rows = 3;
+    box.append(area);
+    return box;
+  }
+  const choices = q.kind === "likert" ? Array.from({ length: q.scale }, (_, i) => String(i + 1)) : q.options;
+  if (q.kind === "likert" && q.labels.length) box.append(span(q.labels[0], "note"));
+  for (const value of choices) {
+    const label = document.createElement("label");
+    label.className = "choice";
+    const input = document.createElement("input");
+    Object.assign(input, { type: "radio", name: q.id, value });
+    label.append(input, " ", value);
+    box.append(label);
+  }
+  if (q.kind === "likert" && q.labels.length) box.append(span(q.labels[1], "note"));
+  return box;
+}
+
+function span(text, className) {
+  const element = document.createElement("span");
+  element.className = className;
+  element.textContent = ` ${text} `;
+  return element;
+}
+
+function answers() {
+  const out = {};
+  for (const q of view.questions ?? []) {
+    const field = $("questions").elements.namedItem(q.id);
+    const value = field?.value ?? "";
+    out[q.id] = value === "" ? null : q.kind === "likert" ? Number(value) : value;
+  }
+  return out;
+}
+
+async function next() {
+  try {
+    const body = { ...who, step: view.step, agree: view.kind === "consent" };
+    if (view.questions) body.answers = answers();
+    show(await api("advance", body));
+  } catch (err) {
+    status(err.message, "error");
+  }
+}
+
+// ------------------------------------------------------------------ games
+function connect(firstMessage) {
+  socket = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/play`);
+  socket.onopen = () => socket.send(JSON.stringify(firstMessage));
+  socket.onmessage = (event) => onMessage(JSON.parse(event.data));
+  socket.onclose = () => {
+    if (game && !game.over && !game.replaced) {
+      status("connection lost: reconnecting...", "warn");
+      setTimeout(() => connect({ type: "rejoin", game_id: game.game_id, token: game.token }), 1000);
+    }
+  };
+}
+
+function onMessage(msg) {
+  if (msg.type === "welcome") {
+    game = { ...msg, over: false };
+    setLook(msg.look);
+    $("page").hidden = true;
+    $("game").hidden = false;
+    $("belief-panel").hidden = !msg.show_belief;
+    if (!$("countdown").hidden) setTimeout(() => { $("countdown").hidden = true; }, 700);
+    status("");
+    $("board").focus();
+  } else if (msg.type === "state") {
+    render(msg);
+  } else if (msg.type === "game_over") {
+    game.over = true;
+    api("view", who).then(show).catch((err) => status(err.message, "error"));
+  } else if (msg.type === "error" || msg.type === "full") {
+    console.info(msg);
+    $("countdown").hidden = true;
+    if (!game) {  // the game was not made: show the page again (its button starts it)
+      api("view", who).then(show).catch((err) => status(err.message, "error"));
+    }
+    status(msg.type === "full" ? "the server is busy: try again in a minute" : "something went wrong: try again", "error");
+  } else if (msg.type === "replaced") {
+    game.replaced = true;
+    status("this game continues in another tab or window", "warn");
+  }
+}
+
+function render(state) {
+  drawBoard($("board"), { height: game.height, width: game.width, ...state });
+  $("board").dataset.step = state.step;
+  $("step").textContent = `${state.step} / ${state.horizon}`;
+  $("score-team").textContent = (state.scores.team > 0 ? "+" : "") + state.scores.team;
+  $("goal-swatch").style.background = game.look.palette[state.goal];
+  $("goal-name").textContent = game.colors[state.goal];
+  if (game.show_belief) drawBelief($("belief"), state.belief, game.colors);
+}
+
+async function play() {
+  seq = 0;
+  game = null;
+  $("play").hidden = true;
+  if (view.game.mode === "realtime") {  // nothing moves, and no key counts, until "go"
+    $("page").hidden = true;
+    await countdown($("countdown"));
+    $("countdown").textContent = "go";
+  }
+  const viewport = [window.innerWidth, window.innerHeight];
+  connect({ type: "new_game", study: { participant: who.pid, session: who.session }, viewport });
+}
+
+function pageEvent(event) {
+  if (!game || game.over || !socket || socket.readyState !== WebSocket.OPEN) return;
+  socket.send(JSON.stringify({ type: "page_event", event, visible: document.visibilityState === "visible",
+                               t_client: performance.timeOrigin + performance.now() }));
+}
+
+document.addEventListener("keydown", (event) => {
+  if (!game || game.over || !socket || socket.readyState !== WebSocket.OPEN || !game.keys.includes(event.key)) return;
+  event.preventDefault();
+  socket.send(JSON.stringify({ type: "key", key: event.key, seq: seq++, t_client: performance.timeOrigin + performance.now() }));
+});
+window.addEventListener("blur", () => pageEvent("blur"));
+window.addEventListener("focus", () => pageEvent("focus"));
+document.addEventListener("visibilitychange", () => pageEvent("visibilitychange"));
+$("next").addEventListener("click", next);
+$("play").addEventListener("click", play);
+$("questions").addEventListener("submit", (event) => event.preventDefault());
+
+join().catch((err) => {
+  $("page").hidden = false;
+  $("page-title").textContent = "This study cannot continue here";
+  $("page-text").textContent = err.message;
+  $("next").hidden = $("play").hidden = true;
+});

@@ -1,0 +1,70 @@
+// The study's admin page: progress by arm and condition, quotas, completion times, live games, and
+// the data download. Every request carries the admin token (Authorization: Bearer); the token is kept
+// in this tab only (sessionStorage) and never appears in a URL.
+const $ = (id) => document.getElementById(id);
+let token = sessionStorage.getItem("colorgrid-admin-token") ?? "";
+
+async function get(path) {
+  const response = await fetch(`/api/study/admin/${path}`, { headers: { Authorization: `Bearer ${token}` } });
+  if (!response.ok) throw new Error((await response.json()).detail ?? `refused (${response.status})`);
+  return response;
+}
+
+function table(element, header, rows) {
+  const line = (cells, tag) => {
+    const tr = document.createElement("tr");
+    for (const cell of cells) {
+      const td = document.createElement(tag);
+      td.textContent = cell ?? "";
+      tr.append(td);
+    }
+    return tr;
+  };
+  element.replaceChildren(line(header, "th"), ...rows.map((row) => line(row, "td")));
+}
+
+const when = (seconds) => (seconds ? new Date(seconds * 1000).toLocaleString() : "");
+
+async function refresh() {
+  const s = await (await get("summary")).json();
+  sessionStorage.setItem("colorgrid-admin-token", token);
+  $("login").hidden = true;
+  $("dashboard").hidden = false;
+  $("study-name").textContent = `${s.title} (${s.study})`;
+  $("totals").textContent = `${s.participants.total} started (limit ${s.max_participants}): ` +
+    `${s.participants.active} in progress, ${s.participants.completed} completed; ${s.live_games} games live now`;
+  const median = s.completion_minutes.median;
+  $("times").textContent = median === null ? "no one has completed yet"
+    : `completion time: median ${median.toFixed(1)} min (all: ${s.completion_minutes.values.join(", ")})`;
+  table($("arms"), ["arm", "trials (conditions in order)", "in progress", "completed", "quota"],
+    s.arms.map((a) => [a.arm, a.label, a.active, a.completed, s.quota ?? "none"]));
+  const factors = Object.keys(s.conditions[0] ?? {}).filter((k) => k !== "label");
+  table($("conditions"), ["condition", ...factors], s.conditions.map((c) => [c.label, ...factors.map((k) => String(c[k]))]));
+  table($("recent"), ["participant", "arm", "status", "page", "started", "last seen", "completed"],
+    s.recent.map((p) => [p.pid, p.arm, p.status, p.step + 1, when(p.started), when(p.updated), when(p.completed)]));
+}
+
+async function open() {
+  token = $("token").value.trim();
+  try {
+    await refresh();
+    setInterval(() => refresh().catch((err) => { $("status").textContent = err.message; }), 5000);
+  } catch (err) {
+    $("status").textContent = err.message;
+    $("status").className = "error";
+  }
+}
+
+$("open").addEventListener("click", open);
+$("download").addEventListener("click", async () => {
+  $("download-status").textContent = "preparing...";
+  try {
+    const blob = await (await get("export.zip")).blob();
+    const link = Object.assign(document.createElement("a"), { href: URL.createObjectURL(blob), download: "study-data.zip" });
+    link.click();
+    $("download-status").textContent = `downloaded (${Math.round(blob.size / 1024)} KB)`;
+  } catch (err) {
+    $("download-status").textContent = err.message;
+  }
+});
+if (token) { $("token").value = token; open(); }
