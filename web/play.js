@@ -2,6 +2,7 @@
 // how it draws (followers, presets, modes, keys, colors, agents) all come from the server.
 import { drawBoard, drawBelief, setLook } from "./board.js";
 import { countdown } from "./countdown.js";
+import { playSocket } from "./socket.js";
 import { plainEnding, plainError, stepsMessage } from "./messages.js";
 
 const $ = (id) => document.getElementById(id);
@@ -74,16 +75,12 @@ function status(text, kind = "", detail = "") {
 }
 
 function connect(firstMessage) {
-  const url = `${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/play`;
-  socket = new WebSocket(url);
-  socket.onopen = () => socket.send(JSON.stringify(firstMessage));
-  socket.onmessage = (event) => onMessage(JSON.parse(event.data));
-  socket.onclose = () => {
-    if (game && !game.over && !game.replaced) {
-      status("connection lost: rejoining...", "warn");
-      setTimeout(() => connect({ type: "rejoin", game_id: game.game_id, token: game.token }), 1000);
-    }
-  };
+  playSocket(firstMessage, {
+    onOpen: (opened) => { socket = opened; },
+    onMessage,
+    liveGame: () => (game && !game.over && !game.replaced ? game : null),
+    onDrop: () => status("connection lost: rejoining...", "warn"),
+  });
 }
 
 function onMessage(msg) {

@@ -3,6 +3,7 @@
 // keeps the progress, so a reload continues where the participant was. See docs/STUDIES.md.
 import { drawBoard, drawBelief, setLook } from "./board.js";
 import { countdown } from "./countdown.js";
+import { playSocket } from "./socket.js";
 import { plainEnding } from "./messages.js";
 
 const $ = (id) => document.getElementById(id);
@@ -122,15 +123,12 @@ async function next() {
 
 // ------------------------------------------------------------------ games
 function connect(firstMessage) {
-  socket = new WebSocket(`${location.protocol === "https:" ? "wss" : "ws"}://${location.host}/ws/play`);
-  socket.onopen = () => socket.send(JSON.stringify(firstMessage));
-  socket.onmessage = (event) => onMessage(JSON.parse(event.data));
-  socket.onclose = () => {
-    if (game && !game.over && !game.replaced) {
-      status("connection lost: reconnecting...", "warn");
-      setTimeout(() => connect({ type: "rejoin", game_id: game.game_id, token: game.token }), 1000);
-    }
-  };
+  playSocket(firstMessage, {
+    onOpen: (opened) => { socket = opened; },
+    onMessage,
+    liveGame: () => (game && !game.over && !game.replaced ? game : null),
+    onDrop: () => status("connection lost: reconnecting...", "warn"),
+  });
 }
 
 function onMessage(msg) {
