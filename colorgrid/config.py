@@ -10,14 +10,24 @@ from colorgrid.configkit import (check_bool, check_choice, check_int, check_numb
                                  to_dict)
 
 ENV_ID = "colorgrid_v0"
-"""Versioned id: bumped whenever dynamics, rewards or observations change."""
+"""Versioned id of the 1:1 team (one leader, one follower): bumped whenever its dynamics, rewards or
+observations change."""
+TEAM_ENV_ID = "colorgrid_teams_v0"
+"""Versioned id of every other team shape (``num_leaders`` or ``num_followers`` above 1)."""
 
+ROLES = ("leader", "follower")
+"""The two roles: a leader knows the goal, a follower (in the asymmetric setting) does not."""
 AGENTS = ("leader", "follower")
-"""Agent names, in the order moves and pickups resolve (leader first)."""
+"""The 1:1 team's agent names, in the order moves and pickups resolve (leader first).
+Other team shapes name theirs ``leader_0, leader_1, ..., follower_0, ...`` (``EnvConfig.agent_names``)."""
 LEADER, FOLLOWER = 0, 1
-"""The agents' indices in ``AGENTS`` (and in every ``[..., A]`` array): the roles, named once."""
+"""The 1:1 team's agents' indices in ``AGENTS`` (and in every ``[..., A]`` array). In any team the first
+leader is index 0; the followers start at ``num_leaders`` (``EnvConfig.followers``)."""
 SYMBOLS = ("L", "F")
-"""One letter per agent, as boards in text and pictures mark them."""
+"""One letter per agent of the 1:1 team, as boards in text and pictures mark them
+(other teams: ``L1, L2, ..., F1, ...``, ``EnvConfig.symbols``)."""
+MAX_PER_ROLE = 8
+"""The most leaders, and the most followers, a team may have."""
 
 COLOR_NAMES = ("red", "green", "blue", "orange", "purple", "cyan", "brown", "pink")
 REWARD_MODES = ("shared", "individual")
@@ -53,12 +63,16 @@ class EnvConfig:
     """Per-step probability (0..1) that the goal switches to another color (paper: 2/3 * 1/32)."""
     asymmetric: bool = True
     """If true, the follower's ``goal_info`` is all zeros (the goal is hidden from it)."""
+    num_leaders: int = 1
+    """Leaders in the team (1..8). Every leader knows the goal; agents ``0 .. num_leaders - 1``."""
+    num_followers: int = 1
+    """Followers in the team (1..8); agents ``num_leaders ..``, after every leader."""
     reward_mode: str = "shared"
     """``"shared"``: each agent gets the team's block reward; ``"individual"``: its own only."""
     horizon: int = 128
     """Steps per episode; then every agent is truncated."""
     hemispheres: bool = False
-    """Confine the leader to the left half and the follower to the right half of the columns."""
+    """Confine the leaders to the left half and the followers to the right half of the columns."""
     allow_stay: bool = False
     """Add action 4, ``stay`` (action space Discrete(5) instead of Discrete(4))."""
     distance_penalty: float = 0.0
@@ -66,7 +80,8 @@ class EnvConfig:
     distance_threshold: int = 10
     """Manhattan distance at or below which the distance penalty applies."""
     distance_penalty_agents: tuple[str, ...] = ("follower",)
-    """Which agents the distance penalty applies to (subset of ``("leader", "follower")``)."""
+    """Which agents the distance penalty applies to: roles (``"leader"``, ``"follower"``: every agent of
+    the role) or agent names (``agent_names``)."""
     potential_shaping: bool = False
     """Shaping: add ``potential_scale * (sum 1/(d+1) over goal blocks - wrong_penalty * sum 1/(d+1) over others)``."""
     potential_scale: float = 0.2
@@ -85,19 +100,68 @@ class EnvConfig:
         return self.blocks_per_color * self.num_colors
 
     @property
+    def one_to_one(self) -> bool:
+        """One leader and one follower: the paper's team, named ``leader`` and ``follower``."""
+        return self.num_leaders == 1 and self.num_followers == 1
+
+    @property
+    def env_id(self) -> str:
+        """``ENV_ID`` for the 1:1 team, ``TEAM_ENV_ID`` for every other shape."""
+        return ENV_ID if self.one_to_one else TEAM_ENV_ID
+
+    @property
+    def roles(self) -> tuple[str, ...]:
+        """Each agent's role (``ROLES``), in index order: the leaders, then the followers."""
+        return ("leader",) * self.num_leaders + ("follower",) * self.num_followers
+
+    @property
+    def leaders(self) -> range:
+        """The leaders' agent indices."""
+        return range(self.num_leaders)
+
+    @property
+    def followers(self) -> range:
+        """The followers' agent indices."""
+        return range(self.num_leaders, self.num_agents)
+
+    @property
     def agent_names(self) -> tuple[str, ...]:
-        """The agents, in index order (``AGENTS``)."""
-        return AGENTS
+        """The agents, in index order: ``AGENTS`` for 1:1, else ``leader_0, ..., follower_0, ...``."""
+        if self.one_to_one:
+            return AGENTS
+        return (tuple(f"leader_{i}" for i in range(self.num_leaders))
+                + tuple(f"follower_{i}" for i in range(self.num_followers)))
+
+    @property
+    def symbols(self) -> tuple[str, ...]:
+        """Each agent's label on boards and pictures: ``SYMBOLS`` for 1:1, else ``L1, L2, ..., F1, ...``."""
+        if self.one_to_one:
+            return SYMBOLS
+        return (tuple(f"L{i + 1}" for i in range(self.num_leaders))
+                + tuple(f"F{i + 1}" for i in range(self.num_followers)))
 
     @property
     def sees_goal(self) -> tuple[bool, ...]:
-        """Which agents' goal information shows the goal: the leader always, the follower only when the
+        """Which agents' goal information shows the goal: every leader always, a follower only when the
         setting is symmetric (the rule is this property; the env and its kernel read it)."""
-        return tuple(i == LEADER or not self.asymmetric for i in range(len(AGENTS)))
+        return tuple(role == "leader" or not self.asymmetric for role in self.roles)
 
     @property
     def num_agents(self) -> int:
-        return len(AGENTS)
+        return self.num_leaders + self.num_followers
+
+    def index(self, name: str) -> int:
+        """The agent index of ``name`` (one of ``agent_names``); an error lists the names."""
+        try:
+            return self.agent_names.index(name)
+        except ValueError:
+            raise ValueError(f"no agent {name!r} in this team; its agents are {list(self.agent_names)}") from None
+
+    def penalised(self, agent: int) -> bool:
+        """Whether the distance penalty applies to ``agent`` (named, or its role named, in
+        ``distance_penalty_agents``)."""
+        names = self.distance_penalty_agents
+        return self.agent_names[agent] in names or self.roles[agent] in names
 
     @property
     def num_actions(self) -> int:
@@ -105,7 +169,7 @@ class EnvConfig:
 
     @property
     def num_planes(self) -> int:
-        """Observation planes: one per color, then leader, then follower."""
+        """Observation planes: one per color, then one per agent in index order (1:1: leader, follower)."""
         return self.num_colors + self.num_agents
 
     @property
@@ -145,8 +209,10 @@ def _validate(cfg: EnvConfig) -> None:
     check_int(cfg, "distance_threshold", 0, 2048)
     for name in ("asymmetric", "hemispheres", "allow_stay", "potential_shaping"):
         check_bool(cfg, name, "a bool (True or False)")
+    check_int(cfg, "num_leaders", 1, MAX_PER_ROLE)
+    check_int(cfg, "num_followers", 1, MAX_PER_ROLE)
     check_choice(cfg, "reward_mode", REWARD_MODES)
-    check_strings(cfg, "distance_penalty_agents", AGENTS, distinct=True)
+    check_strings(cfg, "distance_penalty_agents", dict.fromkeys(ROLES + cfg.agent_names), distinct=True)
     if cfg.hemispheres and cfg.width % 2:
         fail(cfg, "width", "even when hemispheres=True (two equal halves)")
     if cfg.blocks_per_color < 1:
@@ -156,7 +222,7 @@ def _validate(cfg: EnvConfig) -> None:
     halves = 2 if cfg.hemispheres else 1
     cells = cfg.height * cfg.width // halves
     blocks = -(-cfg.num_blocks // halves)  # the fuller half holds the odd block
-    agents_per_half = cfg.num_agents // halves
+    agents_per_half = max(cfg.num_leaders, cfg.num_followers) if halves == 2 else cfg.num_agents
     if blocks + agents_per_half >= cells:
         where = "each half of the grid" if halves == 2 else "the grid"
         fail(cfg, "block_density", f"small enough that {where} ({cells} cells) keeps a free cell after {blocks} "

@@ -5,9 +5,10 @@ The dynamics of a step run in one compiled function (``colorgrid/kernel.py``); t
 class holds the state, checks inputs, builds infos and handles episodes. The rules are
 in ``docs/ENV_CARD.md``; a summary:
 
-* moves resolve leader first; off-grid (or out-of-half) moves and moves onto the
-  other agent's current cell are blocked, so agents never overlap or swap;
-* then each agent, leader first, collects the block on its cell: ``+goal_reward``
+* moves resolve in agent order (the leaders, then the followers; 1:1: leader first);
+  off-grid (or out-of-half) moves and moves onto another agent's cell (its new cell if it
+  has moved, else its current one) are blocked, so agents never overlap or swap;
+* then each agent, in the same order, collects the block on its cell: ``+goal_reward``
   for the goal color, ``-wrong_penalty * penalty_coef`` otherwise; the block
   respawns at once, same color, on a uniformly drawn cell with no block and no
   agent (in hemisphere mode, in the half it was collected in);
@@ -50,13 +51,13 @@ class BatchEnv:
     (``num_envs=1``) reset with ``seed=s + i``.
 
     Observations (returned by ``reset`` and ``step``) are a dict:
-      ``"observation"``: uint8 ``[B, num_colors + 2, H, W]``, shared by both agents
-      (one 0/1 plane per color, then leader, then follower). It is the env's own
-      buffer, updated in place by the next step: copy it if you keep it.
+      ``"observation"``: uint8 ``[B, num_colors + A, H, W]``, shared by every agent
+      (one 0/1 plane per color, then one per agent in index order: 1:1 leader, follower).
+      It is the env's own buffer, updated in place by the next step: copy it if you keep it.
       ``"goal_info"``: float32 ``[B, A, num_colors]``, one-hot goal per agent
-      (zeros for the follower when ``asymmetric``).
-    Rewards, terminations and truncations are ``[B, A]`` arrays, agents in the
-    order of ``config.AGENTS`` (leader, follower).
+      (zeros for the followers when ``asymmetric``).
+    Rewards, terminations and truncations are ``[B, A]`` arrays, agents in index
+    order (``config.agent_names``: the leaders, then the followers).
     """
 
     def __init__(self, config: EnvConfig | None = None, num_envs: int = 1, seed: int | None = None,
@@ -154,7 +155,7 @@ class BatchEnv:
     def step(self, actions):
         """Advance every env one step.
 
-        actions: int ``[B, A]`` (leader, follower), values in ``[0, num_actions)``.
+        actions: int ``[B, A]`` (agents in index order), values in ``[0, num_actions)``.
         Returns ``(observations, rewards [B, A] float32, terminations [B, A],
         truncations [B, A], infos)``; see the module docstring for autoreset.
         """
@@ -279,8 +280,8 @@ def move_table(config: EnvConfig) -> np.ndarray:
     """[A, H*W, num_actions] int64: the cell each action leads to, per agent.
 
     Walls (and the agent's half in hemisphere mode) are applied here: a move that
-    would leave the allowed area maps to the same cell. Blocking by the other
-    agent depends on the state and is applied in ``step``.
+    would leave the allowed area maps to the same cell. Blocking by other agents
+    depends on the state and is applied in ``step``.
     """
     H, W = config.height, config.width
     rows, cols = np.divmod(np.arange(H * W), W)

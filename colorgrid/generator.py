@@ -6,12 +6,12 @@ import numpy as np
 from numba import njit
 
 from colorgrid import rng
-from colorgrid.config import FOLLOWER, LEADER, EnvConfig
+from colorgrid.config import EnvConfig
 from colorgrid.roles import columns
 
 
 def block_goes_left(config: EnvConfig) -> np.ndarray:
-    """[N] bool: in hemisphere mode, blocks with even index start in the leader's (left) half.
+    """[N] bool: in hemisphere mode, blocks with even index start in the leaders' (left) half.
 
     Alternating by index spreads every color evenly over both halves.
     """
@@ -46,9 +46,9 @@ def initial_layout(config: EnvConfig, seeds: np.ndarray):
 
     seeds: [n] uint64. Returns ``agent_cell [n, A]``, ``block_cell [n, N]`` (flat
     cells ``row * W + col``, all distinct) and ``goal [n]``. Without hemispheres
-    agents and blocks take the first cells of a random permutation of the grid;
-    with them, the leader and the even-indexed blocks come from the left half's
-    permutation, the follower and the odd-indexed blocks from the right half's (``roles.columns``).
+    the agents (in index order) and then the blocks take the first cells of a random permutation
+    of the grid; with them, the leaders and the even-indexed blocks come from the left half's
+    permutation, the followers and the odd-indexed blocks from the right half's (``roles.columns``).
     """
     H, W = config.height, config.width
     A, N = config.num_agents, config.num_blocks
@@ -58,13 +58,14 @@ def initial_layout(config: EnvConfig, seeds: np.ndarray):
         agent_cell, block_cell = order[:, :A], order[:, A:]
     else:
         goes_left = block_goes_left(config)
-        left = _shuffled_prefix(seeds, _half(config, cells, LEADER), 1 + goes_left.sum(), 0)
-        right = _shuffled_prefix(seeds, _half(config, cells, FOLLOWER), 1 + (~goes_left).sum(), H * W)
-        agent_cell = np.empty((seeds.shape[0], A), dtype=np.int64)
-        agent_cell[:, LEADER], agent_cell[:, FOLLOWER] = left[:, 0], right[:, 0]
+        L, F = config.num_leaders, config.num_followers
+        first_follower = config.followers[0]
+        left = _shuffled_prefix(seeds, _half(config, cells, 0), L + goes_left.sum(), 0)
+        right = _shuffled_prefix(seeds, _half(config, cells, first_follower), F + (~goes_left).sum(), H * W)
+        agent_cell = np.concatenate([left[:, :L], right[:, :F]], axis=1)
         block_cell = np.empty((seeds.shape[0], N), dtype=np.int64)
-        block_cell[:, goes_left] = left[:, 1:]
-        block_cell[:, ~goes_left] = right[:, 1:]
+        block_cell[:, goes_left] = left[:, L:]
+        block_cell[:, ~goes_left] = right[:, F:]
     goal = rng.below(seeds, config.num_colors, 0, rng.STREAM_GOAL)
     return agent_cell.astype(np.int64), block_cell.astype(np.int64), goal
 

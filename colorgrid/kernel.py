@@ -13,7 +13,6 @@ import numpy as np
 from numba import njit
 
 from colorgrid import rng
-from colorgrid.config import FOLLOWER, LEADER  # module-level ints: numba compiles them in as constants
 
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
@@ -55,12 +54,12 @@ PARAMS = [
 ]
 """The rules' constants, named once: one record holds them (``pack``), the kernel reads them by name.
 Per-agent flags follow as ``[A]`` uint8 fields: ``distance_mask`` (the distance penalty applies to
-agent a) and ``sees_goal`` (agent a's goal information shows the goal)."""
+agent a), ``sees_goal`` (agent a's goal information shows the goal) and ``is_leader`` (agent a's role)."""
 
 
 def params_dtype(num_agents: int) -> np.dtype:
-    return np.dtype([*PARAMS, ("distance_mask", np.uint8, (num_agents,)), ("sees_goal", np.uint8, (num_agents,))],
-                    align=True)
+    return np.dtype([*PARAMS, ("distance_mask", np.uint8, (num_agents,)), ("sees_goal", np.uint8, (num_agents,)),
+                     ("is_leader", np.uint8, (num_agents,))], align=True)
 
 
 def pack(config, penalty_coef: float | None = None) -> np.ndarray:
@@ -72,8 +71,9 @@ def pack(config, penalty_coef: float | None = None) -> np.ndarray:
         p[name] = getattr(config, name, None) if name not in _DERIVED else _DERIVED[name](config)
     if penalty_coef is not None:
         p["penalty_coef"] = penalty_coef
-    p["distance_mask"] = [name in config.distance_penalty_agents for name in config.agent_names]
+    p["distance_mask"] = [config.penalised(a) for a in range(config.num_agents)]
     p["sees_goal"] = config.sees_goal
+    p["is_leader"] = [role == "leader" for role in config.roles]
     return params
 
 
@@ -125,7 +125,7 @@ def step_kernel(actions, agent_cell, block_at, block_cell, block_color, goal, t,
     distance_penalty, potential_scale = p.distance_penalty, p.potential_scale
     width, height, hemispheres = p.width, p.height, p.hemispheres
     distance_threshold, potential_on = p.distance_threshold, p.potential_shaping
-    distance_mask, sees_goal = p.distance_mask, p.sees_goal
+    distance_mask, sees_goal, is_leader = p.distance_mask, p.sees_goal, p.is_leader
     for b in range(actions.shape[0]):
         for a in range(actions.shape[1]):
             if actions[b, a] < 0 or actions[b, a] >= p.num_actions:
@@ -140,7 +140,8 @@ def step_kernel(actions, agent_cell, block_at, block_cell, block_color, goal, t,
     span = width // 2 if hemispheres else width
     for b in range(B):
         step_index = t[b] + 1
-        # moves, leader first; an agent is blocked by the others' current cells
+        # moves in agent order (leaders, then followers); an agent is blocked by the others' current cells:
+        # the new cells of those that moved before it, the old cells of those still to move
         for a in range(A):
             old = agent_cell[b, a]
             new = move_table[a, old, actions[b, a]]
@@ -150,7 +151,7 @@ def step_kernel(actions, agent_cell, block_at, block_cell, block_color, goal, t,
             obs[b, C + a, old] = 0
             obs[b, C + a, new] = 1
             agent_cell[b, a] = new
-        # pickups, leader first; a collected block respawns before the next agent collects
+        # pickups in agent order; a collected block respawns before the next agent collects
         for a in range(A):
             cell = agent_cell[b, a]
             j = block_at[b, cell]
@@ -197,13 +198,16 @@ def step_kernel(actions, agent_cell, block_at, block_cell, block_color, goal, t,
         for a in range(A):
             distance_term[a] = 0.0
             potential_term[a] = 0.0
-        if distance_penalty != 0.0:  # the leader and the follower within the threshold of each other
-            lr, lc = agent_cell[b, LEADER] // width, agent_cell[b, LEADER] % width
-            fr, fc = agent_cell[b, FOLLOWER] // width, agent_cell[b, FOLLOWER] % width
-            if abs(lr - fr) + abs(lc - fc) <= distance_threshold:
-                for a in range(A):
-                    if distance_mask[a] != 0:
-                        distance_term[a] = -distance_penalty
+        if distance_penalty != 0.0:  # an agent within the threshold of an agent of the other role
+            for a in range(A):
+                if distance_mask[a] == 0:
+                    continue
+                ra, ca = agent_cell[b, a] // width, agent_cell[b, a] % width
+                for o in range(A):
+                    if is_leader[o] != is_leader[a]:
+                        ro, co = agent_cell[b, o] // width, agent_cell[b, o] % width
+                        if abs(ra - ro) + abs(ca - co) <= distance_threshold:
+                            distance_term[a] = -distance_penalty
         if potential_on:
             for a in range(A):
                 ra, ca = agent_cell[b, a] // width, agent_cell[b, a] % width

@@ -7,7 +7,7 @@ from gymnasium import spaces
 from pettingzoo import ParallelEnv
 from pettingzoo.utils.conversions import parallel_to_aec
 
-from colorgrid.config import AGENTS, ENV_ID, EnvConfig
+from colorgrid.config import ENV_ID, EnvConfig
 from colorgrid.env import BatchEnv
 from colorgrid.render import render_ansi, render_rgb
 
@@ -15,10 +15,14 @@ RENDER_MODES = ("rgb_array", "ansi", "human")
 
 
 class ColorGridParallelEnv(ParallelEnv):
-    """ColorGrid as a PettingZoo ``ParallelEnv`` (agents ``"leader"`` and ``"follower"``).
+    """ColorGrid as a PettingZoo ``ParallelEnv``.
 
-    Each agent observes ``{"observation": uint8 [num_colors + 2, H, W],
-    "goal_info": float32 [num_colors]}``. Infos carry the unshaped block rewards,
+    Agents: ``"leader"`` and ``"follower"`` in the 1:1 team; otherwise ``leader_0, leader_1, ...,
+    follower_0, ...`` (``EnvConfig.agent_names``). Each agent observes ``{"observation": uint8
+    [P, H, W], "goal_info": float32 [num_colors]}``. In the 1:1 team ``P = num_colors + 2`` (one plane
+    per color, then leader, then follower), the same for both agents. In other teams there is one plane
+    per agent in index order and a last plane marking the observing agent's own cell, so that an agent
+    can tell which one it is: ``P = num_colors + A + 1``. Infos carry the unshaped block rewards,
     pickups and the true goal color (for evaluation: it is not an observation).
     ``render_mode="human"`` prints the ANSI view to the terminal.
     """
@@ -31,15 +35,19 @@ class ColorGridParallelEnv(ParallelEnv):
         self.config = config if config is not None else EnvConfig()
         self.render_mode = render_mode
         self.batch = BatchEnv(self.config, num_envs=1, autoreset=False)
-        self.possible_agents = list(AGENTS)
-        self.agents: list[str] = []
         cfg = self.config
+        self.names = cfg.agent_names
+        self.possible_agents = list(self.names)
+        self.agents: list[str] = []
+        self.metadata = {**self.metadata, "name": cfg.env_id}
+        self._self_plane = not cfg.one_to_one
+        planes = cfg.num_planes + self._self_plane
         obs_space = spaces.Dict({
-            "observation": spaces.Box(0, 1, (cfg.num_planes, cfg.height, cfg.width), dtype=np.uint8),
+            "observation": spaces.Box(0, 1, (planes, cfg.height, cfg.width), dtype=np.uint8),
             "goal_info": spaces.Box(0.0, 1.0, (cfg.num_colors,), dtype=np.float32),
         })
-        self._observation_spaces = {a: obs_space for a in AGENTS}
-        self._action_spaces = {a: spaces.Discrete(cfg.num_actions) for a in AGENTS}
+        self._observation_spaces = {a: obs_space for a in self.names}
+        self._action_spaces = {a: spaces.Discrete(cfg.num_actions) for a in self.names}
 
     def observation_space(self, agent: str) -> spaces.Space:
         return self._observation_spaces[agent]
@@ -49,9 +57,9 @@ class ColorGridParallelEnv(ParallelEnv):
 
     def reset(self, seed: int | None = None, options: dict | None = None):
         obs, _ = self.batch.reset(seed=seed)
-        self.agents = list(AGENTS)
+        self.agents = list(self.names)
         seed_used = int(self.batch.state.seed[0])
-        return self._split(obs), {a: {"seed": seed_used} for a in AGENTS}
+        return self._split(obs), {a: {"seed": seed_used} for a in self.names}
 
     def step(self, actions: dict):
         if not self.agents:
@@ -59,7 +67,7 @@ class ColorGridParallelEnv(ParallelEnv):
         missing = [a for a in self.agents if a not in actions]
         if missing:
             raise ValueError(f"actions missing for agent(s) {missing}; expected one per agent in {self.agents}")
-        joint = np.array([[actions[a] for a in AGENTS]], dtype=np.int64)
+        joint = np.array([[actions[a] for a in self.names]], dtype=np.int64)
         obs, rewards, terms, truncs, info = self.batch.step(joint)
         out_obs = self._split(obs)
         # one .tolist() per array: Python scalars without per-element numpy conversions
@@ -71,14 +79,14 @@ class ColorGridParallelEnv(ParallelEnv):
             a: {"block_reward": block[i], "team_reward": team, "goal_pickup": hit[i], "wrong_pickup": wrong[i],
                 "distance_shaping": shaping_d[i], "potential_shaping": shaping_p[i], "goal_color": goal,
                 "goal_switched": switched}
-            for i, a in enumerate(AGENTS)
+            for i, a in enumerate(self.names)
         }
         reward_list, term_list, trunc_list = rewards[0].tolist(), terms[0].tolist(), truncs[0].tolist()
         out = (
             out_obs,
-            dict(zip(AGENTS, reward_list)),
-            dict(zip(AGENTS, term_list)),
-            dict(zip(AGENTS, trunc_list)),
+            dict(zip(self.names, reward_list)),
+            dict(zip(self.names, term_list)),
+            dict(zip(self.names, trunc_list)),
             infos,
         )
         if all(trunc_list) or all(term_list):
@@ -99,7 +107,7 @@ class ColorGridParallelEnv(ParallelEnv):
         return None
 
     def state(self) -> np.ndarray:
-        """The global state as the shared observation planes (both agents see the whole grid)."""
+        """The global state as the shared observation planes (every agent sees the whole grid)."""
         return self.batch._obs[0].copy()
 
     def close(self) -> None:
@@ -107,8 +115,13 @@ class ColorGridParallelEnv(ParallelEnv):
 
     def _split(self, obs: dict) -> dict:
         planes = obs["observation"][0]
-        return {a: {"observation": planes.copy(), "goal_info": obs["goal_info"][0, i].copy()}
-                for i, a in enumerate(AGENTS)}
+        out = {}
+        for i, a in enumerate(self.names):
+            own = planes.copy()
+            if self._self_plane:  # the observer's own cell, again, as the last plane
+                own = np.concatenate([own, own[self.config.num_colors + i][None]])
+            out[a] = {"observation": own, "goal_info": obs["goal_info"][0, i].copy()}
+        return out
 
 
 def parallel_env(config: EnvConfig | None = None, render_mode: str | None = None, **overrides) -> ColorGridParallelEnv:

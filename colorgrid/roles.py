@@ -1,30 +1,35 @@
-"""The team's rules as functions of the roles (``config.AGENTS``): where each agent may stand, who it
+"""The team's rules as functions of the roles (``EnvConfig.roles``): where each agent may stand, who it
 plays with, and what each has scored. Every module that needs one of these asks here."""
 
 from __future__ import annotations
 
-from colorgrid.config import AGENTS, FOLLOWER, LEADER, EnvConfig
+from colorgrid.config import FOLLOWER, LEADER, EnvConfig
 from colorgrid.state import EnvState
 
 
 def columns(config: EnvConfig, agent: int) -> tuple[int, int]:
     """``(first, stop)``: the columns agent ``agent`` may stand on, ``first <= col < stop``.
 
-    Every column, except in hemisphere mode: the leader keeps to the left half, the follower
+    Every column, except in hemisphere mode: the leaders keep to the left half, the followers
     to the right half (the move table, the initial layout and the scripted agents all read this).
     """
     if not config.hemispheres:
         return 0, config.width
     half = config.width // 2
-    return (0, half) if agent == LEADER else (half, config.width)
+    return (0, half) if config.roles[agent] == "leader" else (half, config.width)
 
 
 def partner(agent: int) -> int:
-    """The index of the other agent of the pair."""
+    """The index of the other agent of a 1:1 team."""
     return FOLLOWER if agent == LEADER else LEADER
 
 
-def scores(state: EnvState, index: int = 0) -> dict[str, float]:
-    """Env ``index``'s scores so far: ``team`` (the sum), then one per agent by name (``AGENTS``)."""
+def others(config: EnvConfig, agent: int) -> list[int]:
+    """Every agent index but ``agent``, in index order."""
+    return [a for a in range(config.num_agents) if a != agent]
+
+
+def scores(state: EnvState, config: EnvConfig, index: int = 0) -> dict[str, float]:
+    """Env ``index``'s scores so far: ``team`` (the sum), then one per agent by name (``agent_names``)."""
     score = state.score[index]
-    return {"team": float(score.sum()), **{name: float(score[i]) for i, name in enumerate(AGENTS)}}
+    return {"team": float(score.sum()), **{name: float(score[i]) for i, name in enumerate(config.agent_names)}}

@@ -1,8 +1,8 @@
 """Hand-built states from text maps, for tests and experiments.
 
-A map has one line per row; ``.`` is floor, an agent's symbol (``config.SYMBOLS``: ``L`` the
-leader, ``F`` the follower) marks it and
-a color's initial (``r``, ``g``, ``b``, ...) a block of that color::
+A map has one line per row; ``.`` is floor, an agent's symbol (``config.symbols``: ``L`` the
+leader and ``F`` the follower of the 1:1 team; ``L1``, ``L2``, ``F1``, ... in other teams) marks it
+and a color's initial (``r``, ``g``, ``b``, ...) a block of that color::
 
     state = state_from_text(config, '''
         L.r
@@ -13,11 +13,12 @@ a color's initial (``r``, ``g``, ``b``, ...) a block of that color::
 
 from __future__ import annotations
 
+import re
 import textwrap
 
 import numpy as np
 
-from colorgrid.config import AGENTS, SYMBOLS, EnvConfig
+from colorgrid.config import EnvConfig
 from colorgrid.state import EnvState
 
 
@@ -27,7 +28,8 @@ def state_from_text(config: EnvConfig, text: str, goal: int | str = 0, seed: int
     The map must be ``config.height x config.width``, hold each agent once and
     exactly ``config.blocks_per_color`` blocks of each color.
     """
-    rows = [line.replace(" ", "") for line in textwrap.dedent(text).strip().splitlines()]
+    rows = [re.findall(r"[LF]\d+|\S", line) for line in textwrap.dedent(text).strip().splitlines()]
+    symbols = config.symbols
     if len(rows) != config.height or any(len(r) != config.width for r in rows):
         raise ValueError(f"map must be {config.height} rows of {config.width} cells, got "
                          f"{len(rows)} rows of lengths {sorted({len(r) for r in rows})}")
@@ -40,15 +42,17 @@ def state_from_text(config: EnvConfig, text: str, goal: int | str = 0, seed: int
     for r, row in enumerate(rows):
         for c, ch in enumerate(row):
             cell = r * config.width + c
-            if ch in SYMBOLS:
-                agent_cell[SYMBOLS.index(ch)] = cell
+            if ch in symbols:
+                if agent_cell[symbols.index(ch)] >= 0:
+                    raise ValueError(f"map places agent {ch} twice")
+                agent_cell[symbols.index(ch)] = cell
             elif ch in initials:
                 cells_by_color[initials[ch]].append(cell)
             elif ch != ".":
                 raise ValueError(f"unknown map character {ch!r} at row {r}, col {c}; allowed: . "
-                                 + " ".join([*SYMBOLS, *initials]))
+                                 + " ".join([*symbols, *initials]))
     if (agent_cell < 0).any():
-        raise ValueError(f"map must place both agents {list(AGENTS)} ({' and '.join(SYMBOLS)})")
+        raise ValueError(f"map must place every agent {list(config.agent_names)} ({' '.join(symbols)})")
     for k, cells in enumerate(cells_by_color):
         if len(cells) != config.blocks_per_color:
             raise ValueError(f"map has {len(cells)} {config.color_names[k]} blocks; the config needs "

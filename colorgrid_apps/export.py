@@ -39,7 +39,7 @@ def draw_panel(replay: Replay, t: int, state, height: int) -> np.ndarray:
     draw.text((x, y), f"step {t} / {cfg.horizon}", fill=INK, font=font)
     y += 22
     if replay.block_reward is not None:
-        score = scores(state)
+        score = scores(state, cfg)
         draw.text((x, y), f"team {score['team']:+g}", fill=INK, font=font)
         y += 18
         for name in AGENTS:

@@ -177,7 +177,7 @@ class GridScene:
                 batched_positions=pos, batched_colors=tuple(int(x) for x in PALETTE[k])))
         self.agents = {}  # name -> sphere, in index order
         for i, name in enumerate(AGENTS):
-            body = np.minimum(AGENT_COLORS[i][0], 235)  # pure white glares under the scene's light
+            body = np.minimum(AGENT_COLORS[name][0], 235)  # pure white glares under the scene's light
             self.agents[name] = scene.add_icosphere(f"{root}/{name}", radius=0.45, position=first.agents[i],
                                                     color=tuple(int(x) for x in body))
             scene.add_label(f"{root}/{name}/label", f"{SYMBOLS[i]} ({name})", position=(0.0, 0.0, 0.8))

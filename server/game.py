@@ -178,7 +178,7 @@ class Game:
             **{name: int(s.agent_cell[0, i]) for i, name in enumerate(AGENTS)},
             "blocks": blocks,
             "goal": int(s.goal[0]),
-            "scores": scores(s),
+            "scores": scores(s, cfg),
             "belief": self.beliefs[-1] if (self.show_belief and self.beliefs) else None,
             "events": self.last_events, "last_applied_seq": last_seq,
         }

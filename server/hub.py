@@ -318,7 +318,7 @@ class GameHub:
         for listener in self.listeners:
             try:
                 await asyncio.get_running_loop().run_in_executor(self.saver, listener.game_over, game, reason,
-                                                                 scores(game.env.state))
+                                                                 scores(game.env.state, game.env.config))
             except Exception:
                 log.exception("a listener failed on the end of game %s", game.game_id)
         client = self.clients.pop(game.game_id, None)
@@ -326,7 +326,7 @@ class GameHub:
             s = game.env.state
             await self._send_to(client, {
                 "type": "game_over", "reason": reason, "replay_id": game.replay_id, "steps": int(s.t[0]),
-                "scores": scores(s),
+                "scores": scores(s, game.env.config),
             })
 
     async def _save(self, game: Game, reason: str) -> None:

@@ -209,9 +209,11 @@ def test_look_names_the_pictures_colors_and_the_timeline_carries_it(recorded):
     full = look()
     assert full["palette"] == [hex_color(rgb) for rgb in PALETTE] and full["palette"][0] == "#dc322f"
     assert (full["floor"], full["grid"]) == (hex_color(FLOOR), hex_color(GRID_LINE))
-    assert full["agents"] == [{"name": name, "symbol": SYMBOLS[i], "body": hex_color(AGENT_COLORS[i][0]),
-                               "ink": hex_color(AGENT_COLORS[i][1])} for i, name in enumerate(AGENTS)]
-    assert full["agents"][0] == {"name": "leader", "symbol": "L", "body": "#191919", "ink": "#ffffff"}
+    assert full["agents"] == [{"name": name, "role": name, "symbol": SYMBOLS[i],
+                               "body": hex_color(AGENT_COLORS[name][0]), "ink": hex_color(AGENT_COLORS[name][1])}
+                              for i, name in enumerate(AGENTS)]
+    assert full["agents"][0] == {"name": "leader", "role": "leader", "symbol": "L", "body": "#191919",
+                                 "ink": "#ffffff"}
     _, paths = recorded
     data = timeline(load(paths[0]))
     assert data["look"] == look(CONFIG) and data["look"]["palette"] == full["palette"][:CONFIG.num_colors]

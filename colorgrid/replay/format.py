@@ -17,7 +17,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from colorgrid.config import AGENTS, ENV_ID, EnvConfig
+from colorgrid.config import EnvConfig
 from colorgrid.files import JSONFileError, atomic_path, read_json
 from colorgrid.rng import MAX_SEED
 
@@ -44,7 +44,7 @@ class Replay:
     config: EnvConfig
     seed: int | None  # episode seed (actions replays); None for frames replays
     source: str  # "eval" | "train" | "play" | "import"
-    agents: dict  # {"leader": {"policy": ...}, "follower": {...}}; "human" for people; checkpoint sha256
+    agents: dict  # agent name -> {"policy": ...} ("human" for people; checkpoint sha256), names from config
     actions: list | None  # [T][A] ints (actions replays)
     goal: list  # [T] goal color when the step's actions were chosen
     block_reward: list | None  # [T][A] unshaped block rewards
@@ -58,8 +58,12 @@ class Replay:
     ended: str = "complete"  # "complete", or why it stopped early ("disconnected", "idle", ...)
     key_events: list | None = None  # human games: key log (see docs/SERVER_PROTOCOL.md)
     created: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
-    env_id: str = ENV_ID
+    env_id: str | None = None  # None: the config's (``EnvConfig.env_id``)
     meta: dict = field(default_factory=dict)  # free-form: description, game id, ...
+
+    def __post_init__(self) -> None:
+        if self.env_id is None:
+            self.env_id = self.config.env_id
 
     @property
     def kind(self) -> str:
@@ -73,7 +77,7 @@ class Replay:
         """Totals of the episode (what the file's ``final`` field holds)."""
         out: dict[str, Any] = {"length": self.num_steps}
         if self.block_reward is not None:
-            for i, name in enumerate(AGENTS):
+            for i, name in enumerate(self.config.agent_names):
                 out[f"{name}_score"] = round(sum(r[i] for r in self.block_reward), 6)
                 out[f"{name}_goal_pickups"] = sum(1 for t, p in enumerate(self.picked_color) if p[i] >= 0
                                                   and p[i] == self.goal[t])
@@ -87,6 +91,7 @@ class Replay:
         body = {
             "format": FORMAT_NAME, "format_version": FORMAT_VERSION, "kind": self.kind, "env_id": self.env_id,
             "config": self.config.to_dict(), "seed": self.seed, "source": self.source, "created": self.created,
+            "agent_names": list(self.config.agent_names), "roles": list(self.config.roles),
             "agents": self.agents, "penalty_coef": self.penalty_coef, "ended": self.ended,
             "steps": {
                 "actions": self.actions, "goal": self.goal, "block_reward": self.block_reward,
@@ -134,6 +139,9 @@ class Replay:
         )
         if doc.get("kind", replay.kind) != replay.kind:
             raise ReplayError(path, f"kind is {doc['kind']!r}, but steps.actions says {replay.kind!r}")
+        for name, expected in (("agent_names", config.agent_names), ("roles", config.roles)):
+            if name in doc and doc[name] != list(expected):  # files from before teams have neither: the config tells
+                raise ReplayError(path, f"{name} is {doc[name]!r}, but the config's team has {list(expected)}")
         replay.validate(path)
         return replay
 
@@ -149,7 +157,9 @@ class Replay:
         def rows(value, width: int, element) -> bool:  # a [T][width] list of lists whose entries pass `element`
             return all(isinstance(r, list) and len(r) == width and all(element(x) for x in r) for r in value)
 
-        require(self.env_id == ENV_ID, f"env_id {self.env_id!r} is not {ENV_ID!r}, which this colorgrid simulates")
+        require(self.env_id == cfg.env_id, f"env_id {self.env_id!r} is not {cfg.env_id!r}, which this colorgrid "
+                                           f"simulates for a team of {cfg.num_leaders} leader(s) and "
+                                           f"{cfg.num_followers} follower(s)")
         require(self.source in SOURCES, f"source {self.source!r} is not one of {list(SOURCES)}")
         require(0 < T <= cfg.horizon, f"episode has {T} steps; expected 1..horizon ({cfg.horizon})")
         require(all(_is_int(g) and 0 <= g < C for g in self.goal), f"steps.goal must hold colors in [0, {C})")
@@ -196,7 +206,7 @@ class Replay:
         if self.goal_switched is not None:
             require(all(isinstance(s, bool) for s in self.goal_switched), "steps.goal_switched must be [T] booleans")
         for name, probs in self.goal_probs.items():
-            require(name in AGENTS and probs is not None, f"steps.goal_probs has an unknown agent {name!r}")
+            require(name in cfg.agent_names and probs is not None, f"steps.goal_probs has an unknown agent {name!r}")
             require(isinstance(probs, list) and len(probs) == T and rows(probs, C, _is_real),
                     f"steps.goal_probs.{name} must be [{T}][{C}] numbers")
         if self.key_events is not None:
@@ -224,7 +234,7 @@ _DOCUMENT_FIELDS = {  # field: (what it must be, may it be null, may it be absen
     "source": (_STRING, False, False), "created": (_STRING, False, False), "agents": (_OBJECT, False, False),
     "penalty_coef": (_NUMBER, False, False), "ended": (_STRING, False, False), "steps": (_OBJECT, False, False),
     "kind": (_STRING, False, True), "frames": (_OBJECT, True, True), "key_events": (_LIST, True, True),
-    "meta": (_OBJECT, True, True),
+    "meta": (_OBJECT, True, True), "agent_names": (_LIST, False, True), "roles": (_LIST, False, True),
 }
 _STEP_FIELDS = {
     "actions": (_LIST, True, False), "goal": (_LIST, False, False), "block_reward": (_LIST, True, False),

@@ -6,7 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from colorgrid.config import AGENTS, LEADER, EnvConfig
+from colorgrid.config import LEADER, EnvConfig
 from colorgrid.env import BatchEnv
 from colorgrid.replay.format import Replay, ReplayError
 from colorgrid.rollout import EpisodeBatch
@@ -54,7 +54,7 @@ def verify(replay: Replay, path=None, states: list[EnvState] | None = None) -> V
             return Verification(False, f"state hash mismatch at step {t} ({what}): file has {expected}, "
                                        f"re-simulation gives {got}", t)
     final = replay.final()
-    for i, name in enumerate(AGENTS):
+    for i, name in enumerate(replay.config.agent_names):
         if f"{name}_score" in final and abs(float(states[-1].score[0, i]) - final[f"{name}_score"]) > 1e-6:
             return Verification(False, f"{name} score differs from re-simulation", len(states) - 1)
     return Verification(True, "ok")
@@ -90,7 +90,7 @@ def from_batch(batch: EpisodeBatch, agents: dict, source: str, penalty_coef: flo
     replays = []
     for e in range(batch.num_episodes):
         probs = {name: batch.goal_probs[i][:, e].round(5).tolist()
-                 for i, name in enumerate(AGENTS) if batch.goal_probs[i] is not None}
+                 for i, name in enumerate(batch.config.agent_names) if batch.goal_probs[i] is not None}
         replays.append(Replay(
             config=batch.config, seed=int(batch.seeds[e]), source=source, agents=agents,
             actions=batch.actions[:, e].tolist(), goal=batch.goal[:, e].tolist(),
@@ -106,7 +106,7 @@ def from_batch(batch: EpisodeBatch, agents: dict, source: str, penalty_coef: flo
 def import_frames(config: EnvConfig, planes: np.ndarray, goal_info: np.ndarray, meta: dict | None = None) -> Replay:
     """A frames replay from observation arrays, such as the paper's trajectory dumps.
 
-    planes: ``[T+1, C+A, H, W]`` (or ``[T+1, A, C+A, H, W]``, the leader's view is used),
+    planes: ``[T+1, C+A, H, W]`` (or ``[T+1, A, C+A, H, W]``, the first leader's view is used),
     0/1 per cell; goal_info: ``[T+1, C]`` (or ``[T+1, A, C]``) one-hot goal per frame (the leader's view).
     """
     planes = np.asarray(planes)
@@ -135,7 +135,7 @@ def import_frames(config: EnvConfig, planes: np.ndarray, goal_info: np.ndarray, 
         cells.append(frame[C:].reshape(A, -1).argmax(axis=1).tolist())
     goals = goal_info.argmax(axis=1).astype(int).tolist()
     T = planes.shape[0] - 1
-    return Replay(config=config, seed=None, source="import", agents={name: {"policy": "unknown"} for name in AGENTS},
+    return Replay(config=config, seed=None, source="import", agents={name: {"policy": "unknown"} for name in config.agent_names},
                   actions=None, goal=goals[:T], block_reward=None,
                   team_reward=None, picked_color=None, goal_switched=None,
                   frames={"agent_cell": cells, "blocks": blocks, "goal": goals}, meta=dict(meta or {}))

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import bisect
 
-from colorgrid.config import AGENTS, COLOR_NAMES
+from colorgrid.config import COLOR_NAMES
 from colorgrid.render import look
 from colorgrid.replay.format import Replay
 from colorgrid.replay.simulate import encode_blocks, replay_states, verify
@@ -24,7 +24,8 @@ def timeline(replay: Replay, path=None) -> dict:
         "verified": check.ok, "problem": None if check.ok else check.message,
         "kind": replay.kind, "source": replay.source, "agents": replay.agents, "created": replay.created,
         "ended": replay.ended, "seed": replay.seed, "final": replay.final(), "meta": replay.meta,
-        "config": cfg.to_dict(), "colors": list(COLOR_NAMES[: cfg.num_colors]), "look": look(cfg),
+        "config": cfg.to_dict(), "agent_names": list(cfg.agent_names), "roles": list(cfg.roles),
+        "colors": list(COLOR_NAMES[: cfg.num_colors]), "look": look(cfg),
         "height": cfg.height, "width": cfg.width, "steps": replay.num_steps,
     }
     if not check.ok:
@@ -33,13 +34,13 @@ def timeline(replay: Replay, path=None) -> dict:
     for t, state in enumerate(states):
         boards.append({
             "t": t, "blocks": encode_blocks(state.block_colors(cfg).reshape(-1)),
-            **{name: int(state.agent_cell[0, i]) for i, name in enumerate(AGENTS)},
+            **{name: int(state.agent_cell[0, i]) for i, name in enumerate(cfg.agent_names)},
             "goal": int(replay.goal[t]) if t < replay.num_steps else int(state.goal[0]),
             "scores": [float(x) for x in state.score[0]] if replay.kind == "actions" else None,
         })
     events = []  # pickups and goal switches, for timeline markers
     for t in range(replay.num_steps):
-        for i, name in enumerate(AGENTS):
+        for i, name in enumerate(cfg.agent_names):
             color = replay.picked_color[t][i] if replay.picked_color else -1
             if color >= 0:
                 events.append({"t": t, "type": "pickup", "agent": name, "color": color,
