@@ -3,6 +3,7 @@
 Usage: python bench/bench_env.py [--steps 512] [--repeats 5]
 Prints env-steps per wall second and per CPU second (medians over repeats);
 observations are produced every step (the batch env's buffer, updated in place).
+The last rows compare team shapes at N=1024: 1:1, 2:1, 1:2, 2:2 and 3:3 (leaders:followers).
 """
 
 from __future__ import annotations
@@ -19,10 +20,10 @@ from common import machine, timed  # noqa: E402
 from colorgrid import BatchEnv, EnvConfig, parallel_env  # noqa: E402
 
 
-def bench_batch(n: int, steps: int, repeats: int) -> tuple[float, float]:
-    env = BatchEnv(EnvConfig(), num_envs=n, seed=0)
+def bench_batch(n: int, steps: int, repeats: int, config: EnvConfig = EnvConfig()) -> tuple[float, float]:
+    env = BatchEnv(config, num_envs=n, seed=0)
     env.reset()
-    actions = np.random.default_rng(0).integers(0, 4, (steps, n, 2))
+    actions = np.random.default_rng(0).integers(0, 4, (steps, n, config.num_agents))
 
     def run():
         for a in actions:
@@ -63,6 +64,13 @@ def main() -> None:
     env.reset(seed=0)
     wall, cpu = timed(lambda: [env.reset() for _ in range(200)], args.repeats)
     print(f"parallel_env reset (fresh seed, new layout): {wall / 200 * 1e6:.0f} us wall, {cpu / 200 * 1e6:.0f} us CPU")
+    print(f"{'team at N=1024':<24}{'env-steps/s':>14}{'env-steps/CPU-s':>18}{'of 1:1':>10}")
+    base = None
+    for leaders, followers in ((1, 1), (2, 1), (1, 2), (2, 2), (3, 3)):
+        config = EnvConfig(num_leaders=leaders, num_followers=followers)
+        wall, cpu = bench_batch(1024, args.steps, args.repeats, config)
+        base = cpu if base is None else base
+        print(f"{f'{leaders}:{followers}':<24}{wall:>14,.0f}{cpu:>18,.0f}{cpu / base:>10.2f}")
 
 
 if __name__ == "__main__":

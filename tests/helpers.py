@@ -14,8 +14,9 @@ def env_from_text(config: EnvConfig, text: str, goal=0, seed=0) -> BatchEnv:
     return env
 
 
-def step1(env: BatchEnv, leader: int, follower: int):
-    return env.step(np.array([[leader, follower]]))
+def step1(env: BatchEnv, *actions: int):
+    """One step of a batch of one: an action per agent, in index order (1:1: leader, follower)."""
+    return env.step(np.array([actions]))
 
 
 def check_consistent(env: BatchEnv) -> None:
@@ -26,7 +27,8 @@ def check_consistent(env: BatchEnv) -> None:
     assert ((flat >= 0).sum(axis=1) == cfg.num_blocks).all()
     assert (np.take_along_axis(flat, s.block_cell, axis=1) == np.arange(cfg.num_blocks)).all()
     assert (np.take_along_axis(flat, s.agent_cell, axis=1) < 0).all(), "a block lies under an agent"
-    assert (s.agent_cell[:, 0] != s.agent_cell[:, 1]).all(), "agents overlap"
+    ordered = np.sort(s.agent_cell, axis=1)
+    assert (ordered[:, 1:] != ordered[:, :-1]).all(), "agents overlap"
     obs = env._obs.reshape(B, cfg.num_planes, HW)
     colors = s.block_colors(cfg).reshape(B, HW)
     for k in range(cfg.num_colors):
