@@ -22,19 +22,47 @@ def _replay_files(target: Path) -> list[Path]:
     return [target]
 
 
+def team_entries(replay) -> list[dict]:
+    """One entry per agent, in index order: ``name``, ``role``, ``symbol``, ``policy``, whether it logged
+    ``beliefs``, and its totals (``score``, ``goal_pickups``, ``wrong_pickups``) when the replay has rewards."""
+    cfg, final = replay.config, replay.final()
+    out = []
+    for name, role, symbol in zip(cfg.agent_names, cfg.roles, cfg.symbols):
+        entry = {"name": name, "role": role, "symbol": symbol, "policy": replay.agents.get(name, {}).get("policy"),
+                 "beliefs": replay.goal_probs.get(name) is not None}
+        for total in ("score", "goal_pickups", "wrong_pickups"):
+            if f"{name}_{total}" in final:
+                entry[total] = final[f"{name}_{total}"]
+        out.append(entry)
+    return out
+
+
+def agent_line(entry: dict) -> str:
+    """``L1 leader_0 (leader, astar): +3 (4 goal, 1 wrong), beliefs``: one agent of ``team_entries``."""
+    line = f"{entry['symbol']} {entry['name']} ({entry['role']}, {entry['policy'] or '?'})"
+    if "score" in entry:
+        line += f": {entry['score']:+g} ({entry['goal_pickups']} goal, {entry['wrong_pickups']} wrong)"
+    return line + (", beliefs" if entry["beliefs"] else "")
+
+
 def cmd_verify(args: argparse.Namespace) -> int:
     from colorgrid.replay import ReplayError, load, verify
 
     failures = 0
     for target in args.files:
         for path in _replay_files(Path(target)):
+            replay = None
             try:
-                result = verify(load(path), path)
+                replay = load(path)
+                result = verify(replay, path)
                 message = result.message
                 failures += not result.ok
             except ReplayError as err:
                 message, failures = f"error: {err.problem}", failures + 1
             print(f"{path}: {message}")
+            if replay is not None and not replay.config.one_to_one:  # a team's agents are not implied by the id
+                for entry in team_entries(replay):
+                    print(f"  {agent_line(entry)}")
     return 1 if failures else 0
 
 
@@ -42,9 +70,10 @@ def cmd_info(args: argparse.Namespace) -> int:
     from colorgrid.replay import load
 
     replay = load(args.file)
-    print(json.dumps({"kind": replay.kind, "source": replay.source, "agents": replay.agents, "seed": replay.seed,
-                      "steps": replay.num_steps, "ended": replay.ended, "final": replay.final(),
-                      "config": replay.config.to_dict(), "meta": replay.meta}, indent=2))
+    print(json.dumps({"kind": replay.kind, "env_id": replay.env_id, "source": replay.source, "agents": replay.agents,
+                      "team": team_entries(replay), "seed": replay.seed, "steps": replay.num_steps,
+                      "ended": replay.ended, "final": replay.final(), "config": replay.config.to_dict(),
+                      "meta": replay.meta}, indent=2))
     return 0
 
 
@@ -122,14 +151,15 @@ def cmd_rescore(args: argparse.Namespace) -> int:
 def add_replay_commands(sub) -> None:
     replay = sub.add_parser("replay", help="check, inspect, import and release replays")
     rsub = replay.add_subparsers(dest="replay_command", required=True)
-    verify = rsub.add_parser("verify", help="re-simulate replays and report the first step that differs, or ok")
+    verify = rsub.add_parser("verify", help="re-simulate replays and report the first step that differs, or ok "
+                                            "(teams other than 1:1: then one line per agent)")
     verify.add_argument("files", nargs="+", help="replay files or folders")
     verify.set_defaults(func=cmd_verify)
-    info = rsub.add_parser("info", help="print a replay's header and totals")
+    info = rsub.add_parser("info", help="print a replay's header and totals, with one entry per agent (team)")
     info.add_argument("file")
     info.set_defaults(func=cmd_info)
     imp = rsub.add_parser("import", help="import a frames-only trajectory (observation planes + goal one-hots)")
-    imp.add_argument("trajectory", help=".npy of shape [T+1, C+2, H, W] (or [T+1, A, C+2, H, W])")
+    imp.add_argument("trajectory", help=".npy of shape [T+1, C+A, H, W] (or [T+1, A, C+A, H, W]); A agents, 2 in 1:1")
     imp.add_argument("goal_info", help=".npy of shape [T+1, C]: the leader's one-hot goal per frame")
     imp.add_argument("--out", required=True, help="replay file to write (*.replay.json)")
     add_config_arguments(imp)

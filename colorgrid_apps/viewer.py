@@ -1,14 +1,16 @@
 """The 3D replay viewer (``colorgrid view [PATH]``): every viser call of the project lives in this module.
 
 A viser server on 127.0.0.1 shows a replay's grid as batched meshes (floor, one batch of
-cubes per block color, the two agents with labels), with a per-tab panel: a dropdown of the
-replays in a folder, a step slider, play/pause and speed, step/scores/goal, and a uPlot chart
-of the follower's goal probabilities (x in steps, a marker at the current step). Each tab gets
-its own scene, controls and camera, which opens framing the whole board.
+cubes per block color, every agent of the team in its role's color with a label, ``L (leader)``
+in the 1:1 team, ``L1 (leader_0)``, ``F2 (follower_1)``, ... in others), with a per-tab panel: a
+dropdown of the replays in a folder, a step slider, play/pause and speed, step/scores/goal, and one
+uPlot chart of goal probabilities per follower that logged them (x in steps, a marker at the
+current step). The team comes from the replay (its timeline's ``look``), never from constants.
+Each tab gets its own scene, controls and camera, which opens framing the whole board.
 
 ``standalone_html`` records a replay into an offline HTML file (the viser client with the
 scene embedded). A recording holds scene messages only, never GUI ones, so the export draws
-the panel and the chart into the scene beside the board (``ScenePanel``), and plays one
+the panel and the charts into the scene beside the board (``ScenePanel``), and plays one
 recording second per step: its playback slider and clock count steps. The export button
 sends that file to the browser; ``export_html`` writes it for ``--export``. viser is pinned in
 ``pyproject.toml``: client and server must match.
@@ -28,7 +30,7 @@ import rich
 import viser
 import viser.uplot
 
-from colorgrid.config import AGENTS, FOLLOWER, SYMBOLS
+from colorgrid.config import EnvConfig
 from colorgrid.render import AGENT_COLORS, FLOOR, GRID_LINE, PALETTE
 from colorgrid.replay import ReplayError, load
 from colorgrid.replay.timeline import timeline
@@ -36,7 +38,6 @@ from colorgrid.replay.timeline import timeline
 SPEEDS = ("0.25", "0.5", "1", "2", "4", "8")
 BASE_FPS = 8.0
 HIDDEN_Z = -50.0  # where unused block instances wait
-BELIEVER = AGENTS[FOLLOWER]  # whose goal probabilities the panel shows
 STEP_SECONDS = 1.0  # recording time per step: the export's slider and clock read in steps
 FOV = np.deg2rad(50.0)  # vertical field of view of the opening camera
 VIEW_FROM = np.array([0.0, -0.5, np.sqrt(3.0) / 2])  # look-at point to camera: from the south, 60 degrees up
@@ -58,7 +59,7 @@ class Frame:
     """The scene at one step, as arrays: what the meshes are set to (pure data, easy to test)."""
 
     block_positions: list  # per color: [N_k, 3] float32 (unused instances below the floor)
-    agents: np.ndarray  # [A, 3] float32, in index order (``AGENTS``)
+    agents: np.ndarray  # [A, 3] float32, in index order (the timeline's ``agent_names``)
     goal: int
 
 
@@ -82,8 +83,25 @@ def frame_at(data: dict, t: int, capacity: list[int]) -> Frame:
         pos[: len(mine), 1] = H - mine // W - 0.5
         pos[: len(mine), 2] = 0.4
         positions.append(pos)
-    agents = np.stack([cell_xyz(board[name], W, H, 0.45) for name in AGENTS])
+    agents = np.stack([cell_xyz(board[agent["name"]], W, H, 0.45) for agent in data["look"]["agents"]])
     return Frame(positions, agents, board["goal"])
+
+
+def team(data: dict) -> EnvConfig:
+    """The replay's config (its team: ``agent_names``, ``roles``, ``symbols``, ``one_to_one``)."""
+    return EnvConfig.from_dict(data["config"])
+
+
+def agent_label(agent: dict) -> str:
+    """The label over an agent (an entry of the timeline's ``look["agents"]``): ``L1 (leader_0)``, ``L (leader)``."""
+    return f"{agent['symbol']} ({agent['name']})"
+
+
+def believer_label(data: dict, name: str) -> str:
+    """How the panel names a follower with beliefs: ``follower`` in the 1:1 team, else ``F1 (follower_0)``."""
+    if team(data).one_to_one:
+        return name
+    return next(agent_label(agent) for agent in data["look"]["agents"] if agent["name"] == name)
 
 
 def block_capacity(data: dict) -> list[int]:
@@ -176,11 +194,13 @@ class GridScene:
                 batched_wxyzs=np.tile(np.array([1.0, 0, 0, 0], dtype=np.float32), (n, 1)),
                 batched_positions=pos, batched_colors=tuple(int(x) for x in PALETTE[k])))
         self.agents = {}  # name -> sphere, in index order
-        for i, name in enumerate(AGENTS):
-            body = np.minimum(AGENT_COLORS[name][0], 235)  # pure white glares under the scene's light
+        self.labels = {}  # name -> the label over it
+        for i, agent in enumerate(data["look"]["agents"]):
+            name = agent["name"]
+            body = np.minimum(AGENT_COLORS[agent["role"]][0], 235)  # pure white glares under the scene's light
             self.agents[name] = scene.add_icosphere(f"{root}/{name}", radius=0.45, position=first.agents[i],
                                                     color=tuple(int(x) for x in body))
-            scene.add_label(f"{root}/{name}/label", f"{SYMBOLS[i]} ({name})", position=(0.0, 0.0, 0.8))
+            self.labels[name] = scene.add_label(f"{root}/{name}/label", agent_label(agent), position=(0.0, 0.0, 0.8))
         self.show(0)
 
     def show(self, t: int) -> Frame:
@@ -210,33 +230,49 @@ def load_timeline(path: Path) -> dict:
 
 
 def step_summary(data: dict, t: int, strong=str) -> list[str]:
-    """The panel's lines at step ``t``: step, goal, scores, the follower's beliefs; ``strong`` marks the key values."""
+    """The panel's lines at step ``t``: step, goal, scores, each follower's beliefs; ``strong`` marks the key values.
+
+    Agents are named as the board labels them: by name in the 1:1 team, by symbol in others."""
     board = data["boards"][t]
     lines = [f"step {strong(t)} / {data['steps']}", f"goal: {strong(data['colors'][board['goal']])}"]
     scores = board["scores"]
     if scores is not None:
-        each = ", ".join(f"{name} {score:+.0f}" for name, score in zip(AGENTS, scores))
+        key = "name" if team(data).one_to_one else "symbol"
+        names = [agent[key] for agent in data["look"]["agents"]]
+        each = ", ".join(f"{name} {score:+.0f}" for name, score in zip(names, scores))
         lines.append(f"team {strong(f'{sum(scores):+.0f}')} ({each})")
-    probs = beliefs(data)
-    if probs is not None:
-        row = probs[min(t, len(probs) - 1)]
-        lines.append(f"{BELIEVER} believes: " + ", ".join(f"{c} {p:.2f}" for c, p in zip(data["colors"], row)))
+    for name in believers(data):
+        row = beliefs(data, name)[min(t, data["steps"] - 1)]
+        lines.append(f"{believer_label(data, name)} believes: "
+                     + ", ".join(f"{c} {p:.2f}" for c, p in zip(data["colors"], row)))
     return lines
 
 
-def beliefs(data: dict) -> np.ndarray | None:
-    """The follower's goal probabilities, ``[T, colors]`` (one row per action), or None if it logged none."""
-    probs = data.get("goal_probs", {}).get(BELIEVER)
+def chart_title(data: dict, name: str) -> str:
+    """The title of follower ``name``'s belief chart: ``follower's goal probabilities`` in the 1:1 team."""
+    return f"{believer_label(data, name)}'s goal probabilities"
+
+
+def believers(data: dict) -> list[str]:
+    """The followers that logged goal probabilities, in index order: one chart each."""
+    probs = data.get("goal_probs", {})
+    return [agent["name"] for agent in data["look"]["agents"]
+            if agent["role"] == "follower" and probs.get(agent["name"])]
+
+
+def beliefs(data: dict, name: str) -> np.ndarray | None:
+    """Agent ``name``'s goal probabilities, ``[T, colors]`` (one row per action), or None if it logged none."""
+    probs = data.get("goal_probs", {}).get(name)
     return np.asarray(probs, dtype=np.float64) if probs else None
 
 
-def belief_series(data: dict, t: int) -> tuple[tuple[np.ndarray, ...] | None, tuple]:
-    """uPlot data and series of the belief chart at step ``t``; ``(None, ())`` if the follower has no beliefs.
+def belief_series(data: dict, t: int, name: str) -> tuple[tuple[np.ndarray, ...] | None, tuple]:
+    """uPlot data and series of ``name``'s belief chart at step ``t``; ``(None, ())`` if it has no beliefs.
 
     x is every step ``0..steps``; then a "now" spike (1 at ``t``, 0 elsewhere, filled) that marks the
     current step; then one probability curve per color, NaN past the last action (no belief there).
     """
-    probs = beliefs(data)
+    probs = beliefs(data, name)
     if probs is None:
         return None, ()
     x = np.arange(data["steps"] + 1, dtype=np.float64)
@@ -259,70 +295,79 @@ def belief_scales(data: dict) -> dict[str, viser.uplot.Scale]:
 
 
 class ScenePanel:
-    """The panel's lines and the belief chart drawn into the scene, right of the board, for recordings.
+    """The panel's lines and the belief charts drawn into the scene, right of the board, for recordings.
 
     A recording keeps scene messages but no GUI, so the export shows its panel this way: a text
-    label rewritten per step, the curves as line segments, and a cursor moved to the current step.
+    label rewritten per step, and per follower with beliefs a chart (the first beside the board,
+    the others below it): the curves as line segments, and a cursor moved to the current step.
     """
+
+    CHART_GAP = 6.0  # between one chart's plotting area and the next one's, below it (room for ticks and legend)
 
     def __init__(self, scene, data: dict, title: str, root: str = "/panel"):
         self.data, self.title = data, title
         H, W, steps = data["height"], data["width"], data["steps"]
-        self.x0, self.width, self.height = W + 4.5, float(W), H / 2  # the chart's plotting area, from (x0, 0)
+        self.x0, self.width, self.height = W + 4.5, float(W), H / 2  # each chart's plotting area, from (x0, its y0)
         self.facts = scene.add_label(f"{root}/facts", "", position=(self.x0 - 1.0, H + 0.5, 0.0))
-        self.cursor = None
-        probs = beliefs(data)
-        if probs is not None:
-            self._draw_chart(scene, f"{root}/chart", probs, steps)
+        self.cursors = []  # (cursor, y0) per chart
+        names = believers(data)
+        for j, name in enumerate(names):
+            where = f"{root}/chart" if team(data).one_to_one else f"{root}/chart/{name}"
+            y0 = 0.0 - j * (self.height + self.CHART_GAP)
+            self._draw_chart(scene, where, beliefs(data, name), steps, y0, chart_title(data, name))
+        self.num_charts = len(names)
         self.show(0)
 
-    def _draw_chart(self, scene, root: str, probs: np.ndarray, steps: int) -> None:
+    def _draw_chart(self, scene, root: str, probs: np.ndarray, steps: int, y0: float, title: str) -> None:
         x0, w, h = self.x0, self.width, self.height
         scene.add_box(f"{root}/paper", dimensions=(w + 5.0, h + 5.0, 0.1),
-                      position=(x0 + w / 2 - 1.0, h / 2 + 0.5, -0.05), color=tuple(int(c) for c in FLOOR))
+                      position=(x0 + w / 2 - 1.0, y0 + h / 2 + 0.5, -0.05), color=tuple(int(c) for c in FLOOR))
         frame = np.array([[(0, 0), (w, 0)], [(w, 0), (w, h)], [(w, h), (0, h)], [(0, h), (0, 0)]], dtype=np.float32)
-        scene.add_line_segments(f"{root}/frame", lift(frame, x0), colors=INK, thickness=1.0, thickness_units="screen")
-        scene.add_line_segments(f"{root}/half", lift(np.array([[(0, h / 2), (w, h / 2)]], dtype=np.float32), x0),
+        scene.add_line_segments(f"{root}/frame", lift(frame, x0, y0), colors=INK, thickness=1.0,
+                                thickness_units="screen")
+        scene.add_line_segments(f"{root}/half", lift(np.array([[(0, h / 2), (w, h / 2)]], dtype=np.float32), x0, y0),
                                 colors=tuple(int(c) for c in GRID_LINE), thickness=1.0, thickness_units="screen")
         xs = w * np.arange(len(probs)) / steps
         colors = self.data["colors"]
         for k, name in enumerate(colors):
             rgb = tuple(int(c) for c in PALETTE[k])
             points = np.stack([xs, h * probs[:, k]], axis=1).astype(np.float32)
-            scene.add_line_segments(f"{root}/{name}", lift(np.stack([points[:-1], points[1:]], axis=1), x0),
+            scene.add_line_segments(f"{root}/{name}", lift(np.stack([points[:-1], points[1:]], axis=1), x0, y0),
                                     colors=rgb, thickness=2.5, thickness_units="screen")
             left = w * k / len(colors)  # the legend: a colored dash, then the name
             key = np.array([[(left, h + 1.2), (left + 1.5, h + 1.2)]], dtype=np.float32)
-            scene.add_line_segments(f"{root}/key/{name}", lift(key, x0), colors=rgb, thickness=4.0,
+            scene.add_line_segments(f"{root}/key/{name}", lift(key, x0, y0), colors=rgb, thickness=4.0,
                                     thickness_units="screen")
-            scene.add_label(f"{root}/key/{name}/label", name, position=(x0 + left + 2.0, h + 1.2, 0.0),
+            scene.add_label(f"{root}/key/{name}/label", name, position=(x0 + left + 2.0, y0 + h + 1.2, 0.0),
                             anchor="center-left")
-        scene.add_label(f"{root}/title", f"{BELIEVER}'s goal probabilities", position=(x0, h + 2.8, 0.0),
-                        anchor="center-left")
+        scene.add_label(f"{root}/title", title, position=(x0, y0 + h + 2.8, 0.0), anchor="center-left")
         for text, xy, anchor in (("0", (0, -0.6), "top-center"), (str(steps), (w, -0.6), "top-center"),
                                  ("step", (w / 2, -0.6), "top-center"), ("1", (-0.6, h), "center-right"),
                                  ("0.5", (-0.6, h / 2), "center-right"), ("0", (-0.6, 0), "center-right")):
-            scene.add_label(f"{root}/ticks/{text}_{anchor}", text, position=(x0 + xy[0], xy[1], 0.0), anchor=anchor)
+            scene.add_label(f"{root}/ticks/{text}_{anchor}", text, position=(x0 + xy[0], y0 + xy[1], 0.0),
+                            anchor=anchor)
         stroke = np.array([[(0, 0, 0.05), (0, h, 0.05)]], dtype=np.float32)  # moved along x by ``show``
-        self.cursor = scene.add_line_segments(f"{root}/now", stroke, colors=INK, thickness=2.0,
-                                              thickness_units="screen")
+        cursor = scene.add_line_segments(f"{root}/now", stroke, colors=INK, thickness=2.0, thickness_units="screen")
+        self.cursors.append((cursor, y0))
 
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """The corners ``(lo, hi)`` of the box holding the board and this panel (what the export frames)."""
         lo, hi = board_bounds(self.data)
-        return np.array([lo[0], -2.0, lo[2]]), np.array([self.x0 + self.width + 1.5, hi[1], hi[2]])
+        bottom = -2.0 - max(0, self.num_charts - 1) * (self.height + self.CHART_GAP)
+        return np.array([lo[0], bottom, lo[2]]), np.array([self.x0 + self.width + 1.5, hi[1], hi[2]])
 
     def show(self, t: int) -> None:
         self.facts.text = "\n".join([self.title, *step_summary(self.data, t)])
-        if self.cursor is not None:
-            self.cursor.position = (self.x0 + self.width * t / self.data["steps"], 0.0, 0.0)
+        for cursor, y0 in self.cursors:
+            cursor.position = (self.x0 + self.width * t / self.data["steps"], y0, 0.0)
 
 
-def lift(segments: np.ndarray, x0: float) -> np.ndarray:
-    """2D chart segments ``[N, 2, 2]`` to scene segments ``[N, 2, 3]``, moved right by ``x0``, just above the paper."""
+def lift(segments: np.ndarray, x0: float, y0: float = 0.0) -> np.ndarray:
+    """2D chart segments ``[N, 2, 2]`` to scene segments ``[N, 2, 3]``, moved by ``(x0, y0)``, just above the paper."""
     out = np.zeros((*segments.shape[:2], 3), dtype=np.float32)
     out[..., :2] = segments
     out[..., 0] += x0
+    out[..., 1] += y0
     out[..., 2] = 0.02
     return out
 
@@ -335,7 +380,7 @@ class TabView:
         gui = target.gui
         self.grid: GridScene | None = None
         self.data: dict | None = None
-        self.chart = None
+        self.charts: dict = {}  # follower name -> its belief chart (uPlot), in index order
         self.framed: tuple[int, int] | None = None  # the board size the camera was last aimed at
         self.playing = False
         self.next_tick = 0.0
@@ -365,20 +410,25 @@ class TabView:
             return
         if self.grid is not None:
             self.grid.remove()
-        if self.chart is not None:
-            self.chart.remove()
-            self.chart = None
+        for chart in self.charts.values():
+            chart.remove()
+        self.charts = {}
         self.data, self.name = data, name
         self.grid = GridScene(self.target.scene, data, self.root)
         self.frame_board()
         self.slider.max = data["steps"]
-        series_data, series = belief_series(data, 0)
-        if series_data is not None:
-            self.chart = self.target.gui.add_uplot(series_data, series, title=f"{BELIEVER}'s goal probabilities",
-                                                   scales=belief_scales(data), axes=({"label": "step"}, {}), aspect=2.0,
-                                                   padding=(10, 24, 0, 0))
+        for name in believers(data):
+            series_data, series = belief_series(data, 0, name)
+            self.charts[name] = self.target.gui.add_uplot(series_data, series, title=chart_title(data, name),
+                                                          scales=belief_scales(data), axes=({"label": "step"}, {}),
+                                                          aspect=2.0, padding=(10, 24, 0, 0))
         self.slider.value = 0
         self.show(0)
+
+    @property
+    def chart(self):
+        """The first follower's belief chart (the 1:1 team's follower's), or None when no follower logged beliefs."""
+        return next(iter(self.charts.values()), None)
 
     def frame_board(self) -> None:
         """Aim this tab's camera at the whole board, for its own canvas, when a new board size opens."""
@@ -397,8 +447,8 @@ class TabView:
         t = max(0, min(self.data["steps"], t))
         self.grid.show(t)
         self.info.content = "  \n".join([f"**{self.name}**", *step_summary(self.data, t, strong=lambda s: f"**{s}**")])
-        if self.chart is not None:
-            self.chart.data = belief_series(self.data, t)[0]
+        for name, chart in self.charts.items():
+            chart.data = belief_series(self.data, t, name)[0]
         self.step = t
 
     def toggle(self) -> None:
@@ -514,7 +564,7 @@ def standalone_html(data: dict, name: str) -> str:
     """A standalone, offline HTML page playing the replay in 3D, one recording second per step.
 
     The scene is recorded through a private, silent viser server on a free local port: the board,
-    the panel and chart drawn into the scene (``ScenePanel``), and a camera framing both.
+    the panel and charts drawn into the scene (``ScenePanel``), and a camera framing both.
     """
     with quiet_viser():
         server = viser.ViserServer(host="127.0.0.1", port=0, verbose=False)

@@ -1,6 +1,7 @@
 // Draws a ColorGrid board on a canvas, by the same rules as colorgrid/render.py: floor, colored blocks,
-// each agent as a disc with its letter, a frame in the goal color. The colors and the agents are the
-// server's (`look`: /api/options, the welcome message, a replay's timeline), set once with `setLook`.
+// each agent of the team as a disc in its role's colors with its label (1:1: L, F; other teams: L1, L2, F1, ...),
+// a frame in the goal color. The colors and the agents are the server's (`look`: /api/options, the welcome
+// message, a replay's timeline), set once with `setLook`. `describeBoard` says the same in words.
 let look = null;
 
 export function setLook(value) {
@@ -44,10 +45,25 @@ function drawAgent(ctx, border, cell, width, index, agent) {
   ctx.strokeStyle = "#000";
   ctx.stroke();
   ctx.fillStyle = agent.ink;
-  ctx.font = `bold ${Math.max(8, cell - 6)}px sans-serif`;
+  let size = Math.max(8, cell - 6);
+  ctx.font = `bold ${size}px sans-serif`;
+  const room = 0.8 * cell, wide = ctx.measureText(agent.symbol).width;
+  if (agent.symbol.length > 1 && wide > room) {  // two-character labels (L1, F2) shrink to fit their disc
+    size = Math.max(6, Math.floor((size * room) / wide));
+    ctx.font = `bold ${size}px sans-serif`;
+  }
   ctx.textAlign = "center";
   ctx.textBaseline = "middle";
   ctx.fillText(agent.symbol, x, y + 1);
+}
+
+export function describeBoard(board, colors) {
+  // The board in words, for the canvas's accessible name: the goal, then where each agent stands.
+  const where = look.agents.map((agent) => {
+    const r = Math.floor(board[agent.name] / board.width), c = board[agent.name] % board.width;
+    return `${agent.symbol} (${agent.name}) at row ${r + 1}, column ${c + 1}`;
+  });
+  return `goal ${board.goal == null ? "unknown" : colors[board.goal]}; ${where.join("; ")}`;
 }
 
 export function drawBelief(container, probs, colors) {

@@ -1,6 +1,10 @@
 // The episode chart under the replay board: belief lines, the true goal strip, pickup and switch markers,
-// and a cursor at the current step. Pure drawing: `drawChart(canvas, data, step)`; `stepAt(canvas, data, x)`.
-// `data` is a replay's timeline: its `look` gives the colors and the agents (in index order, the leader first).
+// and a cursor at the current step. Pure drawing: `drawChart(canvas, data, step, followers)`;
+// `stepAt(canvas, data, x)`.
+// `data` is a replay's timeline: its `look` gives the colors and the agents (in index order, the leaders first).
+// A chart shows the leaders (dashed belief lines, pickups above) and the `followers` it is for (solid lines,
+// pickups below): every follower unless told (1:1: the follower); the player draws one chart per follower
+// with beliefs in teams of several.
 
 const PAD = { left: 30, right: 8, top: 14, bottom: 26 };
 
@@ -14,7 +18,11 @@ export function stepAt(canvas, data, x) {
   return Math.max(0, Math.min(data.steps, Math.round(((x - PAD.left) / w) * data.steps)));
 }
 
-export function drawChart(canvas, data, step) {
+export function followerNames(data) {
+  return data.look.agents.filter((agent) => agent.role === "follower").map((agent) => agent.name);
+}
+
+export function drawChart(canvas, data, step, followers = followerNames(data)) {
   const ctx = canvas.getContext("2d");
   const H = canvas.height, plotH = H - PAD.top - PAD.bottom;
   const yOf = (p) => PAD.top + (1 - p) * plotH;
@@ -29,10 +37,12 @@ export function drawChart(canvas, data, step) {
     ctx.fillText(p.toFixed(1), 4, yOf(p) + 3);
   }
   const palette = data.look.palette;
-  const [leader] = data.look.agents;  // index order: the leader first
-  // belief lines, one per color, for each agent that has beliefs (dashed for the leader, solid for the follower)
+  const role = Object.fromEntries(data.look.agents.map((agent) => [agent.name, agent.role]));
+  const shown = (name) => role[name] === "leader" || followers.includes(name);
+  // belief lines, one per color, for each shown agent that has beliefs (dashed for leaders, solid for followers)
   for (const [agent, probs] of Object.entries(data.goal_probs || {})) {
-    ctx.setLineDash(agent === leader.name ? [4, 3] : []);
+    if (!shown(agent)) continue;
+    ctx.setLineDash(role[agent] === "leader" ? [4, 3] : []);
     for (let k = 0; k < data.colors.length; k++) {
       ctx.strokeStyle = palette[k];
       ctx.lineWidth = 1.5;
@@ -57,8 +67,8 @@ export function drawChart(canvas, data, step) {
     if (e.type === "switch") {
       ctx.strokeStyle = "#999"; ctx.setLineDash([2, 3]);
       ctx.beginPath(); ctx.moveTo(x, PAD.top); ctx.lineTo(x, H - PAD.bottom); ctx.stroke(); ctx.setLineDash([]);
-    } else {
-      const y = e.agent === leader.name ? 2 : H - 12;  // the leader's above the plot, the follower's below
+    } else if (shown(e.agent)) {
+      const y = role[e.agent] === "leader" ? 2 : H - 12;  // the leaders' above the plot, the followers' below
       ctx.strokeStyle = palette[e.color]; ctx.lineWidth = 2;
       ctx.beginPath();
       if (e.correct) { ctx.moveTo(x, y); ctx.lineTo(x, y + 9); }

@@ -1,17 +1,26 @@
 // The replay player: /replay?id=ID&step=N. Board (same drawing as the play page), transport controls,
 // the episode chart with a synced cursor, trails, the key log of human games, downloads and step links, and
 // "branch here" (branch.js: the replay continued with another follower, drawn beside it at the same step).
-// Colors and agents come with the timeline (`data.look`, agents in index order: the leader first).
-import { drawBoard, drawBelief, setLook } from "./board.js";
+// Colors and agents come with the timeline (`data.look`, agents in index order: the leaders first). Every
+// agent is drawn with its label and listed with its score; each follower that logged beliefs gets belief
+// bars and, in teams other than 1:1, its own episode chart (1:1: the one chart, as ever).
+import { describeBoard, drawBoard, drawBelief, setLook } from "./board.js";
 import { setupBranch, showBranch } from "./branch.js";
-import { drawChart, stepAt } from "./chart.js";
+import { drawChart, followerNames, stepAt } from "./chart.js";
 import { queryParam } from "./params.js";
 
 const $ = (id) => document.getElementById(id);
 const id = queryParam("id");
 const TRAIL = 12;
 const BASE_FPS = 8;  // steps per second at 1x
+const TEAM_NOTE = "Lines: one chart per follower that logged beliefs, its goal probabilities (dashed: a leader's). " +
+  "Strip below: the true goal. Ticks: pickups (above: the leaders', below: the chart's follower's; a cross is a " +
+  "wrong color). Dashes: goal switches. Click to jump. Keys: space play/pause, \u2190/\u2192 step, Home/End, " +
+  "+/\u2212 speed, t trails.";
 let data = null, step = 0, timer = null;
+let oneToOne = true;  // one leader and one follower: the page as it always was
+let beliefViews = [];  // {name, bars}: where each follower with beliefs shows them
+let charts = [];  // {canvas, followers}: the episode charts and whose lines and pickups each shows
 
 function setStatus(text, kind = "") { $("status").textContent = text; $("status").className = kind; }
 
@@ -29,20 +38,104 @@ async function main() {
   setLook(data.look);
   $("player").hidden = false;
   $("title").textContent = id;
-  for (const agent of data.look.agents) $(`${agent.name}-label`).textContent = data.agents[agent.name]?.policy ?? "?";
+  oneToOne = count("leader") === 1 && count("follower") === 1;
+  buildAgentRows();
+  buildBeliefs();
+  buildCharts();
   const enc = encodeURIComponent(id);
   $("gif").href = `/api/replays/${enc}/export?format=gif`;
   $("mp4").href = `/api/replays/${enc}/export?format=mp4`;
   $("json").href = `/api/replays/${enc}`;
   $("gif").download = `${id}.gif`;
   $("mp4").download = `${id}.mp4`;
-  $("facts").textContent = `${data.source} replay, ${data.steps} steps, ${data.ended}` +
+  const shape = oneToOne ? "" : `${count("leader")} leader(s) and ${count("follower")} follower(s), `;
+  $("facts").textContent = `${shape}${data.source} replay, ${data.steps} steps, ${data.ended}` +
     (data.seed != null ? `, seed ${data.seed}` : "") + `, created ${data.created}`;
   $("scrub").max = data.steps;
   buildKeyLog();
   const wanted = Number.parseInt(queryParam("step") ?? "0", 10);
   show(Number.isFinite(wanted) ? wanted : 0);
-  await setupBranch(id, data, () => step);
+  if (oneToOne) await setupBranch(id, data, () => step);
+  else $("branch-controls").hidden = true;  // a branch continues the follower of a 1:1 team
+}
+
+function count(role) { return data.look.agents.filter((agent) => agent.role === role).length; }
+
+function agentLabel(agent) { return `${agent.symbol} (${agent.name})`; }
+
+function buildAgentRows() {
+  // One row per agent: (its label on its role's colors, in teams), name, policy, score.
+  $("agent-scores").replaceChildren(...data.look.agents.map((agent) => {
+    const row = document.createElement("div");
+    row.className = "row";
+    row.dataset.agent = agent.name;
+    const who = document.createElement("span");
+    if (!oneToOne) {
+      const badge = document.createElement("span");
+      badge.className = "agent-badge";
+      badge.textContent = agent.symbol;
+      badge.style.background = agent.body;
+      badge.style.color = agent.ink;
+      who.append(badge, " ");
+    }
+    const policy = document.createElement("span");
+    policy.id = `${agent.name}-label`;
+    policy.textContent = data.agents[agent.name]?.policy ?? "?";
+    who.append(`${agent.name} (`, policy, ")");
+    const score = document.createElement("span");
+    score.id = `score-${agent.name}`;
+    row.append(who, score);
+    return row;
+  }));
+}
+
+function buildBeliefs() {
+  // 1:1: the follower's bars straight in #belief; other teams: one labelled group per follower with beliefs.
+  const believers = data.look.agents.filter((agent) => agent.role === "follower" && data.goal_probs?.[agent.name]);
+  if (oneToOne) { beliefViews = believers.map((agent) => ({ name: agent.name, bars: $("belief") })); return; }
+  beliefViews = believers.map((agent) => {
+    const group = document.createElement("section");
+    group.className = "belief-group";
+    group.dataset.agent = agent.name;
+    const title = document.createElement("h3");
+    title.textContent = `${agentLabel(agent)} believes`;
+    const bars = document.createElement("div");
+    group.append(title, bars);
+    return { name: agent.name, bars, group };
+  });
+  $("belief").replaceChildren(...beliefViews.map((view) => view.group));
+}
+
+function buildCharts() {
+  // 1:1, or no follower with beliefs: the one chart; other teams: one chart per follower with beliefs.
+  const first = $("chart");
+  if (!oneToOne) $("chart-note").textContent = TEAM_NOTE;
+  if (oneToOne || beliefViews.length === 0) charts = [{ canvas: first, followers: followerNames(data) }];
+  else {
+    charts = beliefViews.map(({ name }, j) => {
+      const canvas = j === 0 ? first : document.createElement("canvas");
+      canvas.width = first.width;
+      canvas.height = first.height;
+      canvas.className = first.className;
+      canvas.dataset.agent = name;
+      const agent = data.look.agents.find((a) => a.name === name);
+      canvas.setAttribute("aria-label", `${agentLabel(agent)}: goal probabilities over the episode`);
+      return { canvas, followers: [name], title: `${agentLabel(agent)}: goal probabilities` };
+    });
+    $("charts").replaceChildren(...charts.flatMap(({ canvas, title }) => {
+      const caption = document.createElement("p");
+      caption.className = "chart-title";
+      caption.textContent = title;
+      return [caption, canvas];
+    }));
+  }
+  for (const { canvas } of charts) canvas.addEventListener("click", jumpTo);
+}
+
+function jumpTo(e) {
+  const rect = e.target.getBoundingClientRect();
+  pause();
+  show(stepAt(e.target, data, ((e.clientX - rect.left) * e.target.width) / rect.width));
 }
 
 function show(t) {
@@ -53,6 +146,8 @@ function show(t) {
   if ($("trails").checked) drawTrails(canvas, cell);
   canvas.dataset.step = step;
   for (const agent of data.look.agents) canvas.dataset[agent.name] = board[agent.name];
+  canvas.setAttribute("aria-label", `step ${step} of ${data.steps}: ` +
+    describeBoard({ height: data.height, width: data.width, ...board }, data.colors));
   $("scrub").value = step;
   $("step").textContent = `${step} / ${data.steps}`;
   $("goal-name").textContent = data.colors[board.goal];
@@ -61,10 +156,9 @@ function show(t) {
     $("score-team").textContent = board.scores.reduce((a, b) => a + b, 0).toFixed(0);
     data.look.agents.forEach((agent, i) => { $(`score-${agent.name}`).textContent = board.scores[i].toFixed(0); });
   }
-  const [, follower] = data.look.agents;  // the bars show the follower's beliefs
-  const probs = data.goal_probs?.[follower.name];
-  drawBelief($("belief"), probs ? probs[Math.min(step, data.steps - 1)] : null, data.colors);
-  drawChart($("chart"), data, step);
+  const acted = Math.min(step, data.steps - 1);  // beliefs are logged per action: the last step has none of its own
+  for (const { name, bars } of beliefViews) drawBelief(bars, data.goal_probs[name][acted], data.colors);
+  for (const { canvas, followers } of charts) drawChart(canvas, data, step, followers);
   showBranch(step);
   const link = new URL(location.href);
   link.searchParams.set("step", step);
@@ -132,11 +226,6 @@ $("last").addEventListener("click", () => { pause(); show(data.steps); });
 $("scrub").addEventListener("input", (e) => { pause(); show(Number(e.target.value)); });
 $("speed").addEventListener("change", restartIfPlaying);
 $("trails").addEventListener("change", () => show(step));
-$("chart").addEventListener("click", (e) => {
-  const rect = e.target.getBoundingClientRect();
-  pause();
-  show(stepAt(e.target, data, ((e.clientX - rect.left) * e.target.width) / rect.width));
-});
 document.addEventListener("keydown", (e) => {
   if (!data?.verified || e.target.tagName === "INPUT" && e.target.type !== "range" && e.target.type !== "checkbox") return;
   const actions = {
