@@ -1,8 +1,9 @@
-"""Run batches of episodes with two policies and keep everything a report or replay needs."""
+"""Run batches of episodes with one policy per agent and keep everything a report or replay needs."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import numpy as np
 
@@ -14,7 +15,8 @@ from colorgrid.step_inputs import StepInputs
 
 @dataclass
 class EpisodeBatch:
-    """B complete episodes of T = horizon steps. Agents are ordered leader, follower."""
+    """B complete episodes of T = horizon steps. Agents are in index order (``config.agent_names``: the leaders,
+    then the followers; 1:1: leader, follower)."""
 
     config: EnvConfig
     seeds: np.ndarray  # [B] uint64 episode seeds
@@ -26,7 +28,7 @@ class EpisodeBatch:
     goal_pickup: np.ndarray  # [T, B, A] bool
     wrong_pickup: np.ndarray  # [T, B, A] bool
     goal_switched: np.ndarray  # [T, B] bool: the goal switched at the end of the step
-    goal_probs: list  # per agent: [T, B, C] float32 belief when acting, or None
+    goal_probs: list  # per agent (A entries): [T, B, C] float32 belief when acting, or None
     state_hashes: np.ndarray | None  # [T + 1, B] str: state before each step and after the last
 
     @property
@@ -36,12 +38,29 @@ class EpisodeBatch:
 
 def run_episodes(config: EnvConfig, leader: Policy, follower: Policy, num_episodes: int, seed: int,
                  record_hashes: bool = False) -> EpisodeBatch:
-    """Play ``num_episodes`` episodes at once (env ``i`` seeded ``seed + i``)."""
+    """A 1:1 team's ``run_team``: ``num_episodes`` episodes at once (env ``i`` seeded ``seed + i``)."""
+    if not config.one_to_one:
+        raise ValueError(f"run_episodes plays one leader and one follower; this config's team has "
+                         f"{config.num_leaders} leader(s) and {config.num_followers} follower(s): use run_team")
+    return run_team(config, [leader, follower], num_episodes, seed, record_hashes)
+
+
+def run_team(config: EnvConfig, policies: Sequence[Policy], num_episodes: int, seed: int,
+             record_hashes: bool = False) -> EpisodeBatch:
+    """Play ``num_episodes`` episodes at once (env ``i`` seeded ``seed + i``), agent ``i`` acting by ``policies[i]``.
+
+    ``policies`` holds one policy object per agent, in index order (the leaders, then the followers); each
+    is reset with its agent index and ``seed``, so an object may not play two agents.
+    """
     B, A, T = num_episodes, config.num_agents, config.horizon
+    policies = list(policies)
+    if len(policies) != A:
+        raise ValueError(f"run_team needs one policy per agent {list(config.agent_names)}, got {len(policies)}")
+    if len({id(p) for p in policies}) != A:
+        raise ValueError("run_team needs a separate policy object for each agent (a policy keeps one agent's memory)")
     env = BatchEnv(config, num_envs=B, seed=seed, autoreset=False)
     obs, _ = env.reset()
     seeds = env.state.seed.copy()
-    policies = (leader, follower)
     for i, policy in enumerate(policies):
         policy.reset(config, B, i, seed=seed)
     actions = np.zeros((T, B, A), dtype=np.int64)
@@ -50,7 +69,7 @@ def run_episodes(config: EnvConfig, leader: Policy, follower: Policy, num_episod
     team_reward = np.zeros((T, B), dtype=np.float32)
     picked = np.full((T, B, A), -1, dtype=np.int64)
     switched = np.zeros((T, B), dtype=bool)
-    probs: list = [None, None]
+    probs: list = [None] * A
     hashes = np.empty((T + 1, B), dtype=object) if record_hashes else None
     last = StepInputs.begin(config, B)
     for t in range(T):

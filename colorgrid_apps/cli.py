@@ -34,13 +34,14 @@ def cmd_demo(args: argparse.Namespace) -> int:
 
 
 def cmd_eval(args: argparse.Namespace) -> int:
-    """Evaluate a leader with one follower, or several on the same seeds (--compare)."""
+    """Evaluate a team (a leader with one follower by default), or several followers on the same seeds (--compare)."""
     import json
     from pathlib import Path
 
     from colorgrid_apps.evaluate import evaluate, format_reports
 
-    config = config_from_args(args)
+    config = team_config(config_from_args(args), args.team)
+    agents = agent_policies(args.agent, config)
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     followers = args.compare or [args.follower]
@@ -49,11 +50,14 @@ def cmd_eval(args: argparse.Namespace) -> int:
 
         if args.record:
             raise ValueError("--record records one leader's episodes; use --leader with it, not --leaders")
+        if not config.one_to_one or agents:
+            raise ValueError("--leaders pairs one leader of a population with one follower (a 1:1 team); "
+                             "leave out --team and --agent")
         payload = evaluate_matrix(config, leaders_from(args.leaders), followers, args.episodes, args.seed,
                                   workers=args.workers)
         print(format_matrix(payload))
     else:
-        reports = [evaluate(config, args.leader, name, args.episodes, args.seed, record_dir=args.record)
+        reports = [evaluate(config, args.leader, name, args.episodes, args.seed, record_dir=args.record, agents=agents)
                    for name in followers]
         print(format_reports(reports))
         payload = reports[0] if len(reports) == 1 else {"reports": reports}
@@ -62,6 +66,46 @@ def cmd_eval(args: argparse.Namespace) -> int:
         Path(args.json).write_text(json.dumps(payload, indent=2))
         print(f"wrote {args.json}")
     return 0
+
+
+def team_shape(text: str) -> tuple[int, int]:
+    """``"2:1"`` -> ``(2, 1)``: the ``--team`` argument, leaders then followers (1..8 each)."""
+    from colorgrid.config import MAX_PER_ROLE
+
+    leaders, sep, followers = text.partition(":")
+    if not (sep and leaders.isdigit() and followers.isdigit()
+            and 1 <= int(leaders) <= MAX_PER_ROLE and 1 <= int(followers) <= MAX_PER_ROLE):
+        raise argparse.ArgumentTypeError(f"expected LEADERS:FOLLOWERS with 1..{MAX_PER_ROLE} of each, e.g. 2:1; "
+                                         f"got {text!r}")
+    return int(leaders), int(followers)
+
+
+def team_config(config, team: tuple[int, int] | None):
+    """``config`` with the ``--team`` shape; an error if the config (``--config``/``--set``) names another team."""
+    if team is None:
+        return config
+    named = (config.num_leaders, config.num_followers)
+    if not config.one_to_one and named != team:
+        raise ValueError(f"--team {team[0]}:{team[1]} disagrees with the config's team {named[0]}:{named[1]} "
+                         "(num_leaders, num_followers); give one of them")
+    return config.replace(num_leaders=team[0], num_followers=team[1])
+
+
+def agent_policies(items: list[str], config) -> dict[str, str]:
+    """``["leader_1=person:slip=0.1"]`` -> ``{"leader_1": "person:slip=0.1"}``, names checked against the team."""
+    agents: dict[str, str] = {}
+    for item in items:
+        name, sep, policy = item.partition("=")
+        if not sep or not name or not policy:
+            raise ValueError(f"--agent expects NAME=POLICY, e.g. leader_1=person:slip=0.1; got {item!r}")
+        if name in agents:
+            raise ValueError(f"--agent names {name!r} twice")
+        try:
+            config.index(name)
+        except ValueError as err:
+            raise ValueError(f"--agent {item}: {err}") from None
+        agents[name] = policy
+    return agents
 
 
 def cmd_view(args: argparse.Namespace) -> int:
@@ -108,10 +152,15 @@ def build_parser() -> argparse.ArgumentParser:
     demo.set_defaults(func=cmd_demo)
 
     ev = sub.add_parser("eval", help="evaluate agents over a batch of episodes")
-    ev.add_argument("--leader", default="astar", help="leader policy: a scripted name (person:slip=0.1,... with "
-                    "parameters), a population or a checkpoint .pt")
-    ev.add_argument("--follower", default="bayes", help="follower policy: a scripted name or a checkpoint .pt")
+    ev.add_argument("--leader", default="astar", help="every leader's policy: a scripted name (person:slip=0.1,... "
+                    "with parameters), a population or a checkpoint .pt")
+    ev.add_argument("--follower", default="bayes", help="every follower's policy: a scripted name or a checkpoint .pt")
     ev.add_argument("--compare", nargs="+", metavar="FOLLOWER", help="evaluate several followers on the same seeds")
+    ev.add_argument("--team", type=team_shape, metavar="LEADERS:FOLLOWERS", help="team shape, e.g. 2:1 (1..8 of "
+                    "each; the same as --set num_leaders=2 --set num_followers=1): tables per agent and per role")
+    ev.add_argument("--agent", action="append", default=[], metavar="NAME=POLICY", help="one agent's policy in "
+                    "place of its role's, e.g. --agent leader_1=person:slip=0.1 (repeatable; names: leader_0.., "
+                    "follower_0.., or leader/follower in a 1:1 team)")
     ev.add_argument("--leaders", metavar="POPULATION", help="a leader x follower matrix over a population "
                     "(population:people, population:people#held_out, or FILE.json[#PART]) with paired differences "
                     "against the first follower")

@@ -1,15 +1,20 @@
-"""The evaluation harness: metrics over a batch of episodes, as a table and as JSON."""
+"""The evaluation harness: metrics over a batch of episodes, as a table and as JSON.
+
+Any team shape: one policy per agent (``--leader`` for every leader, ``--follower`` for every follower,
+``--agent NAME=POLICY`` for one agent), metrics per agent and, beyond the 1:1 team, per role.
+"""
 
 from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Mapping, Sequence
 
 import numpy as np
 
-from colorgrid.config import AGENTS, ENV_ID, EnvConfig
+from colorgrid.config import ROLES, EnvConfig
 from colorgrid.policies import Policy, make_policy
-from colorgrid.rollout import EpisodeBatch, run_episodes
+from colorgrid.rollout import EpisodeBatch, run_team
 
 
 def mean_ci(values: np.ndarray) -> dict:
@@ -21,30 +26,60 @@ def mean_ci(values: np.ndarray) -> dict:
 
 
 def summarize(batch: EpisodeBatch) -> dict:
-    """Per-agent and team metrics of a batch of episodes (see docs/EVALUATION.md)."""
-    agents = {}
-    for i, name in enumerate(AGENTS):
-        goal = batch.goal_pickup[:, :, i].sum(axis=0)
-        wrong = batch.wrong_pickup[:, :, i].sum(axis=0)
-        entry = {
-            "block_reward": mean_ci(batch.block_reward[:, :, i].sum(axis=0)),
-            "goal_pickups": mean_ci(goal),
-            "wrong_pickups": mean_ci(wrong),
-            "net_pickups": mean_ci(goal - wrong),
-        }
-        probs = batch.goal_probs[i]
-        if probs is not None:
-            truth = np.take_along_axis(probs, batch.goal[:, :, None], axis=2)[..., 0]  # [T, B]
-            entry["belief"] = {
-                "accuracy": float((probs.argmax(axis=2) == batch.goal).mean()),
-                "log_loss": float(-np.log(np.clip(truth, 1e-6, 1.0)).mean()) + 0.0,
-            }
-        agents[name] = entry
-    return {
-        "agents": agents,
+    """Per-agent and team metrics of a batch of episodes, and per-role ones beyond the 1:1 team (see
+    docs/EVALUATION.md)."""
+    config = batch.config
+    agents = {name: _agent_metrics(batch, i) for i, name in enumerate(config.agent_names)}
+    report = {"agents": agents}
+    if not config.one_to_one:
+        report["roles"] = {role: _role_metrics(batch, agents, role) for role in ROLES}
+    report.update({
         "team_reward": mean_ci(batch.team_reward.sum(axis=0)),
         "goal_switches_per_episode": float(batch.goal_switched.sum(axis=0).mean()),
+    })
+    return report
+
+
+def _agent_metrics(batch: EpisodeBatch, i: int) -> dict:
+    goal = batch.goal_pickup[:, :, i].sum(axis=0)
+    wrong = batch.wrong_pickup[:, :, i].sum(axis=0)
+    entry = {
+        "block_reward": mean_ci(batch.block_reward[:, :, i].sum(axis=0)),
+        "goal_pickups": mean_ci(goal),
+        "wrong_pickups": mean_ci(wrong),
+        "net_pickups": mean_ci(goal - wrong),
     }
+    probs = batch.goal_probs[i]
+    if probs is not None:
+        truth = np.take_along_axis(probs, batch.goal[:, :, None], axis=2)[..., 0]  # [T, B]
+        entry["belief"] = {
+            "accuracy": float((probs.argmax(axis=2) == batch.goal).mean()),
+            "log_loss": float(-np.log(np.clip(truth, 1e-6, 1.0)).mean()) + 0.0,
+        }
+    return entry
+
+
+def _role_metrics(batch: EpisodeBatch, agents: dict, role: str) -> dict:
+    """A role's totals per episode (summed over its agents), its net pickups per agent, and the mean belief
+    metrics of its agents that hold a belief."""
+    config = batch.config
+    members = [i for i, r in enumerate(config.roles) if r == role]
+    goal = batch.goal_pickup[:, :, members].sum(axis=(0, 2))
+    wrong = batch.wrong_pickup[:, :, members].sum(axis=(0, 2))
+    entry = {
+        "agents": len(members),
+        "block_reward": mean_ci(batch.block_reward[:, :, members].sum(axis=(0, 2))),
+        "goal_pickups": mean_ci(goal),
+        "wrong_pickups": mean_ci(wrong),
+        "net_pickups": mean_ci(goal - wrong),
+        "net_pickups_per_agent": mean_ci((goal - wrong) / len(members)),
+    }
+    beliefs = [agents[config.agent_names[i]]["belief"] for i in members if "belief" in agents[config.agent_names[i]]]
+    if beliefs:
+        entry["belief"] = {"agents": len(beliefs),
+                           "accuracy": float(np.mean([b["accuracy"] for b in beliefs])),
+                           "log_loss": float(np.mean([b["log_loss"] for b in beliefs]))}
+    return entry
 
 
 def switch_lags(goal_probs: np.ndarray, goal: np.ndarray) -> np.ndarray:
@@ -68,26 +103,45 @@ def switch_lags(goal_probs: np.ndarray, goal: np.ndarray) -> np.ndarray:
     return np.array(lags, dtype=np.int64)
 
 
+def team_specs(config: EnvConfig, leader: str | Policy, follower: str | Policy,
+               agents: Mapping[str, str | Policy] | None = None) -> list[str | Policy]:
+    """One policy (a name or a ``Policy``) per agent, in index order: ``leader`` for every leader, ``follower``
+    for every follower, and ``agents`` (agent name -> policy) in place of those it names."""
+    agents = dict(agents or {})
+    for name in agents:
+        config.index(name)  # an unknown name is an error that lists the team's agents
+    specs = [agents.get(name, leader if role == "leader" else follower)
+             for name, role in zip(config.agent_names, config.roles)]
+    shared = [s for s in specs if isinstance(s, Policy) and sum(t is s for t in specs) > 1]
+    if shared:
+        raise ValueError(f"the policy object {shared[0].name!r} would play several agents; give each agent its own "
+                         "(or a policy name, which builds one per agent)")
+    return specs
+
+
 def evaluate(config: EnvConfig, leader: str | Policy, follower: str | Policy, episodes: int, seed: int,
-             record_dir: str | Path | None = None) -> dict:
+             record_dir: str | Path | None = None, agents: Mapping[str, str | Policy] | None = None) -> dict:
     """Run ``episodes`` episodes (env i seeded ``seed + i``) and summarize them.
 
-    ``leader`` and ``follower`` are policy names (scripted or ``.pt`` checkpoints) or
-    ``Policy`` objects. With ``record_dir``, every episode is also saved there as a replay.
+    ``leader`` and ``follower`` are policy names (scripted or ``.pt`` checkpoints) or ``Policy`` objects,
+    for every agent of the role (in a team of several, a name builds one policy per agent); ``agents``
+    sets single agents' policies by name (``{"leader_1": "person:slip=0.1"}``). With ``record_dir``,
+    every episode is also saved there as a replay.
     """
     start, cpu = time.perf_counter(), time.process_time()
-    leader_policy, follower_policy = _policy(leader, "leader"), _policy(follower, "follower")
-    leader, follower = _name(leader), _name(follower)
-    batch = run_episodes(config, leader_policy, follower_policy, episodes, seed, record_hashes=record_dir is not None)
+    specs = team_specs(config, leader, follower, agents)
+    policies = [_policy(spec, role) for spec, role in zip(specs, config.roles)]
+    names = [_name(spec) for spec in specs]
+    batch = run_team(config, policies, episodes, seed, record_hashes=record_dir is not None)
     report = summarize(batch)
     if record_dir is not None:
-        report["replays"] = [str(p) for p in record_batch(batch, leader, follower, leader_policy, follower_policy,
-                                                           record_dir, source="eval")]
-    report.update({
-        "env_id": ENV_ID, "config": config.to_dict(), "episodes": episodes, "seed": seed,
-        "leader": leader_policy.describe(), "follower": follower_policy.describe(),
-        "wall_seconds": time.perf_counter() - start, "cpu_seconds": time.process_time() - cpu,
-    })
+        report["replays"] = [str(p) for p in record_team(batch, names, policies, record_dir, source="eval")]
+    report.update({"env_id": config.env_id, "config": config.to_dict(), "episodes": episodes, "seed": seed})
+    first = {role: config.roles.index(role) for role in ROLES}
+    report.update({role: policies[first[role]].describe() for role in ROLES})  # 1:1: the leader and the follower
+    if not config.one_to_one:
+        report["policies"] = {name: p.describe() for name, p in zip(config.agent_names, policies)}
+    report.update({"wall_seconds": time.perf_counter() - start, "cpu_seconds": time.process_time() - cpu})
     return report
 
 
@@ -101,14 +155,19 @@ def _name(p: str | Policy) -> str:
 
 def record_batch(batch, leader: str, follower: str, leader_policy, follower_policy, out_dir, source: str,
                  meta: dict | None = None) -> list[Path]:
-    """Save every episode of ``batch`` as ``<leader>+<follower>_seed<N>.replay.json`` in ``out_dir``."""
+    """A 1:1 team's ``record_team``: ``<leader>+<follower>_seed<N>.replay.json`` in ``out_dir``."""
+    return record_team(batch, [leader, follower], [leader_policy, follower_policy], out_dir, source, meta)
+
+
+def record_team(batch, names: Sequence[str], policies: Sequence[Policy], out_dir, source: str,
+                meta: dict | None = None) -> list[Path]:
+    """Save every episode of ``batch`` as ``<policy>+<policy>+..._seed<N>.replay.json`` in ``out_dir`` (one
+    policy name per agent, in index order; a checkpoint's hash pins its weights)."""
     from colorgrid.replay import describe_agent, from_batch, save
 
-    agents = {
-        "leader": describe_agent(leader_policy.describe(), leader if leader.endswith(".pt") else None),
-        "follower": describe_agent(follower_policy.describe(), follower if follower.endswith(".pt") else None),
-    }
-    tag = f"{Path(leader).stem}+{Path(follower).stem}"
+    agents = {agent: describe_agent(policy.describe(), name if name.endswith(".pt") else None)
+              for agent, name, policy in zip(batch.config.agent_names, names, policies)}
+    tag = "+".join(Path(name).stem for name in names)
     paths = []
     for replay in from_batch(batch, agents, source, meta=meta):
         paths.append(save(replay, Path(out_dir) / f"{tag}_seed{replay.seed}.replay.json"))
@@ -116,29 +175,69 @@ def record_batch(batch, leader: str, follower: str, leader_policy, follower_poli
 
 
 def format_reports(reports: list[dict]) -> str:
-    """A side-by-side table, one column per report (e.g. per follower, on the same seeds)."""
+    """A side-by-side table, one column per report (e.g. per follower, on the same seeds): per agent, then,
+    beyond the 1:1 team, per role."""
     def ci(m):
         return f"{m['mean']:+.2f} ± {m['ci95']:.2f}"
 
-    head = [f"{r['leader']['policy']} + {r['follower']['policy']}" for r in reports]
+    def belief(entry, key, text):
+        return text(entry["belief"][key]) if "belief" in entry else "-"
+
+    config = EnvConfig.from_dict(reports[0]["config"])
+    head = [_team_label(r, config) for r in reports]
     rows = [("team reward", [ci(r["team_reward"]) for r in reports])]
-    for name in AGENTS:
+    for name in config.agent_names:
         rows += [
             (f"{name} block reward", [ci(r["agents"][name]["block_reward"]) for r in reports]),
             (f"{name} goal pickups", [f"{r['agents'][name]['goal_pickups']['mean']:.2f}" for r in reports]),
             (f"{name} wrong pickups", [f"{r['agents'][name]['wrong_pickups']['mean']:.2f}" for r in reports]),
             (f"{name} net pickups", [ci(r["agents"][name]["net_pickups"]) for r in reports]),
         ]
-    rows += [
-        ("follower belief accuracy", [f"{r['agents']['follower']['belief']['accuracy']:.1%}"
-                                      if "belief" in r["agents"]["follower"] else "-" for r in reports]),
-        ("follower belief log-loss", [f"{r['agents']['follower']['belief']['log_loss']:.3f}"
-                                      if "belief" in r["agents"]["follower"] else "-" for r in reports]),
-        ("wall time", [f"{r['wall_seconds']:.2f} s" for r in reports]),
-    ]
+    for i in config.followers:
+        name = config.agent_names[i]
+        rows += [
+            (f"{name} belief accuracy", [belief(r["agents"][name], "accuracy", "{:.1%}".format) for r in reports]),
+            (f"{name} belief log-loss", [belief(r["agents"][name], "log_loss", "{:.3f}".format) for r in reports]),
+        ]
+    rows += [("wall time", [f"{r['wall_seconds']:.2f} s" for r in reports])]
+    role_rows = []
+    if not config.one_to_one:
+        for role in ROLES:
+            label = f"{role}s ({reports[0]['roles'][role]['agents']})"
+            role_rows += [
+                (f"{label} block reward", [ci(r["roles"][role]["block_reward"]) for r in reports]),
+                (f"{label} goal pickups", [f"{r['roles'][role]['goal_pickups']['mean']:.2f}" for r in reports]),
+                (f"{label} wrong pickups", [f"{r['roles'][role]['wrong_pickups']['mean']:.2f}" for r in reports]),
+                (f"{label} net pickups", [ci(r["roles"][role]["net_pickups"]) for r in reports]),
+                (f"{label} net per agent", [ci(r["roles"][role]["net_pickups_per_agent"]) for r in reports]),
+            ]
+        label = f"followers ({reports[0]['roles']['follower']['agents']})"
+        role_rows += [
+            (f"{label} belief accuracy", [belief(r["roles"]["follower"], "accuracy", "{:.1%}".format) for r in reports]),
+            (f"{label} belief log-loss", [belief(r["roles"]["follower"], "log_loss", "{:.3f}".format) for r in reports]),
+        ]
+    labels = max(26, *(len(label) + 2 for label, _ in rows + role_rows))
     width = max(18, *(len(h) for h in head))
-    lines = [f"{'':<26}" + "".join(f"{h:>{width + 2}}" for h in head)]
-    lines += [f"{label:<26}" + "".join(f"{v:>{width + 2}}" for v in values) for label, values in rows]
+
+    def table(rows):
+        return [f"{label:<{labels}}" + "".join(f"{v:>{width + 2}}" for v in values) for label, values in rows]
+
+    lines = [f"{'':<{labels}}" + "".join(f"{h:>{width + 2}}" for h in head)] + table(rows)
+    if role_rows:
+        lines += ["", f"{'per role: totals over its agents, per episode':<{labels}}"] + table(role_rows)
     r0 = reports[0]
     lines.append(f"{r0['episodes']} episodes, seeds {r0['seed']}..{r0['seed'] + r0['episodes'] - 1}, {r0['env_id']}")
     return "\n".join(lines)
+
+
+def _team_label(report: dict, config: EnvConfig) -> str:
+    """The column head: ``astar + bayes`` for 1:1; ``astar×2 + bayes`` (or ``astar/person + bayes``) for teams."""
+    if config.one_to_one:
+        return f"{report['leader']['policy']} + {report['follower']['policy']}"
+    parts = []
+    for role in ROLES:
+        names = [report["policies"][config.agent_names[i]]["policy"]
+                 for i, r in enumerate(config.roles) if r == role]
+        parts.append(names[0] + (f"×{len(names)}" if len(names) > 1 else "") if len(set(names)) == 1
+                     else "/".join(names))
+    return " + ".join(parts)

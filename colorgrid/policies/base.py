@@ -18,12 +18,12 @@ class AgentInput:
     agent received (the team reward in ``shared`` mode).
     """
 
-    observation: np.ndarray  # [B, P, H, W] uint8 planes (colors, leader, follower)
+    observation: np.ndarray  # [B, P, H, W] uint8 planes (colors, then one per agent in index order)
     goal_info: np.ndarray  # [B, C] float32 one-hot goal, zeros if hidden from this agent
     episode_start: np.ndarray  # [B] bool: first step of an episode (reset internal state)
     prev_reward: np.ndarray  # [B] float32: this agent's unshaped block reward last step (0 at start)
     prev_picked_color: np.ndarray  # [B, A] int64: color collected by each agent last step, -1 if none
-    prev_actions: np.ndarray  # [B, A] int64: both agents' last actions, -1 at start
+    prev_actions: np.ndarray  # [B, A] int64: every agent's last action, -1 at start
     penalty_coef: float = 1.0  # the env's current penalty coefficient
     true_goal: np.ndarray | None = None  # [B] privileged ground truth; only the oracle reads it
 

@@ -1,4 +1,4 @@
-"""A follower that infers the leader's goal with a hidden Markov model and acts on its belief."""
+"""A follower that infers the leaders' goal with a hidden Markov model and acts on its belief."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from colorgrid.config import EnvConfig
 from colorgrid.configkit import check_int, check_number
 from colorgrid.policies.base import AgentInput, PolicyOutput
 from colorgrid.policies.grid import decode, manhattan_to_nearest
+from colorgrid.policies.rewards import explains_reward
 from colorgrid.policies.scripted import Seeker
 
 
@@ -107,14 +108,13 @@ def reward_likelihood(picked: np.ndarray, reward: np.ndarray, config: EnvConfig,
     """[B, C]: probability of the observed reward under each goal color.
 
     picked: [B, A] colors collected last step (-1 none); reward: [B] this agent's unshaped reward.
-    In shared mode the reward covers both agents' pickups; in individual mode only its own.
+    In shared mode the reward is the team's, the sum over every agent that collected (each pickup
+    adds ``goal_reward`` under a goal of its color, ``-wrong_penalty * penalty_coef`` under any other),
+    so the likelihood is exact however many agents collected; in individual mode it covers only the
+    agent's own pickup. A goal that predicts another reward gets ``noise``.
     """
-    C = config.num_colors
-    counted = picked if config.reward_mode == "shared" else picked[:, agent_index:agent_index + 1]
-    goal = np.arange(C)[None, None, :]
-    value = np.where(counted[:, :, None] == goal, config.goal_reward, -config.wrong_penalty * penalty_coef)
-    predicted = np.where(counted[:, :, None] >= 0, value, 0.0).sum(axis=1)  # [B, C]
-    return np.where(np.abs(predicted - reward[:, None]) < 1e-4, 1.0, noise)
+    explained = explains_reward(picked, reward, config, penalty_coef, agent_index)
+    return np.where(explained, 1.0, noise)
 
 
 PEOPLE = BayesConfig(rationality=2.0, lapse=0.1, notice_rate=0.5, distraction=0.01)
@@ -127,10 +127,19 @@ class BayesFollower(Seeker):
     """Keeps a posterior over the goal color and collects only when it is confident.
 
     Hidden Markov model: uniform prior at the episode start; the goal's transition is
-    the env's ``switch_prob``; evidence each step is (a) the leader's move, scored by a
-    Boltzmann-rational model of how much it shortened the leader's distance to the
-    nearest block of each color, and (b) the blocks either agent collected, with the
-    reward observed. ``goal_probs`` is the belief over the *current* goal.
+    the env's ``switch_prob``; evidence each step is (a) every leader's move, scored by a
+    Boltzmann-rational model of how much it shortened that leader's distance to the
+    nearest block of each color (the leaders move independently given what they pursue,
+    so their likelihoods multiply), and (b) the blocks every agent collected, with the
+    reward observed (``reward_likelihood``). ``goal_probs`` is the belief over the *current* goal.
+
+    With the people model (``notice_rate < 1`` or ``distraction > 0``) each leader pursues a color of
+    its own; the belief is kept as one ``[goal, pursued]`` table per leader (``joint [B, L, C, C]``),
+    all with the same goal marginal. A leader's move weighs each goal by its likelihood averaged over
+    what that leader may pursue under the goal; every table then conditions on the goal posterior.
+    This treats the leaders' pursued colors as independent given the current goal: exact for one
+    leader, an approximation after a goal switch for several (their late turns are correlated
+    through the goal they all saw before).
     """
 
     name = "bayes"
@@ -147,37 +156,52 @@ class BayesFollower(Seeker):
 
     def reset(self, config: EnvConfig, num_envs: int, agent_index: int, seed: int = 0) -> None:
         super().reset(config, num_envs, agent_index, seed)
-        C = config.num_colors
+        C, L = config.num_colors, config.num_leaders
         self.belief = np.full((num_envs, C), 1.0 / C)
-        self.joint = np.repeat(np.eye(C)[None] / C, num_envs, axis=0)  # [B, goal, pursued color]
+        self.joint = np.broadcast_to(np.eye(C) / C, (num_envs, L, C, C)).copy()  # [B, leader, goal, pursued]
         self.prev_blocks = np.full((num_envs, config.height, config.width), -1, dtype=np.int8)
         self.prev_cells = np.zeros((num_envs, config.num_agents), dtype=np.int64)
         self.has_prev = np.zeros(num_envs, dtype=bool)
         from colorgrid.env import move_table
 
-        self.leader_table = move_table(config)[self.partner_index]  # its partner, the leader, shows the goal
+        self.leader_tables = move_table(config)[list(config.leaders)]  # [L, H*W, M]: the leaders show the goal
+
+    def load_state_dict(self, state: dict) -> None:
+        """As ``Policy.load_state_dict``; a 1:1 state saved before teams (``joint [B, C, C]``) loads as one leader's."""
+        joint = np.asarray(state.get("joint"))
+        if joint.ndim == 3 and self.config.num_leaders == 1:
+            state = {**state, "joint": joint[:, None]}
+        super().load_state_dict(state)
 
     def update(self, inp: AgentInput, rows: np.ndarray, block_color: np.ndarray, agent_cell: np.ndarray) -> np.ndarray:
         """Fold last step's evidence into the belief of ``rows`` and advance it to the current goal."""
         cfg = self.config
+        C, L = cfg.num_colors, cfg.num_leaders
         belief, joint = self.belief[rows], self.joint[rows]
         fresh = inp.episode_start | ~self.has_prev[rows]
         go = ~fresh
         if go.any():
-            move, reward = self._evidence(inp, rows[go], go, block_color, agent_cell)
-            if self.params.notice_rate == 1.0 and self.params.distraction == 0.0:  # the leader pursues the goal
-                post = belief[go] * move * reward
+            move, reward = self._evidence(inp, rows[go], go, block_color, agent_cell)  # [n, L, C], [n, C]
+            n = move.shape[0]
+            if self.params.notice_rate == 1.0 and self.params.distraction == 0.0:  # the leaders pursue the goal
+                likelihood = move[:, 0]
+                for leader in range(1, L):
+                    likelihood = likelihood * move[:, leader]
+                post = belief[go] * likelihood * reward
                 post = normalized(post, belief[go], axis=1)
                 belief[go] = transition(post, cfg.switch_prob)
-                joint[go] = belief[go][:, :, None] * np.eye(cfg.num_colors)[None]
-            else:  # moves show the color pursued, rewards the goal
-                post = joint[go] * reward[:, :, None] * move[:, None, :]
-                post = normalized(post, joint[go], axis=(1, 2))
-                joint[go] = leader_transition(goal_transition(post, cfg.switch_prob), self.params.notice_rate,
-                                              self.params.distraction)
-                belief[go] = joint[go].sum(axis=2)
-        belief[fresh] = 1.0 / cfg.num_colors
-        joint[fresh] = np.eye(cfg.num_colors)[None] / cfg.num_colors
+                joint[go] = (belief[go][:, :, None] * np.eye(C)[None])[:, None]
+            else:  # moves show the colors pursued, rewards the goal
+                prior = joint[go]  # [n, L, goal, pursued]
+                goal_evidence = reward[:, None, :] * _other_leaders(prior, move)  # [n, L, goal]
+                post = prior * goal_evidence[..., None] * move[:, :, None, :]
+                post = normalized(post.reshape(n * L, C, C), prior.reshape(n * L, C, C), axis=(1, 2))
+                post = leader_transition(goal_transition(post, cfg.switch_prob), self.params.notice_rate,
+                                         self.params.distraction)
+                joint[go] = post.reshape(n, L, C, C)
+                belief[go] = joint[go][:, 0].sum(axis=2)
+        belief[fresh] = 1.0 / C
+        joint[fresh] = np.eye(C)[None, None] / C
         self.belief[rows], self.joint[rows] = belief, joint
         self.prev_blocks[rows] = block_color
         self.prev_cells[rows] = agent_cell
@@ -185,17 +209,30 @@ class BayesFollower(Seeker):
         return belief
 
     def _evidence(self, inp: AgentInput, slots: np.ndarray, mask: np.ndarray, block_color, agent_cell):
-        """``[n, C]`` likelihoods of last step's leader move (under each color it may pursue) and of the reward
-        (under each goal), for the inputs selected by ``mask``."""
+        """``[n, L, C]`` likelihoods of each leader's move last step (under each color it may pursue) and ``[n, C]``
+        of the reward (under each goal), for the inputs selected by ``mask``.
+
+        A leader's possible moves are those of the rules: moves resolve in agent order, so leader ``j`` was
+        blocked by the new cells of the agents before it and the old cells of those after it.
+        """
         cfg, p = self.config, self.params
-        leader_before = self.prev_cells[slots, self.partner_index]
-        follower_before = self.prev_cells[slots, self.agent_index]
-        table = self.leader_table[leader_before]  # [n, M] cells each leader action leads to
-        table = np.where(table == follower_before[:, None], leader_before[:, None], table)
-        observed = table == agent_cell[mask, self.partner_index][:, None]
-        cells = np.concatenate([leader_before[:, None], table], axis=1)
-        d = manhattan_to_nearest(cfg, self.prev_blocks[slots].astype(np.int64), cells)  # [n, 1 + M, C]
-        move = move_likelihood(d[:, 0], d[:, 1:], observed, p.rationality, p.lapse)
+        L, A = cfg.num_leaders, cfg.num_agents
+        before = self.prev_cells[slots]  # [n, A]
+        after = agent_cell[mask]  # [n, A]
+        cells, observed = [], []
+        for leader in cfg.leaders:
+            blockers = np.concatenate([after[:, :leader], before[:, leader + 1:A]], axis=1)  # [n, A - 1]
+            start = before[:, leader]
+            table = self.leader_tables[leader][start]  # [n, M] cells each of its actions leads to
+            blocked = (table[:, :, None] == blockers[:, None, :]).any(axis=2)
+            table = np.where(blocked, start[:, None], table)
+            observed.append(table == after[:, leader][:, None])
+            cells.append(np.concatenate([start[:, None], table], axis=1))
+        n, M = len(slots), observed[0].shape[1]
+        d = manhattan_to_nearest(cfg, self.prev_blocks[slots].astype(np.int64), np.concatenate(cells, axis=1))
+        d = d.reshape(n * L, 1 + M, cfg.num_colors)  # [n * L, 1 + M, C]
+        move = move_likelihood(d[:, 0], d[:, 1:], np.stack(observed, axis=1).reshape(n * L, M), p.rationality,
+                               p.lapse).reshape(n, L, cfg.num_colors)
         reward = reward_likelihood(inp.prev_picked_color[mask], inp.prev_reward[mask], cfg, inp.penalty_coef,
                                    self.agent_index, p.reward_noise)
         return move, reward
@@ -205,21 +242,24 @@ class BayesFollower(Seeker):
         rows = self._rows(rows)
         block_color, agent_cell = decode(inp.observation, cfg)
         belief = self.update(inp, rows, block_color, agent_cell)
-        me, leader = agent_cell[:, self.agent_index], agent_cell[:, self.partner_index]
+        me, other = agent_cell[:, self.agent_index], agent_cell[:, self.other_indices]
         expected = belief * cfg.goal_reward - (1 - belief) * cfg.wrong_penalty * inp.penalty_coef
         wanted = (belief >= p.collect_threshold) & (expected > 0)
         sure = wanted.any(axis=1)
-        actions = self.standby(block_color, me, leader)
+        actions = self.standby(block_color, me, other, nearest_leader(agent_cell, me, cfg))
         if sure.any():
-            actions[sure], _ = self.seek(wanted[sure], block_color[sure], me[sure], leader[sure])
+            actions[sure], _ = self.seek(wanted[sure], block_color[sure], me[sure], other[sure])
         return PolicyOutput(actions, belief.astype(np.float32))
 
-    def standby(self, block_color: np.ndarray, me: np.ndarray, leader: np.ndarray) -> np.ndarray:
-        """Stay near the leader without collecting: step toward it over free cells if far, else wander."""
+    def standby(self, block_color: np.ndarray, me: np.ndarray, other: np.ndarray, leader: np.ndarray) -> np.ndarray:
+        """Stay near a leader without collecting: step toward it over free cells if far, else wander.
+
+        other: [B, K] every other agent's cell (obstacles); leader: [B] the cell of the leader to stay near.
+        """
         B = block_color.shape[0]
         W = self.config.width
-        actions = self.mover.wander(block_color, me, leader, self.rng)
-        nxt, moves = self.mover.neighbours(me, leader)  # [B, 4]
+        actions = self.mover.wander(block_color, me, other, self.rng)
+        nxt, moves = self.mover.neighbours(me, other)  # [B, 4]
         free = moves & (block_color.reshape(B, -1)[np.arange(B)[:, None], nxt] < 0)
         lr, lc = np.divmod(leader, W)
         nr, nc = np.divmod(nxt, W)
@@ -230,6 +270,33 @@ class BayesFollower(Seeker):
         closer = (now > self.params.standby_radius) & (gap.min(axis=1) < now)
         actions[closer] = gap[closer].argmin(axis=1)
         return actions
+
+
+def nearest_leader(agent_cell: np.ndarray, me: np.ndarray, config: EnvConfig) -> np.ndarray:
+    """``[B]``: the cell of the leader nearest to ``me [B]`` (Manhattan; ties to the lower index)."""
+    leaders = agent_cell[:, list(config.leaders)]  # [B, L]
+    lr, lc = np.divmod(leaders, config.width)
+    mr, mc = np.divmod(me, config.width)
+    gap = np.abs(lr - mr[:, None]) + np.abs(lc - mc[:, None])
+    return leaders[np.arange(len(me)), gap.argmin(axis=1)]
+
+
+def _other_leaders(joint: np.ndarray, move: np.ndarray) -> np.ndarray:
+    """``[n, L, C]``: for each leader, the product over the *other* leaders of their move's likelihood under
+    each goal, averaged over the color each may pursue given the goal (``joint [n, L, goal, pursued]``,
+    ``move [n, L, pursued]``). All ones for a single leader."""
+    n, L, C, _ = joint.shape
+    out = np.ones((n, L, C))
+    if L == 1:
+        return out
+    marginal = joint.sum(axis=3)  # [n, L, goal]
+    weighted = (joint * move[:, :, None, :]).sum(axis=3)
+    per_goal = np.divide(weighted, marginal, out=np.zeros_like(weighted), where=marginal > 0)  # [n, L, goal]
+    for leader in range(L):
+        for other in range(L):
+            if other != leader:
+                out[:, leader] *= per_goal[:, other]
+    return out
 
 
 class PeopleBayesFollower(BayesFollower):

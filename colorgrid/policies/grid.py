@@ -56,7 +56,11 @@ def distance_field(targets: np.ndarray, passable: np.ndarray, start_cell: np.nda
 
 
 class Mover:
-    """Turns distance fields into actions for one agent (walls, halves and the other agent applied)."""
+    """Turns distance fields into actions for one agent (walls, halves and the other agents applied).
+
+    ``other_cells`` are ``[B, K]``: the cells of the K agents this one must not step onto (every other
+    agent of the team); ``[B]`` is read as K = 1.
+    """
 
     def __init__(self, config: EnvConfig, agent_index: int):
         self.config = config
@@ -64,28 +68,56 @@ class Mover:
         self.table = move_table(config)[agent_index]  # [H*W, num_moves]
         self.num_moves = 4  # scripted agents move; stay is never needed to follow a path
 
-    def neighbours(self, cell: np.ndarray, other_cell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``[B, 4]`` target cells of the four moves and whether each really moves the agent."""
+    def neighbours(self, cell: np.ndarray, other_cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``[B, 4]`` target cells of the four moves and whether each really moves the agent (not into a wall,
+        its half's edge or another agent's cell)."""
         nxt = self.table[cell, : self.num_moves]
-        moves = (nxt != cell[:, None]) & (nxt != other_cell[:, None])
+        others = other_cells.reshape(cell.shape[0], -1)
+        moves = (nxt != cell[:, None]) & ~(nxt[:, :, None] == others[:, None, :]).any(axis=2)
         return nxt, moves
 
-    def descend(self, dist: np.ndarray, cell: np.ndarray, other_cell: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def descend(self, dist: np.ndarray, cell: np.ndarray, other_cells: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Greedy step down ``dist``: ``actions [B]`` and ``found [B]`` (a finite neighbour existed).
 
         Ties go to the first move in action order (up, down, left, right).
         """
         B = dist.shape[0]
-        nxt, moves = self.neighbours(cell, other_cell)
-        values = dist.reshape(B, -1)[np.arange(B)[:, None], nxt]
-        values = np.where(moves, values, INF)
+        return self._step(dist.reshape(B, -1), np.arange(B), cell, other_cells)
+
+    def _step(self, flat: np.ndarray, rows: np.ndarray, cell: np.ndarray, other_cells: np.ndarray):
+        """``descend`` for the envs ``rows`` of ``flat [B, H*W]`` distances (``cell``, ``other_cells``: theirs)."""
+        nxt, moves = self.neighbours(cell, other_cells)
+        values = np.where(moves, flat[rows[:, None], nxt], INF)
         return values.argmin(axis=1), values.min(axis=1) < INF
 
-    def wander(self, block_color: np.ndarray, cell: np.ndarray, other_cell: np.ndarray,
+    def destination(self, dist: np.ndarray, cell: np.ndarray, other_cells: np.ndarray) -> np.ndarray:
+        """``[B]``: the target cell (``dist == 0``) that repeated ``descend`` steps from ``cell`` reach if nothing
+        else moves, or -1 where ``dist`` is infinite at ``cell``. Each step lowers the distance by one, so
+        this takes at most the largest finite ``dist[cell]`` rounds (a batched loop over steps, not envs).
+        """
+        B = dist.shape[0]
+        flat = dist.reshape(B, -1)
+        cell = cell.copy()
+        others = other_cells.reshape(B, -1)
+        target = np.full(B, -1, dtype=np.int64)
+        start = flat[np.arange(B), cell]
+        walking = np.arange(B)[start < INF]
+        for _ in range(int(start[walking].max(initial=0)) + 1):  # one round per step of the longest walk
+            here = cell[walking]
+            arrived = flat[walking, here] == 0
+            target[walking[arrived]] = here[arrived]
+            walking = walking[~arrived]
+            if not walking.size:
+                break
+            actions, _ = self._step(flat, walking, cell[walking], others[walking])
+            cell[walking] = self.table[cell[walking], actions]
+        return target
+
+    def wander(self, block_color: np.ndarray, cell: np.ndarray, other_cells: np.ndarray,
                rng: np.random.Generator, avoid_blocks: bool = True) -> np.ndarray:
         """A random move to a neighbouring cell with no block (any move if none is free)."""
         B = cell.shape[0]
-        nxt, moves = self.neighbours(cell, other_cell)
+        nxt, moves = self.neighbours(cell, other_cells)
         if avoid_blocks:
             free = moves & (block_color.reshape(B, -1)[np.arange(B)[:, None], nxt] < 0)
             moves = np.where(free.any(axis=1, keepdims=True), free, moves)

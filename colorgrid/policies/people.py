@@ -19,8 +19,8 @@ import numpy as np
 from colorgrid.config import EnvConfig
 from colorgrid.configkit import check_int, check_number, fail
 from colorgrid.policies.base import AgentInput, PolicyOutput
-from colorgrid.policies.grid import INF, distance_field
-from colorgrid.policies.scripted import Seeker
+from colorgrid.policies.grid import INF, decode, distance_field
+from colorgrid.policies.scripted import Seeker, at
 
 
 @dataclass(frozen=True)
@@ -57,7 +57,12 @@ class PersonStyle:
 
 
 class PersonLeader(Seeker):
-    """The A* leader with a ``PersonStyle``: each departure is drawn per env and step from its own RNG."""
+    """The A* leader with a ``PersonStyle``: each departure is drawn per env and step from its own RNG.
+
+    In a team it walks around every other agent, and while it pursues the goal it leaves the blocks that
+    lower-index leaders go for as the A* leaders do (``Seeker.claims``), so that with every departure off
+    it is the A* leader in any team.
+    """
 
     name = "person"
     Params = PersonStyle
@@ -106,12 +111,16 @@ class PersonLeader(Seeker):
             distracted[tempted] = (target[tempted] + offset) % C
         pursued = np.where(distracted >= 0, distracted, target)
 
-        block_color, me, other = self.positions(inp)
+        block_color, agent_cell = decode(inp.observation, self.config)
+        me, other = agent_cell[:, self.agent_index], agent_cell[:, self.other_indices]
         wanted = np.eye(C, dtype=bool)[pursued]
+        claimed = self.claims(np.eye(C, dtype=bool)[goal], block_color, agent_cell)  # None for the first leader
+        if claimed is not None:  # the lower-index leaders' goal blocks matter only while it pursues the goal
+            claimed &= (pursued == goal)[:, None, None]
         if style.rationality is None:
-            actions, _ = self.seek(wanted, block_color, me, other)
+            actions, _ = self.seek(wanted, block_color, me, other, claimed=claimed)
         else:
-            actions = self.boltzmann(wanted, block_color, me, other, style.rationality)
+            actions = self.boltzmann(wanted, block_color, me, other, style.rationality, claimed)
 
         # detours: a few steps in one random direction
         begin = (detour_left == 0) & (u[:, 2] < style.detour)
@@ -131,11 +140,22 @@ class PersonLeader(Seeker):
         self.last_action[rows], self.detour_left[rows], self.detour_dir[rows] = actions, detour_left, detour_dir
         return PolicyOutput(actions)
 
-    def boltzmann(self, wanted, block_color, me, other, beta: float) -> np.ndarray:
-        """Moves drawn with probability proportional to exp(-beta * distance to a wanted block after the move)."""
+    def boltzmann(self, wanted, block_color, me, other, beta: float, claimed=None) -> np.ndarray:
+        """Moves drawn with probability proportional to exp(-beta * distance to a wanted block after the move).
+
+        other: [B, K] the other agents' cells; claimed: [B, H, W] blocks lower-index leaders go for (left alone
+        where an unclaimed wanted block is within reach), or None.
+        """
         B = block_color.shape[0]
         is_wanted, _, passable = self.cells(wanted, block_color, other)
-        dist = distance_field(is_wanted, passable, start_cell=me).reshape(B, -1)
+        if claimed is None:
+            dist = distance_field(is_wanted, passable, start_cell=me).reshape(B, -1)
+        else:
+            dist = distance_field(is_wanted & ~claimed, passable, start_cell=me)
+            lost = at(dist, me) >= INF
+            if lost.any():
+                dist[lost] = distance_field(is_wanted[lost], passable[lost], start_cell=me[lost])
+            dist = dist.reshape(B, -1)
         nxt, moves = self.mover.neighbours(me, other)
         values = dist[np.arange(B)[:, None], nxt]
         stuck = values >= INF
