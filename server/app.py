@@ -26,9 +26,10 @@ from colorgrid.render import look
 from server.hub import GameHub, ServerFull
 from server.jobs import Busy, ReplayJobs, branch_file, summaries
 from server.limits import AddressLimits, FloodRule, TokenBucket
-from server.protocol import (CLIENT_TYPES, KEY_ACTIONS, MAX_HORIZON, Key, Mode, NewGame, PageEvent, Ping, Quit, Rejoin,
-                             client_message, error)
+from server.protocol import (CLIENT_TYPES, KEY_ACTIONS, MAX_HORIZON, ROOM_CODE_LENGTH, CreateRoom, JoinRoom, Key, Mode,
+                             NewGame, PageEvent, Ping, Quit, Ready, Rejoin, Team, client_message, error)
 from server.replays import ID_PATTERN, SUFFIX, ReplayCatalogue
+from server.rooms import RoomError
 from server.settings import REPO_ROOT, ServerSettings
 
 WEB_DIR = REPO_ROOT / "web"
@@ -172,6 +173,7 @@ def create_app(settings: ServerSettings | None = None, study=None) -> FastAPI:
             return round(lateness[int(q * (len(lateness) - 1))], 2) if lateness else 0.0
 
         return {"status": "ok", "ready": hub.ready, "version": __version__, "games": len(hub.games),
+                "rooms": len(hub.rooms),
                 "max_sessions": settings.max_sessions, "connections": len(sockets.open),
                 "follower_pools": len(hub.pools), "tick_hz": settings.tick_hz,
                 "tick_lateness_p50_ms": pct(0.5), "tick_lateness_p99_ms": pct(0.99), **hub.stats}
@@ -179,15 +181,21 @@ def create_app(settings: ServerSettings | None = None, study=None) -> FastAPI:
     @app.get("/api/options")
     async def options():
         """What a new game may choose (followers, with labels and descriptions in ``follower_info``, presets with
-        their rewards, modes, the horizon's limit) and the defaults, plus what the page needs to draw and play:
-        the look of boards and the move keys."""
+        their rewards, modes, teams, the horizon's limit) and the defaults, plus what the page needs to draw and
+        play: the look of boards and the move keys."""
         presets = {name: env_config(name) for name in sorted(PRESETS)}
+        team_followers = hub.team_followers()
         return {"followers": list(settings.follower_choices), "default_follower": settings.follower,
                 "follower_info": [follower_info(name) for name in settings.follower_choices],
                 "presets": list(presets), "default_preset": settings.preset,
                 "preset_settings": {name: {"goal_reward": c.goal_reward, "wrong_penalty": c.wrong_penalty,
                                            "horizon": c.horizon} for name, c in presets.items()},
                 "modes": [{"value": m.value, "label": m.label} for m in Mode],
+                "teams": [{"value": t.value, "label": t.label, "people": t.people, "ai_followers": t.num_followers,
+                           "room": t.room,
+                           "followers": list(settings.follower_choices) if t == Team.ONE_TO_ONE else team_followers}
+                          for t in Team if t == Team.ONE_TO_ONE or team_followers],
+                "room_code_length": ROOM_CODE_LENGTH,
                 "horizon": {"default": presets[settings.preset].horizon, "max": MAX_HORIZON},
                 "keys": KEY_ACTIONS, "look": look(),
                 "tick_hz": settings.tick_hz, "show_belief": settings.show_belief}
@@ -337,6 +345,8 @@ def create_app(settings: ServerSettings | None = None, study=None) -> FastAPI:
             writer.cancel()
             if conn.game is not None:
                 hub.disconnect(conn.game, conn)
+            if conn.room is not None:
+                await hub.leave_room(conn.room, conn)
 
     return app
 
@@ -382,6 +392,7 @@ class Connection:
     def __init__(self, ws: WebSocket, settings: ServerSettings, new_games: TokenBucket, study=None):
         self.ws, self.settings, self.new_games, self.study = ws, settings, new_games, study
         self.game = None
+        self.room = None  # the room this tab waits in, before its game starts
         self.closed = False
         self.outbox: asyncio.Queue = asyncio.Queue(maxsize=256)
         self.messages = TokenBucket(settings.max_messages_per_s, burst=2 * settings.max_messages_per_s)
@@ -397,8 +408,13 @@ class Connection:
         self.outbox.put_nowait(message)
 
     def detach(self) -> None:
-        """Another connection took this one's game over (``rejoin``): keys from here no longer move it."""
-        self.game = None
+        """This tab no longer plays its game or waits in its room: another connection took the game over
+        (``rejoin``), the person left it, or the room closed."""
+        self.game = self.room = None
+
+    def attach(self, game) -> None:
+        """The room's game started: this tab plays it."""
+        self.game, self.room = game, None
 
     async def writer(self) -> None:
         while True:
@@ -426,8 +442,8 @@ class Connection:
             pass
 
     async def receive(self) -> dict:
-        """The next frame; a socket with no game that stays silent for ``connection_idle_s`` is closed."""
-        if self.game is not None:
+        """The next frame; a socket with no game or room that stays silent for ``connection_idle_s`` is closed."""
+        if self.game is not None or self.room is not None:
             return await self.ws.receive()
         try:
             return await asyncio.wait_for(self.ws.receive(), self.settings.connection_idle_s)
@@ -489,44 +505,70 @@ class Connection:
             await self.dispatch(hub, msg)
         except ServerFull as err:
             await self.send({"type": "full", "message": str(err)})
+        except RoomError as err:
+            await self.send(error(err.code, str(err)))
         except ValueError as err:
             await self.send(error("rejected", str(err)))
 
     async def dispatch(self, hub: GameHub, msg) -> None:
         if isinstance(msg, Ping):
             await self.send({"type": "pong", "t_server": time.time() * 1000})
-        elif isinstance(msg, (NewGame, Rejoin)):
+        elif isinstance(msg, (NewGame, Rejoin, CreateRoom, JoinRoom)):
             if self.game is not None and hub.controls(self.game, self):
                 raise ValueError("this connection already has a live game; send quit first")
+            if hub.room_of(self, self.room) is not None:
+                raise ValueError(f"this connection waits in room {self.room.code}; send quit to leave it first")
+            if self.study is not None and isinstance(msg, (CreateRoom, JoinRoom)):
+                raise ValueError("this server runs a study: games start from the study page")
+            # joining a room counts as a new game: room codes cannot be tried quickly
+            if not isinstance(msg, Rejoin) and not self.new_games.allow():
+                raise ValueError(f"too many new games from this address: at most "
+                                 f"{self.settings.new_games_per_minute:g} a minute (rooms opened and joined "
+                                 f"count too); try again in {self.new_games.retry_after():.0f} s")
             if isinstance(msg, NewGame):
-                if not self.new_games.allow():
-                    raise ValueError(f"too many new games from this address: at most "
-                                     f"{self.settings.new_games_per_minute:g} a minute; try again in "
-                                     f"{self.new_games.retry_after():.0f} s")
                 self.game = await self.new_game(hub, msg)
+            elif isinstance(msg, CreateRoom):
+                self.room = await hub.create_room(msg.team, msg.follower, msg.preset, msg.mode, msg.horizon,
+                                                  msg.show_belief, self, self.client_info(msg.viewport))
+            elif isinstance(msg, JoinRoom):
+                self.room = await hub.join_room(msg.code, self, self.client_info(msg.viewport))
             else:
                 self.game = await hub.rejoin(msg.game_id, msg.token, self)
+        elif hub.room_of(self, self.room) is not None:  # waiting in a room
+            if isinstance(msg, Ready):
+                await hub.set_ready(self.room, self, msg.ready)
+            elif isinstance(msg, Quit):
+                await hub.leave_room(self.room, self)
+                self.room = None
+            else:
+                raise ValueError(f"the game of room {self.room.code} has not started: send ready (or quit to leave)")
+        elif isinstance(msg, Ready):
+            raise ValueError("no room on this connection: send create_room or join_room first")
         elif self.game is None or not hub.controls(self.game, self):
             raise ValueError("no live game on this connection: send new_game or rejoin first")
         elif isinstance(msg, Key):
-            problem = await hub.key(self.game, msg.key, msg.seq, msg.t_client)
+            problem = await hub.key(self.game, msg.key, msg.seq, msg.t_client, self.game.seat_of(self))
             if problem:
                 await self.send(error("bad_key", problem))
         elif isinstance(msg, PageEvent):
-            self.game.page_event(msg.event, msg.visible, msg.t_client)
+            self.game.page_event(msg.event, msg.visible, msg.t_client, self.game.seat_of(self))
         elif isinstance(msg, Quit):
             if self.game.study is not None:
                 raise ValueError("a study's game cannot be ended early")
-            await hub.finish(self.game, "quit")
+            await hub.quit(self.game, self)
+
+    def client_info(self, viewport) -> dict:
+        """What a replay records of the page: its user agent and, when sent, its viewport."""
+        return {"user_agent": self.ws.headers.get("user-agent", "")[:500],
+                "viewport": list(viewport) if viewport else None}
 
     async def new_game(self, hub: GameHub, msg: NewGame):
-        client_info = {"user_agent": self.ws.headers.get("user-agent", "")[:500],
-                       "viewport": list(msg.viewport) if msg.viewport else None}
+        client_info = self.client_info(msg.viewport)
         if self.study is None:
             if msg.study is not None:
                 raise ValueError("this server runs no study")
             return await hub.new_game(msg.follower, msg.preset, msg.mode, msg.horizon, msg.show_belief, self,
-                                      client_info=client_info)
+                                      client_info=client_info, team=msg.team)
         if msg.study is None:
             raise ValueError("this server runs a study: games start from the study page")
         try:

@@ -1,4 +1,5 @@
-"""Follower pools: one policy instance serves every live game of the same kind, in one batched call."""
+"""Follower pools: one policy instance serves one agent index of every live game of the same kind, in one
+batched call."""
 
 from __future__ import annotations
 
@@ -7,27 +8,35 @@ import time
 
 import numpy as np
 
-from colorgrid.config import AGENTS, FOLLOWER, EnvConfig
-from colorgrid.policies import IdleFollower, make_policy
+from colorgrid.config import FOLLOWER, EnvConfig
+from colorgrid.policies import SCRIPTED, IdleFollower, make_policy
 from colorgrid.policies.base import AgentInput
 from colorgrid.step_inputs import StepInputs
 
 
+def plays_in_teams(name: str) -> bool:
+    """Whether a follower can play in a team other than 1:1: the scripted ones play at any agent index of any
+    team; trained networks (and checkpoints) read the 1:1 team's observation."""
+    return name.partition(":")[0] in SCRIPTED
+
+
 class FollowerPool:
-    """A follower policy with one row ("slot") per concurrent game of one config.
+    """A policy playing agent ``agent_index`` (a follower, or the scripted leader in the seat of a person who
+    left), with one row ("slot") per concurrent game of one config.
 
     ``act`` runs the policy for any subset of slots in one call. ``fallback`` is the
     documented move used when inference misses its deadline: a step to a free
     neighbouring cell that collects nothing (the ``idle`` follower).
     """
 
-    def __init__(self, name: str, config: EnvConfig, capacity: int, seed: int = 0):
+    def __init__(self, name: str, config: EnvConfig, capacity: int, seed: int = 0, agent_index: int = FOLLOWER):
         self.name = name
         self.config = config
-        self.policy = make_policy(name, role=AGENTS[FOLLOWER])
-        self.policy.reset(config, capacity, agent_index=FOLLOWER, seed=seed)
+        self.agent_index = agent_index
+        self.policy = make_policy(name, role=config.roles[agent_index])
+        self.policy.reset(config, capacity, agent_index=agent_index, seed=seed)
         self.idle = IdleFollower()
-        self.idle.reset(config, capacity, agent_index=FOLLOWER, seed=seed + 1)
+        self.idle.reset(config, capacity, agent_index=agent_index, seed=seed + 1)
         self.capacity = capacity
         self.free = list(range(capacity - 1, -1, -1))
         self.busy = False  # an inference call is still running (it may outlive its deadline)
@@ -42,7 +51,8 @@ class FollowerPool:
         obs, _ = env.reset()
         slot = self.acquire()
         try:
-            inputs = StepInputs.begin(self.config, 1).agent_input(obs, FOLLOWER, env.penalty_coef, env.state.goal.copy())
+            inputs = StepInputs.begin(self.config, 1).agent_input(obs, self.agent_index, env.penalty_coef,
+                                                                  env.state.goal.copy())
             self.act([inputs], [slot])
         finally:
             self.release(slot)
@@ -75,10 +85,10 @@ class FollowerPool:
         return self.idle.act(AgentInput.concat(inputs), rows=np.asarray(slots)).actions
 
 
-def build_pool(name: str, config: EnvConfig, capacity: int) -> FollowerPool:
+def build_pool(name: str, config: EnvConfig, capacity: int, agent_index: int = FOLLOWER) -> FollowerPool:
     """A pool, built on the inference thread that will run it. A trained follower then runs on one torch
     thread, so that torch's worker threads never spin against the event loop and the replay saver."""
-    pool = FollowerPool(name, config, capacity)
+    pool = FollowerPool(name, config, capacity, agent_index=agent_index)
     if "torch" in sys.modules:
         import torch
 

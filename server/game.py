@@ -1,4 +1,10 @@
-"""One game: a person leads, a follower assists; the server owns the state and records everything."""
+"""One game: people lead, AI followers assist; the server owns the state and records everything.
+
+A game's team is its config's (``EnvConfig.num_leaders``, ``num_followers``). Each leader is a
+``Seat`` played by a person; each follower is an ``AIPlayer``: a slot in the follower pool built for
+its agent index. When a person leaves a game that other people still play, a scripted leader takes
+their seat (an ``AIPlayer`` at the seat's agent index) and the replay says from which step.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from colorgrid.config import AGENTS, FOLLOWER, LEADER, EnvConfig
+from colorgrid.config import EnvConfig
 from colorgrid.env import ACTION_NAMES, BatchEnv
 from colorgrid.policies.base import AgentInput
 from colorgrid.render import look
@@ -18,6 +24,8 @@ from colorgrid.step_inputs import StepInputs
 from server.protocol import KEY_ACTIONS, Mode
 
 STAY = ACTION_NAMES.index("stay")
+STAND_IN = "astar"
+"""The scripted leader that plays on in the seat of a person who left a game other people still play."""
 
 
 MAX_PAGE_EVENTS = 1000
@@ -26,6 +34,41 @@ MAX_PAGE_EVENTS = 1000
 
 def now_ms() -> float:
     return time.time() * 1000.0
+
+
+@dataclass(eq=False)
+class Seat:
+    """A leader played by a person: their connection, their latest key, and whether they are still there."""
+
+    agent: int  # the leader's agent index
+    name: str  # the agent's name (``config.agent_names``)
+    client: object | None = None  # the connection playing this seat; None while waiting for a rejoin
+    client_info: dict = field(default_factory=dict)  # the page's user agent and viewport
+    token: str = field(default_factory=lambda: secrets.token_urlsafe(18))
+    pending: dict | None = None  # the latest key not yet applied (its key-log entry)
+    disconnected_at: float | None = None  # monotonic time the connection closed; None while connected
+    last_key_at: float = field(default_factory=time.monotonic)
+    left: str | None = None  # why the person left ("quit", "disconnected", "idle"); None while they play
+    left_at_step: int | None = None
+
+    def action(self) -> int:
+        """The pending key's move, or stay (real time with no key pending)."""
+        return STAY if self.pending is None else self.pending["action"]
+
+    def status(self) -> str:
+        """How the other people see this seat: ``playing``, ``reconnecting`` or ``left``."""
+        return "left" if self.left else "reconnecting" if self.client is None else "playing"
+
+
+@dataclass(eq=False)
+class AIPlayer:
+    """An agent played by a policy: its slot in the pool built for its agent index."""
+
+    agent: int
+    pool: object = field(repr=False)  # the FollowerPool serving this agent index
+    slot: int
+    beliefs: list = field(default_factory=list)  # [t][C] the policy's belief when acting, when it gives one
+    fresh: bool = True  # no step acted yet: its first input starts an episode (clears the slot's memory)
 
 
 @dataclass
@@ -38,22 +81,22 @@ class Game:
     preset: str
     seed: int
     show_belief: bool
-    slot: int
     game_id: str = field(default_factory=lambda: secrets.token_hex(6))
-    token: str = field(default_factory=lambda: secrets.token_urlsafe(18))
     created: float = field(default_factory=time.time)
-    pool: object = field(default=None, repr=False)  # the FollowerPool serving this game
-    max_key_log: int = 20_000  # key presses recorded; later ones still move the leader and are counted
+    max_key_log: int = 20_000  # key presses recorded; later ones still move their leader and are counted
     tick_hz: float = 5.0  # real time: steps a second
     study: dict | None = None  # a study's game: participant, condition, trial index... (recorded in the replay)
-    client: dict = field(default_factory=dict)  # the page's user agent and viewport
+    room: str | None = None  # the room's code, for a game of several people
 
     def __post_init__(self) -> None:
         self.mode = Mode(self.mode)
-        self.env = BatchEnv(self.config, num_envs=1, seed=self.seed, autoreset=False)
+        cfg = self.config
+        self.team = f"{cfg.num_leaders}:{cfg.num_followers}"
+        self.seats = [Seat(i, cfg.agent_names[i]) for i in cfg.leaders]
+        self.ai: dict[int, AIPlayer] = {}  # agent index -> its policy's slot (followers, stand-in leaders)
+        self.env = BatchEnv(cfg, num_envs=1, seed=self.seed, autoreset=False)
         self.obs, _ = self.env.reset()
-        self.last = StepInputs.begin(self.config, 1)
-        self.pending: dict | None = None  # the latest key not yet applied (its key-log entry)
+        self.last = StepInputs.begin(cfg, 1)
         self.key_log: list[dict] = []
         self.keys_dropped = 0  # key presses past ``max_key_log`` (not recorded)
         self.state_sent_ms: list[float] = [now_ms()]  # when each state t went out (reaction times)
@@ -63,44 +106,83 @@ class Game:
         self.team_reward: list = []
         self.picked: list = []
         self.switched: list = []
-        self.beliefs: list = []
         self.hashes = [self.env.state.state_hash(0)]
         self.deadline_misses: list[int] = []
-        self.last_key_at = time.monotonic()
-        self.disconnected_at: float | None = None
         self.finished = False
         self.replay_id: str | None = None
         self.last_events: list[dict] = []
-        self.page_events: list[dict] = []  # the page's focus and visibility changes
+        self.page_events: list[dict] = []  # the pages' focus and visibility changes
         self.page_events_dropped = 0
 
+    # ------------------------------------------------------------ who plays
+    @property
+    def solo(self) -> bool:
+        """One person and one follower: messages and replays exactly as before teams."""
+        return self.config.one_to_one
+
+    @property
+    def token(self) -> str:
+        """The first seat's rejoin token (a game of one person has no other)."""
+        return self.seats[0].token
+
+    @property
+    def people(self) -> list[Seat]:
+        """The seats still played by a person (connected or within the rejoin grace)."""
+        return [s for s in self.seats if s.left is None]
+
+    def seat_of(self, client) -> Seat | None:
+        """The seat ``client`` plays, or None (it never did, it was replaced, or the person left)."""
+        return next((s for s in self.people if client is not None and s.client is client), None)
+
+    @property
+    def paused(self) -> bool:
+        """A person is reconnecting: the game waits for them (at most the rejoin grace)."""
+        return any(s.client is None for s in self.people)
+
+    def controlled(self) -> bool:
+        """Every agent has a player (false while a stand-in leader is being loaded)."""
+        return len(self.people) + len(self.ai) == self.config.num_agents
+
+    def leave(self, seat: Seat, reason: str) -> None:
+        """The person in ``seat`` left; a stand-in must be attached (``attach``) before the next step."""
+        seat.left, seat.left_at_step = reason, int(self.env.state.t[0])
+        seat.client, seat.pending = None, None
+
+    def attach(self, agent: int, pool, slot: int) -> None:
+        self.ai[agent] = AIPlayer(agent, pool, slot)
+
     # ------------------------------------------------------------ keys
-    def press(self, key: str, seq: int, t_client: float) -> str | None:
-        """Register a key press; returns an error text for keys that are not moves.
+    def press(self, key: str, seq: int, t_client: float, seat: Seat | None = None) -> str | None:
+        """Register a key press of ``seat`` (the first by default); returns an error text for keys that are
+        not moves.
 
         The latest key wins: one pressed before the previous one was applied marks
         that one ``superseded`` in the key log (nothing is dropped silently).
         """
+        seat = seat or self.seats[0]
         entry = {"seq": seq, "key": key, "t_client": t_client, "t_server": now_ms(), "applied_step": None}
+        if not self.solo:
+            entry = {"agent": seat.name, **entry}
         action = KEY_ACTIONS.get(key)
         if action is None:
             entry["status"] = "ignored"
             self._log(entry)
             return f"key {key!r} is not a move; use the arrow keys or WASD"
         entry["action"] = action
-        if self.pending is not None:
-            self.pending["status"] = "superseded"
+        if seat.pending is not None:
+            seat.pending["status"] = "superseded"
         entry["status"] = "pending"
-        self.pending = entry
+        seat.pending = entry
         self._log(entry)
-        self.last_key_at = time.monotonic()
+        seat.last_key_at = time.monotonic()
         return None
 
-    def page_event(self, event: str, visible: bool | None, t_client: float) -> None:
-        """Record that the page lost or got focus, was hidden or shown (capped like the key log)."""
+    def page_event(self, event: str, visible: bool | None, t_client: float, seat: Seat | None = None) -> None:
+        """Record that a page lost or got focus, was hidden or shown (capped like the key log)."""
         if len(self.page_events) < MAX_PAGE_EVENTS:
-            self.page_events.append({"event": event, "visible": visible, "t_client": t_client,
-                                     "t_server": now_ms(), "step": int(self.env.state.t[0])})
+            entry = {"event": event, "visible": visible, "t_client": t_client, "t_server": now_ms(),
+                     "step": int(self.env.state.t[0])}
+            self.page_events.append(entry if self.solo else {"agent": (seat or self.seats[0]).name, **entry})
         else:
             self.page_events_dropped += 1
 
@@ -111,45 +193,54 @@ class Game:
             self.keys_dropped += 1
 
     def ready(self) -> bool:
-        """Whether the world should step now: always in real time, on a pending key when turn-based."""
-        return not self.finished and (self.mode == Mode.REALTIME or self.pending is not None)
-
-    def leader_action(self) -> int:
-        if self.pending is None:
-            return STAY  # real time with no key pending: the leader stays
-        return self.pending["action"]
+        """Whether the world should step now. Real time: on the clock, unless a person is reconnecting.
+        Turn-based: once every person has a key pending (people move together, see docs/SERVER_PROTOCOL.md)."""
+        if self.finished or self.paused or not self.controlled() or not self.people:
+            return False
+        return self.mode == Mode.REALTIME or all(s.pending is not None for s in self.people)
 
     # ------------------------------------------------------------ steps
-    def follower_input(self) -> AgentInput:
-        """The follower's input now (copied: a call that missed its deadline may still be reading it)."""
+    def ai_input(self, player: AIPlayer) -> AgentInput:
+        """A policy's input now (copied: a call that missed its deadline may still be reading it)."""
         obs = {k: v.copy() for k, v in self.obs.items()}
-        return self.last.agent_input(obs, FOLLOWER, self.env.penalty_coef, self.env.state.goal.copy())
+        start = np.ones(1, dtype=bool) if player.fresh else None
+        return self.last.agent_input(obs, player.agent, self.env.penalty_coef, self.env.state.goal.copy(), start)
 
-    def apply(self, follower_action: int, belief: np.ndarray | None, missed_deadline: bool) -> None:
-        """Step the world with the pending key (or stay) and the follower's action."""
+    def apply(self, moves: dict[int, tuple[int, np.ndarray | None, bool]]) -> None:
+        """Step the world with each person's pending key (or stay) and the policies' ``moves``: agent index ->
+        (action, belief or None, whether inference missed its deadline)."""
         t = int(self.env.state.t[0])
-        leader = self.leader_action()
-        if self.pending is not None:
-            self.pending["status"], self.pending["applied_step"] = "applied", t
-            self.pending = None
         self.goals.append(int(self.env.state.goal[0]))
         joint = np.empty((1, self.config.num_agents), dtype=np.int64)
-        joint[0, LEADER], joint[0, FOLLOWER] = leader, follower_action
+        for seat in self.people:
+            joint[0, seat.agent] = seat.action()
+            if seat.pending is not None:
+                seat.pending["status"], seat.pending["applied_step"] = "applied", t
+                seat.pending = None
+        missed = False
+        for agent, (action, belief, miss) in moves.items():
+            joint[0, agent] = action
+            player = self.ai[agent]
+            player.fresh = False
+            if belief is None and miss and player.beliefs:
+                belief = player.beliefs[-1]  # the deadline was missed: the belief repeats the last one
+            if belief is not None:
+                player.beliefs.append([round(float(p), 5) for p in belief])
+            missed |= miss
         self.obs, _, _, truncs, info = self.env.step(joint)
         self.actions.append(joint[0].tolist())
         self.block_reward.append([float(x) for x in info["block_reward"][0]])
         self.team_reward.append(float(info["team_reward"][0]))
         self.picked.append([int(x) for x in info["picked_color"][0]])
         self.switched.append(bool(info["goal_switched"][0]))
-        if belief is not None:
-            self.beliefs.append([round(float(p), 5) for p in belief])
         self.hashes.append(self.env.state.state_hash(0))
         self.state_sent_ms.append(now_ms())
-        if missed_deadline:
+        if missed:
             self.deadline_misses.append(t)
         self.last.record(joint, info)
+        names = self.config.agent_names
         self.last_events = [
-            {"agent": AGENTS[i], "color": int(c), "goal": bool(info["goal_pickup"][0, i])}
+            {"agent": names[i], "color": int(c), "goal": bool(info["goal_pickup"][0, i])}
             for i, c in enumerate(info["picked_color"][0]) if c >= 0
         ]
         if info["goal_switched"][0]:
@@ -157,49 +248,89 @@ class Game:
         if truncs.all():
             self.finished = True
 
+    def followers(self) -> list[AIPlayer]:
+        """The AI followers, in agent order."""
+        return [self.ai[i] for i in self.config.followers if i in self.ai]
+
     # ------------------------------------------------------------ views
-    def welcome(self) -> dict:
-        cfg = self.config
-        return {
-            "type": "welcome", "game_id": self.game_id, "token": self.token, "mode": self.mode.value,
+    def seats_view(self) -> list[dict]:
+        """Each person's seat for the pages: ``{agent, symbol, status}``."""
+        symbols = self.config.symbols
+        return [{"agent": s.name, "symbol": symbols[s.agent], "status": s.status()} for s in self.seats]
+
+    def welcome(self, seat: Seat | None = None) -> dict:
+        """The ``welcome`` of ``seat`` (the first by default): its own token; in a team, its own agent."""
+        cfg, seat = self.config, seat or self.seats[0]
+        message = {
+            "type": "welcome", "game_id": self.game_id, "token": seat.token, "mode": self.mode.value,
             "follower": self.follower, "preset": self.preset,
             "tick_hz": self.tick_hz if self.mode == Mode.REALTIME else None,
             "height": cfg.height, "width": cfg.width, "colors": list(cfg.color_names), "horizon": cfg.horizon,
             "show_belief": self.show_belief, "keys": sorted(KEY_ACTIONS), "look": look(cfg),
         }
+        if not self.solo:
+            message.update(team=self.team, agent=seat.name, seats=self.seats_view(), room=self.room)
+        return message
 
     def state_message(self) -> dict:
         s, cfg = self.env.state, self.config
         colors = s.block_colors(cfg)[0].ravel()
         blocks = np.where(colors < 0, ord("."), colors + ord("0")).astype(np.uint8).tobytes().decode("ascii")
-        last_seq = max((e["seq"] for e in self.key_log if e["status"] == "applied"), default=None)
-        return {
+        message = {
             "type": "state", "step": int(s.t[0]), "horizon": cfg.horizon,
-            **{name: int(s.agent_cell[0, i]) for i, name in enumerate(AGENTS)},
+            **{name: int(s.agent_cell[0, i]) for i, name in enumerate(cfg.agent_names)},
             "blocks": blocks,
             "goal": int(s.goal[0]),
             "scores": scores(s, cfg),
-            "belief": self.beliefs[-1] if (self.show_belief and self.beliefs) else None,
-            "events": self.last_events, "last_applied_seq": last_seq,
         }
+        if self.solo:
+            beliefs = self.followers()[0].beliefs if self.ai else []
+            message["belief"] = beliefs[-1] if (self.show_belief and beliefs) else None
+        else:  # one belief per AI follower, by name
+            message["beliefs"] = {cfg.agent_names[p.agent]: p.beliefs[-1] if (self.show_belief and p.beliefs)
+                                  else None for p in self.followers()}
+        message["events"] = self.last_events
+        message["last_applied_seq"] = self._last_applied_seq(self.seats[0]) if self.solo else {
+            seat.name: self._last_applied_seq(seat) for seat in self.seats}
+        return message
 
-    def to_replay(self, ended: str, follower_description: dict) -> Replay:
+    def _last_applied_seq(self, seat: Seat) -> int | None:
+        return max((e["seq"] for e in self.key_log
+                    if e["status"] == "applied" and e.get("agent", seat.name) == seat.name), default=None)
+
+    def to_replay(self, ended: str, descriptions: dict[int, dict]) -> Replay:
+        """The game as a replay; ``descriptions``: agent index -> its policy's ``agents`` entry (each AI follower)."""
         for entry in self.key_log:
             if entry["status"] == "pending":
                 entry["status"] = "unapplied"  # pressed after the last step the game made
+        names = self.config.agent_names
+        agents = {}
+        for i, name in enumerate(names):
+            seat = next((s for s in self.seats if s.agent == i), None)
+            if seat is None:
+                agents[name] = descriptions[i]
+            elif seat.left is None:
+                agents[name] = {"policy": "human"}
+            else:  # a person who left: the stand-in leader's moves from that step on
+                agents[name] = {"policy": "human", "replaced_by": STAND_IN, "from_step": seat.left_at_step}
+        meta = {"game_id": self.game_id, "mode": self.mode.value, "preset": self.preset,
+                "deadline_misses": self.deadline_misses, "state_sent_ms": self.state_sent_ms,
+                "key_events_dropped": self.keys_dropped, "show_belief": self.show_belief,
+                "tick_hz": self.tick_hz if self.mode == Mode.REALTIME else None}
+        if self.solo:
+            meta["client"] = self.seats[0].client_info
+        else:
+            meta.update(team=self.team, room=self.room,
+                        clients={s.name: s.client_info for s in self.seats},
+                        seats_left=[{"agent": s.name, "reason": s.left, "from_step": s.left_at_step,
+                                     "replaced_by": STAND_IN} for s in self.seats if s.left])
+        meta.update(page_events=self.page_events, page_events_dropped=self.page_events_dropped,
+                    **({"study": self.study} if self.study else {}))
         return Replay(
-            config=self.config, seed=self.seed, source="play",
-            agents={AGENTS[LEADER]: {"policy": "human"}, AGENTS[FOLLOWER]: follower_description},
+            config=self.config, seed=self.seed, source="play", agents=agents,
             actions=self.actions, goal=self.goals, block_reward=self.block_reward, team_reward=self.team_reward,
             picked_color=self.picked, goal_switched=self.switched,
-            goal_probs={AGENTS[FOLLOWER]: self.beliefs} if self.beliefs and len(self.beliefs) == len(self.actions)
-            else {},
-            state_hashes=self.hashes, ended=ended, key_events=self.key_log,
-            meta={"game_id": self.game_id, "mode": self.mode.value, "preset": self.preset,
-                  "deadline_misses": self.deadline_misses, "state_sent_ms": self.state_sent_ms,
-                  "key_events_dropped": self.keys_dropped, "show_belief": self.show_belief,
-                  "tick_hz": self.tick_hz if self.mode == Mode.REALTIME else None,
-                  "client": self.client, "page_events": self.page_events,
-                  "page_events_dropped": self.page_events_dropped,
-                  **({"study": self.study} if self.study else {})},
+            goal_probs={names[p.agent]: p.beliefs for p in self.followers()
+                        if p.beliefs and len(p.beliefs) == len(self.actions)},
+            state_hashes=self.hashes, ended=ended, key_events=self.key_log, meta=meta,
         )

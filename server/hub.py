@@ -1,4 +1,4 @@
-"""The game hub: every live game, the real-time tick, batched follower inference, saving."""
+"""The game hub: every live game and waiting room, the real-time tick, batched follower inference, saving."""
 
 from __future__ import annotations
 
@@ -10,17 +10,16 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Protocol
 
-import numpy as np
-
+from colorgrid.config import FOLLOWER, EnvConfig
 from colorgrid.policies import SCRIPTED
 from colorgrid.presets import env_config
-from colorgrid.config import EnvConfig
 from colorgrid.replay import save
 from colorgrid.replay.format import describe_agent
 from colorgrid.roles import scores
-from server.followers import FollowerPool, build_pool
-from server.game import Game
-from server.protocol import Mode
+from server.followers import FollowerPool, build_pool, plays_in_teams
+from server.game import STAND_IN, Game, Seat
+from server.protocol import ROOM_COUNTDOWN_S, Mode, Team
+from server.rooms import Room, RoomError, new_code, parse_code
 from server.settings import ServerSettings
 
 log = logging.getLogger("colorgrid.server")
@@ -33,7 +32,11 @@ class Client(Protocol):
     async def send(self, message: dict) -> None: ...
 
     def detach(self) -> None:
-        """The connection no longer controls its game (another connection took it over)."""
+        """The connection no longer plays its game or sits in its room (another connection took the game
+        over, the person left it, or the room closed)."""
+
+    def attach(self, game: Game) -> None:
+        """The connection now plays ``game``: its room's game started (another person's ``ready``)."""
 
 
 class ServerFull(Exception):
@@ -41,14 +44,14 @@ class ServerFull(Exception):
 
 
 class GameHub:
-    """Owns all games. Real-time games advance together on one clock (``tick_hz``), with one
-    batched follower call per follower pool per tick; turn-based games advance on a key."""
+    """Owns all games and waiting rooms. Real-time games advance together on one clock (``tick_hz``), with one
+    batched call per follower pool per tick; turn-based games advance once every person has moved."""
 
     def __init__(self, settings: ServerSettings):
         self.settings = settings
         self.games: dict[str, Game] = {}
-        self.clients: dict[str, Client | None] = {}  # game id -> the connection playing it (None: waiting)
-        self.reserved = 0  # new games past the session check, still loading their follower
+        self.rooms: dict[str, Room] = {}  # code -> a room waiting for its people (each counts as a session)
+        self.reserved = 0  # new games past the session check, still loading their followers
         self.pools: dict[tuple, FollowerPool] = {}
         self._loading: dict[tuple, asyncio.Future] = {}
         self.ready = False  # the default follower and the compiled env step are loaded
@@ -59,6 +62,7 @@ class GameHub:
                       "save_failures": 0}
         self.lateness_ms: list[float] = []
         self._tasks: list[asyncio.Task] = []
+        self._notices: set[asyncio.Task] = set()  # seat changes being told to the other people of a game
         self._clocks: dict[float, asyncio.Task] = {}
         self.listeners: list = []  # told game_started(game) and game_over(game, reason, scores): a study's records
         self._seed_counter = int(time.time())
@@ -88,7 +92,8 @@ class GameHub:
         self.ready = True
 
     async def stop(self) -> list[Client]:
-        """Save every live game and tell its player (``game_over``, reason ``server_shutdown``).
+        """Save every live game and tell its people (``game_over``, reason ``server_shutdown``); close every
+        waiting room (``room_closed``).
 
         Returns the connections that were told, so the caller can close them once the message is
         out. Each game is saved on its own: one that fails is logged and the rest are still saved.
@@ -99,7 +104,10 @@ class GameHub:
         self.stopped = True
         for task in self._tasks:
             task.cancel()
-        told = [c for c in self.clients.values() if c is not None]
+        told = [s.client for g in self.games.values() for s in g.people if s.client is not None]
+        told += [m.client for room in self.rooms.values() for m in room.members if m is not None]
+        for room in list(self.rooms.values()):
+            await self._close_room(room, "server_shutdown", "the server is shutting down; try again in a minute")
         for game in list(self.games.values()):
             try:
                 await self.finish(game, "server_shutdown")
@@ -110,23 +118,26 @@ class GameHub:
         return told
 
     # ------------------------------------------------------------ sessions
-    def make_config(self, preset: str, mode: Mode, horizon: int | None) -> EnvConfig:
+    def make_config(self, preset: str, mode: Mode, horizon: int | None, team: Team = Team.ONE_TO_ONE) -> EnvConfig:
         changes = {}
+        if team != Team.ONE_TO_ONE:
+            changes.update(num_leaders=team.num_leaders, num_followers=team.num_followers)
         if mode == Mode.REALTIME:
             changes["allow_stay"] = True  # the leader stays when no key is pending
         if horizon is not None:
             changes["horizon"] = horizon
         return env_config(preset, **changes)
 
-    async def pool_for(self, follower: str, config: EnvConfig) -> FollowerPool:
-        """The pool for this follower and config, built on the inference thread (loading never blocks the loop)."""
-        key = (follower, config)
+    async def pool_for(self, follower: str, config: EnvConfig, agent_index: int = FOLLOWER) -> FollowerPool:
+        """The pool for this follower, config and agent index, built on the inference thread (loading never
+        blocks the loop)."""
+        key = (follower, config, agent_index)
         if key in self.pools:
             return self.pools[key]
         loading = self._loading.get(key)
         if loading is None:  # the first game to ask builds it; games arriving meanwhile wait for the same one
             loading = asyncio.get_running_loop().run_in_executor(
-                self.executor, build_pool, follower, config, self.settings.max_sessions)
+                self.executor, build_pool, follower, config, self.settings.max_sessions, agent_index)
             self._loading[key] = loading
         try:
             pool = await asyncio.shield(loading)
@@ -142,96 +153,285 @@ class GameHub:
             self._clocks[tick_hz] = asyncio.create_task(self._tick_loop(tick_hz))
             self._tasks.append(self._clocks[tick_hz])
 
-    async def new_game(self, follower: str | None, preset: str | None, mode: Mode, horizon: int | None,
-                       show_belief: bool, client: Client, tick_hz: float | None = None, study: dict | None = None,
-                       client_info: dict | None = None) -> Game:
-        """Start a game for ``client``. ``tick_hz`` (default: the server's) sets a real-time game's clock;
-        ``study`` is what a study's game records about itself (its replay's ``meta.study``)."""
-        follower = follower or self.settings.follower
+    def team_followers(self) -> list[str]:
+        """The offered followers that play in teams other than 1:1 (the default first, if it does)."""
+        return [f for f in self.settings.follower_choices if plays_in_teams(f)]
+
+    def choose(self, team: Team, follower: str | None, preset: str | None, mode: Mode,
+               horizon: int | None) -> tuple[str, str, EnvConfig]:
+        """The follower, preset and config of a new game or room; what is not offered raises ``ValueError``."""
+        if team == Team.ONE_TO_ONE:
+            follower = follower or self.settings.follower
+        else:
+            follower = follower or next(iter(self.team_followers()), self.settings.follower)
         if follower not in self.settings.follower_choices:
             raise ValueError(f"unknown follower {follower!r}; choose one of {list(self.settings.follower_choices)}")
+        if team != Team.ONE_TO_ONE and not plays_in_teams(follower):
+            raise ValueError(f"follower {follower!r} plays only in 1:1 teams (a trained network reads the 1:1 "
+                             f"board); for team {team.value} choose one of {self.team_followers()}")
         preset = preset or self.settings.preset
-        config = self.make_config(preset, mode, horizon)
-        # The session is counted before the first await, so concurrent requests never overshoot the limit.
-        running = len(self.games) + self.reserved
+        return follower, preset, self.make_config(preset, mode, horizon, team)
+
+    def check_capacity(self) -> None:
+        """Refuse a new game or room past ``max_sessions`` (games, games being made and waiting rooms)."""
+        running = len(self.games) + self.reserved + len(self.rooms)
         if self.stopped or running >= self.settings.max_sessions:
             raise ServerFull(f"server full: {running} games are running (limit {self.settings.max_sessions});"
                              " try again in a minute")
+
+    async def new_game(self, follower: str | None, preset: str | None, mode: Mode, horizon: int | None,
+                       show_belief: bool, client: Client, tick_hz: float | None = None, study: dict | None = None,
+                       client_info: dict | None = None, team: Team = Team.ONE_TO_ONE) -> Game:
+        """Start a game for ``client``, the team's one person. ``tick_hz`` (default: the server's) sets a
+        real-time game's clock; ``study`` is what a study's game records about itself (``meta.study``)."""
+        team = Team(team)
+        if team.room:
+            raise ValueError(f"team {team.value} has {team.people} people: they meet in a room (create_room, "
+                             "then share its code)")
+        follower, preset, config = self.choose(team, follower, preset, Mode(mode), horizon)
+        return await self._open_game(config, Mode(mode), follower, preset, show_belief, [(client, client_info or {})],
+                                     tick_hz=tick_hz, study=study)
+
+    async def _open_game(self, config: EnvConfig, mode: Mode, follower: str, preset: str, show_belief: bool,
+                         people: list[tuple[Client, dict]], tick_hz: float | None = None,
+                         study: dict | None = None, room: str | None = None) -> Game:
+        """Make a game for ``people`` (connection and page info, one per leader, in agent order), with a slot in
+        the follower's pool for each follower; send each person their ``welcome`` and the first ``state``."""
+        # The session is counted before the first await, so concurrent requests never overshoot the limit.
+        self.check_capacity()
         self.reserved += 1
         try:
-            pool = await self.pool_for(follower, config)
+            pools = [await self.pool_for(follower, config, i) for i in config.followers]
             if self.stopped:
                 raise ServerFull("the server is shutting down; try again in a minute")
             self._seed_counter += 1
             game = Game(config=config, mode=mode, follower=follower, preset=preset, seed=self._seed_counter,
-                        show_belief=show_belief and self.settings.show_belief, slot=pool.acquire(), pool=pool,
-                        max_key_log=self.settings.max_key_log, tick_hz=tick_hz or self.settings.tick_hz,
-                        study=study, client=client_info or {})
+                        show_belief=show_belief and self.settings.show_belief, max_key_log=self.settings.max_key_log,
+                        tick_hz=tick_hz or self.settings.tick_hz, study=study, room=room)
+            for seat, (client, client_info) in zip(game.seats, people):
+                seat.client, seat.client_info = client, client_info
+            for pool in pools:
+                game.attach(pool.agent_index, pool, pool.acquire())
             try:
                 for listener in self.listeners:  # recorded before the player sees the game
                     await asyncio.get_running_loop().run_in_executor(self.saver, listener.game_started, game)
             except BaseException:
-                pool.release(game.slot)
+                self._release(game)
                 raise
             self.games[game.game_id] = game  # counted here before the reservation ends: no gap
         finally:
             self.reserved -= 1
         if game.mode == Mode.REALTIME:
             self.clock(game.tick_hz)
-        self.clients[game.game_id] = client
-        await client.send(game.welcome())
-        await client.send(game.state_message())
+        for seat in game.seats:
+            await self._send_to(seat.client, game.welcome(seat))
+        await self._send(game, game.state_message())
         return game
 
     async def rejoin(self, game_id: str, token: str, client: Client) -> Game:
-        """Give the game to ``client``; a connection that still had it is told ``replaced`` and loses it."""
+        """Give a seat of the game to ``client`` (the seat whose token it is); a connection that still had it
+        is told ``replaced`` and loses it."""
         game = self.games.get(game_id)
-        if game is None or not secrets_equal(game.token, token):
+        seat = next((s for s in game.people if secrets_equal(s.token, token)), None) if game is not None else None
+        if seat is None:
             raise ValueError("no game with that id and token is waiting (it may have ended or the grace period passed)")
-        previous = self.clients.get(game_id)
+        previous = seat.client
         if previous is not None and previous is not client:
             previous.detach()
             await self._send_to(previous, {"type": "replaced", "game_id": game_id,
                                            "message": "this game was taken over by another connection"})
-        game.disconnected_at = None
-        game.last_key_at = time.monotonic()
-        self.clients[game_id] = client
-        await client.send(game.welcome())
+        was_away = previous is None
+        seat.client, seat.disconnected_at, seat.last_key_at = client, None, time.monotonic()
+        await client.send(game.welcome(seat))
         await client.send(game.state_message())
+        if was_away and not game.solo:
+            await self._send_seats(game)
+        if game.mode == Mode.TURN:  # the others may all have moved while this person was away
+            await self.step_games([game])
         return game
 
     def controls(self, game: Game, client: Client) -> bool:
-        """Whether ``client`` plays ``game`` now (it is live and was not taken over)."""
-        return game.game_id in self.games and self.clients.get(game.game_id) is client
+        """Whether ``client`` plays ``game`` now (it is live and was not taken over, and the person is in it)."""
+        return game.game_id in self.games and game.seat_of(client) is not None
 
     def disconnect(self, game: Game, client: Client) -> None:
-        """``client`` closed: its game waits for a rejoin (a connection that was replaced changes nothing)."""
-        if self.controls(game, client):
-            self.clients[game.game_id] = None
-            game.disconnected_at = time.monotonic()
+        """``client`` closed: its seat waits for a rejoin (a connection that was replaced changes nothing)."""
+        seat = game.seat_of(client) if game.game_id in self.games else None
+        if seat is not None:
+            seat.client, seat.disconnected_at = None, time.monotonic()
+            if not game.solo:  # the others see the seat reconnecting
+                notice = asyncio.get_running_loop().create_task(self._send_seats(game))
+                self._notices.add(notice)
+                notice.add_done_callback(self._notices.discard)
 
-    async def key(self, game: Game, key: str, seq: int, t_client: float) -> str | None:
-        problem = game.press(key, seq, t_client)
+    async def key(self, game: Game, key: str, seq: int, t_client: float, seat: Seat | None = None) -> str | None:
+        """A key of the person in ``seat`` (the first by default); a turn-based game steps once everyone moved."""
+        problem = game.press(key, seq, t_client, seat)
         if problem is None and game.mode == Mode.TURN:
             await self.step_games([game])
         return problem
 
+    async def quit(self, game: Game, client: Client) -> None:
+        """The person on ``client`` ends the game; in a game other people still play, only leaves it."""
+        seat = game.seat_of(client)
+        if seat is not None:
+            await self._leave(game, seat, "quit")
+
+    async def _leave(self, game: Game, seat: Seat, reason: str) -> None:
+        """The person in ``seat`` is gone (``quit``, ``disconnected``, ``idle``). The last person's leaving ends
+        the game; otherwise the scripted leader (``STAND_IN``) plays on in the seat, and the person is told
+        ``game_over`` with reason ``left``."""
+        if game.game_id not in self.games or seat.left is not None:
+            return
+        if len(game.people) == 1:
+            await self.finish(game, reason)
+            return
+        client = seat.client
+        game.leave(seat, reason)
+        if client is not None:
+            client.detach()
+            await self._send_to(client, self._game_over(game, "left", None))
+        await self._send_seats(game)
+        pool = await self.pool_for(STAND_IN, game.config, seat.agent)
+        if game.game_id not in self.games:  # ended while the stand-in loaded
+            return
+        game.attach(seat.agent, pool, pool.acquire())
+        if game.mode == Mode.TURN:  # the others' keys may all be waiting
+            await self.step_games([game])
+
+    # ------------------------------------------------------------ rooms
+    async def create_room(self, team: Team, follower: str | None, preset: str | None, mode: Mode,
+                          horizon: int | None, show_belief: bool, client: Client,
+                          client_info: dict | None = None) -> Room:
+        """Open a room for ``team`` with ``client`` in its first seat; it counts as a session until its game
+        starts or it closes."""
+        team, mode = Team(team), Mode(mode)
+        if not team.room:
+            raise ValueError(f"team {team.value} has one person: start it with new_game (rooms are for teams of "
+                             "several people)")
+        follower, preset, config = self.choose(team, follower, preset, mode, horizon)
+        self.check_capacity()
+        room = Room(code=new_code(self.rooms), team=team, config=config, follower=follower, preset=preset, mode=mode,
+                    show_belief=show_belief, tick_hz=self.settings.tick_hz)
+        room.join(client, client_info or {})
+        self.rooms[room.code] = room
+        await self._send_room(room)
+        return room
+
+    async def join_room(self, code: str, client: Client, client_info: dict | None = None) -> Room:
+        """Seat ``client`` in the room with ``code``; unknown, started and full rooms raise ``RoomError``."""
+        code = parse_code(code)
+        room = self.rooms.get(code)
+        if room is None:
+            if any(g.room == code for g in self.games.values()):
+                raise RoomError("room_started", f"the game of room {code} has already started")
+            raise RoomError("room_not_found", f"no room {code} is waiting (it may have expired or closed)")
+        room.join(client, client_info or {})
+        await self._send_room(room)
+        return room
+
+    def room_of(self, client: Client, room: Room | None) -> Room | None:
+        """``room`` if it still waits and ``client`` sits in it, else None."""
+        live = room is not None and self.rooms.get(room.code) is room and room.seat_of(client) is not None
+        return room if live else None
+
+    async def set_ready(self, room: Room, client: Client, ready: bool = True) -> None:
+        """Mark ``client``'s seat ready (or not); once every seat is taken and ready the game starts, after a
+        countdown in real time (``ROOM_COUNTDOWN_S``) that every page shows."""
+        seat = room.seat_of(client)
+        if room.starting_in_s is not None:
+            if not ready:
+                raise ValueError("the game is starting: it can no longer be delayed")
+            return
+        room.members[seat].ready = ready
+        if room.all_ready:
+            room.starting_in_s = ROOM_COUNTDOWN_S if room.mode == Mode.REALTIME else 0
+            room.start_task = asyncio.create_task(self._start_room(room))
+        await self._send_room(room)
+
+    async def leave_room(self, room: Room, client: Client) -> None:
+        """``client`` leaves a waiting room (quit, or its socket closed); an empty room closes. A countdown
+        under way stops (everyone's ``ready`` is cleared)."""
+        if self.rooms.get(room.code) is not room:
+            if room.opening:  # closed while the game was being made: its seat waits for a rejoin
+                room.dropped.append(client)
+            return
+        room.leave(client)
+        if room.start_task is not None:
+            room.start_task.cancel()
+            room.start_task, room.starting_in_s = None, None
+            for member in room.members:
+                if member is not None:
+                    member.ready = False
+        if room.empty:
+            del self.rooms[room.code]
+        else:
+            await self._send_room(room)
+
+    async def _start_room(self, room: Room) -> None:
+        await asyncio.sleep(room.starting_in_s)
+        if self.rooms.get(room.code) is not room or not room.all_ready:
+            return
+        del self.rooms[room.code]  # its session passes to the game (no await between: nothing overtakes it)
+        room.opening = True
+        people = [(m.client, m.client_info) for m in room.members]
+        try:
+            game = await self._open_game(room.config, room.mode, room.follower, room.preset, room.show_belief,
+                                         people, tick_hz=room.tick_hz, room=room.code)
+        except Exception as err:  # ServerFull while stopping, a follower that does not load
+            log.exception("could not start the game of room %s", room.code)
+            for client, _ in people:
+                client.detach()
+                await self._send_to(client, room.closed_message("failed", f"the game could not start: {err}"))
+            return
+        finally:
+            room.opening = False
+        for client, _ in people:
+            if client in room.dropped:
+                self.disconnect(game, client)
+            else:
+                client.attach(game)
+
+    async def _close_room(self, room: Room, reason: str, message: str) -> None:
+        if self.rooms.pop(room.code, None) is None:
+            return
+        if room.start_task is not None:
+            room.start_task.cancel()
+        for member in room.members:
+            if member is not None:
+                member.client.detach()
+                await self._send_to(member.client, room.closed_message(reason, message))
+
+    async def _send_room(self, room: Room) -> None:
+        for seat, member in enumerate(room.members):
+            if member is not None:
+                await self._send_to(member.client, room.message(seat))
+
+    async def _send_seats(self, game: Game) -> None:
+        """Tell the people of a team game how each seat stands (``seats``)."""
+        await self._send(game, {"type": "seats", "seats": game.seats_view()})
+
     # ------------------------------------------------------------ stepping
     async def step_games(self, games: list[Game]) -> None:
-        """Advance ``games`` one step: one batched follower call per pool, then the env steps."""
+        """Advance ``games`` one step: one batched call per pool (every AI player of these games that the pool
+        plays), then each game's env steps."""
         async with self.lock:
             games = [g for g in games if g.ready() and g.game_id in self.games]
-            by_pool: dict[int, list[Game]] = {}
+            by_pool: dict[int, list] = {}  # every AI player of these games, by the pool that plays it
             for g in games:
-                by_pool.setdefault(id(g.pool), []).append(g)
+                for player in g.ai.values():
+                    by_pool.setdefault(id(player.pool), []).append((g, player))
+            moves: dict[str, dict] = {g.game_id: {} for g in games}
             for group in by_pool.values():
-                pool = group[0].pool
-                inputs = [g.follower_input() for g in group]
-                slots = [g.slot for g in group]
+                pool = group[0][1].pool
+                inputs = [g.ai_input(player) for g, player in group]
+                slots = [player.slot for _, player in group]
                 actions, beliefs, missed = await self._infer(pool, inputs, slots)
-                for i, g in enumerate(group):
-                    belief = beliefs[i] if beliefs is not None else (np.array(g.beliefs[-1]) if g.beliefs else None)
-                    g.apply(int(actions[i]), belief, missed)
+                for i, (g, player) in enumerate(group):
+                    belief = beliefs[i] if beliefs is not None else None
+                    moves[g.game_id][player.agent] = (int(actions[i]), belief, missed)
+            for g in games:
+                g.apply(moves[g.game_id])
             for g in games:
                 await self._send(g, g.state_message())
                 if g.finished:
@@ -259,7 +459,7 @@ class GameHub:
             await asyncio.sleep(max(0.0, next_tick - time.perf_counter()))
             lateness = (time.perf_counter() - next_tick) * 1000.0
             live = [g for g in self.games.values()
-                    if g.mode == Mode.REALTIME and g.tick_hz == tick_hz and g.disconnected_at is None]
+                    if g.mode == Mode.REALTIME and g.tick_hz == tick_hz and not g.paused]
             if live:  # lateness matters to games: ticks with none to step are not counted
                 self._record_lateness(lateness)
             if live and lateness > 50:
@@ -290,25 +490,31 @@ class GameHub:
                 log.exception("sweep failed")
 
     async def sweep(self) -> None:
-        """End games abandoned past the rejoin grace or idle too long, and free follower pools nobody uses."""
+        """People gone past the rejoin grace or idle too long leave their games (the last one's leaving ends
+        it); rooms waiting too long close; follower pools nobody uses are freed."""
         now = time.monotonic()
         for game in list(self.games.values()):
-            if game.disconnected_at is not None and now - game.disconnected_at > self.settings.rejoin_grace_s:
-                await self.finish(game, "disconnected")
-            elif now - game.last_key_at > self.settings.idle_timeout_s:
-                await self.finish(game, "idle")
+            for seat in game.people:
+                if seat.disconnected_at is not None and now - seat.disconnected_at > self.settings.rejoin_grace_s:
+                    await self._leave(game, seat, "disconnected")
+                elif now - seat.last_key_at > self.settings.idle_timeout_s:
+                    await self._leave(game, seat, "idle")
+        for room in list(self.rooms.values()):
+            if room.starting_in_s is None and now - room.created > self.settings.room_wait_s:
+                await self._close_room(room, "expired", f"nobody started the game within "
+                                                        f"{self.settings.room_wait_s:g} s")
         for key, pool in list(self.pools.items()):
             if key[0] not in self.keep_warm and pool.idle_for() > POOL_IDLE_S:
                 del self.pools[key]
 
     # ------------------------------------------------------------ ending
     async def finish(self, game: Game, reason: str) -> None:
-        """Save the game's replay (atomically) and tell the player; idempotent, and never raises:
-        a game that cannot be saved is logged and counted, and its player still gets ``game_over``."""
+        """Save the game's replay (atomically) and tell its people; idempotent, and never raises:
+        a game that cannot be saved is logged and counted, and its people still get ``game_over``."""
         if self.games.pop(game.game_id, None) is None:
             return
         game.finished = True
-        game.pool.release(game.slot)
+        self._release(game)
         if game.actions:
             try:
                 await self._save(game, reason)
@@ -321,20 +527,29 @@ class GameHub:
                                                                  scores(game.env.state, game.env.config))
             except Exception:
                 log.exception("a listener failed on the end of game %s", game.game_id)
-        client = self.clients.pop(game.game_id, None)
-        if client is not None:
-            s = game.env.state
-            await self._send_to(client, {
-                "type": "game_over", "reason": reason, "replay_id": game.replay_id, "steps": int(s.t[0]),
-                "scores": scores(s, game.env.config),
-            })
+        over = self._game_over(game, reason, game.replay_id)
+        for seat in game.people:
+            if seat.client is not None:
+                await self._send_to(seat.client, over)
+
+    @staticmethod
+    def _game_over(game: Game, reason: str, replay_id: str | None) -> dict:
+        s = game.env.state
+        return {"type": "game_over", "reason": reason, "replay_id": replay_id, "steps": int(s.t[0]),
+                "scores": scores(s, game.env.config)}
+
+    @staticmethod
+    def _release(game: Game) -> None:
+        for player in game.ai.values():
+            player.pool.release(player.slot)
 
     async def _save(self, game: Game, reason: str) -> None:
         stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime(game.created))
         replay_id = f"play-{stamp}-{game.game_id}"
-        replay = game.to_replay("complete" if reason == "complete" else reason,
-                                describe_agent(game.pool.policy.describe(),
-                                               game.follower if game.follower.endswith(".pt") else None))
+        checkpoint = game.follower if game.follower.endswith(".pt") else None
+        descriptions = {player.agent: describe_agent(player.pool.policy.describe(), checkpoint)
+                        for player in game.followers()}
+        replay = game.to_replay("complete" if reason == "complete" else reason, descriptions)
         # Written (atomically, fsynced) on a worker thread so saving never stalls the tick.
         path = Path(self.settings.replays_dir) / f"{replay_id}.replay.json"
         await asyncio.get_running_loop().run_in_executor(self.saver, save, replay, path)
@@ -342,9 +557,10 @@ class GameHub:
         self.stats["games_saved"] += 1
 
     async def _send(self, game: Game, message: dict) -> None:
-        client = self.clients.get(game.game_id)
-        if client is not None:
-            await self._send_to(client, message)
+        """To every person still in ``game``."""
+        for seat in game.people:
+            if seat.client is not None:
+                await self._send_to(seat.client, message)
 
     @staticmethod
     async def _send_to(client: Client, message: dict) -> None:

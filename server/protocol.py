@@ -32,6 +32,61 @@ class Mode(str, Enum):
         return {Mode.TURN: "turn-based", Mode.REALTIME: "real time"}[self]
 
 
+class Team(str, Enum):
+    """Who plays a game: leaders and followers, as ``"leaders:followers"``. Every leader is a person (a
+    scripted leader takes the seat of one who leaves) and every follower is the server's AI follower."""
+
+    ONE_TO_ONE = "1:1"
+    TWO_PEOPLE = "2:1"
+    TWO_FOLLOWERS = "1:2"
+
+    @property
+    def num_leaders(self) -> int:
+        return int(self.value.partition(":")[0])
+
+    @property
+    def num_followers(self) -> int:
+        return int(self.value.partition(":")[2])
+
+    @property
+    def people(self) -> int:
+        """Seats for people: one per leader."""
+        return self.num_leaders
+
+    @property
+    def room(self) -> bool:
+        """Whether the game needs a room: more than one person, who meet by a code before it starts."""
+        return self.people > 1
+
+    @property
+    def label(self) -> str:
+        """How a page names the team."""
+        return {Team.ONE_TO_ONE: "you lead, one AI follower",
+                Team.TWO_PEOPLE: "two people lead together, one AI follower (a room)",
+                Team.TWO_FOLLOWERS: "you lead, two AI followers"}[self]
+
+
+ROOM_CODE_ALPHABET = "ABCDEFGHJKMNPQRSTUVWXYZ23456789"
+"""Letters and digits of room codes: none that reads like another (no 0/O, 1/I/L)."""
+ROOM_CODE_LENGTH = 8
+"""Characters in a room code: 31**8 (about 8.5e11) codes, so that guessing one at the per-address rate of
+``new_games_per_minute`` would take centuries."""
+ROOM_COUNTDOWN_S = 3
+"""Seconds between the last person's ``ready`` and the start of a real-time room's game (the pages count down)."""
+
+
+def normalise_room_code(text: str) -> str | None:
+    """A typed or pasted room code as the server writes it (upper case, spaces and dashes dropped), or None
+    when it cannot be one."""
+    code = text.upper().replace("-", "").replace(" ", "")
+    ok = len(code) == ROOM_CODE_LENGTH and all(c in ROOM_CODE_ALPHABET for c in code)
+    return code if ok else None
+
+
+Viewport = tuple[Annotated[int, Field(ge=0, le=100_000)], Annotated[int, Field(ge=0, le=100_000)]]
+"""A page's inner width and height in CSS pixels (recorded in the replay)."""
+
+
 class _Message(BaseModel):
     # NaN and infinities (JSON's NaN/Infinity, or 1e400) are refused: a replay must stay valid JSON
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
@@ -53,9 +108,40 @@ class NewGame(_Message):
     mode: Mode = Mode.TURN
     horizon: int | None = Field(default=None, ge=1, le=MAX_HORIZON)
     show_belief: bool = True
+    team: Team = Team.ONE_TO_ONE
+    """A team with one person (``"1:1"``, ``"1:2"``); teams of several people meet in a room (``create_room``)."""
     study: StudyRef | None = None
-    viewport: tuple[Annotated[int, Field(ge=0, le=100_000)], Annotated[int, Field(ge=0, le=100_000)]] | None = None
+    viewport: Viewport | None = None
     """The page's inner width and height in CSS pixels (recorded in the replay)."""
+
+
+class CreateRoom(_Message):
+    """Open a room for a team of several people (answered by ``room``; the game starts when every seat is
+    taken and ready)."""
+
+    type: Literal["create_room"]
+    team: Team = Team.TWO_PEOPLE
+    follower: str | None = None
+    preset: str | None = None
+    mode: Mode = Mode.TURN
+    horizon: int | None = Field(default=None, ge=1, le=MAX_HORIZON)
+    show_belief: bool = True
+    viewport: Viewport | None = None
+
+
+class JoinRoom(_Message):
+    """Take the next free seat of a waiting room."""
+
+    type: Literal["join_room"]
+    code: str = Field(max_length=32)
+    viewport: Viewport | None = None
+
+
+class Ready(_Message):
+    """Say that this seat is ready to start (``ready: false`` takes it back before the start)."""
+
+    type: Literal["ready"]
+    ready: bool = True
 
 
 class Rejoin(_Message):
@@ -89,13 +175,15 @@ class Ping(_Message):
 
 
 class Quit(_Message):
-    """End the game now; it is saved."""
+    """End the game now; it is saved. In a game with other people, leave it: a scripted leader plays on in
+    this seat. In a waiting room, leave the room."""
 
     type: Literal["quit"]
 
 
-ClientMessage = Annotated[Union[NewGame, Rejoin, Key, PageEvent, Ping, Quit], Field(discriminator="type")]
-CLIENT_TYPES = ("new_game", "rejoin", "key", "page_event", "ping", "quit")
+ClientMessage = Annotated[Union[NewGame, CreateRoom, JoinRoom, Ready, Rejoin, Key, PageEvent, Ping, Quit],
+                          Field(discriminator="type")]
+CLIENT_TYPES = ("new_game", "create_room", "join_room", "ready", "rejoin", "key", "page_event", "ping", "quit")
 client_message = TypeAdapter(ClientMessage)
 
 

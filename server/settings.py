@@ -37,11 +37,15 @@ class ServerSettings:
     released_dir: Path = REPO_ROOT / "replays"
     """Released replays listed beside the recorded games (read-only)."""
     max_sessions: int = 100
-    """Concurrent games; the next player gets a clear 'server full' message."""
+    """Concurrent games, rooms waiting for their people included; the next player gets a clear 'server full'
+    message."""
     rejoin_grace_s: float = 30.0
     """How long a disconnected game waits for its player to rejoin with the token."""
     idle_timeout_s: float = 300.0
-    """A game with no key for this long is closed and saved."""
+    """A person with no key for this long leaves the game: a game of one person is closed and saved, in a game
+    of several a scripted leader plays on in their seat."""
+    room_wait_s: float = 600.0
+    """A room whose game has not started this long after it was opened is closed."""
     inference_deadline_ms: float = 100.0
     """Follower inference budget per tick; a miss falls back to a safe idle move and is recorded."""
     max_message_bytes: int = 2048
@@ -87,7 +91,7 @@ class ServerSettings:
                 fail(self, name, "a folder (a Path)")
         for name in ("max_sessions", "max_connections", "max_exports", "max_key_log"):
             check_int(self, name, 1, allowed="a positive integer")
-        for name in ("rejoin_grace_s", "idle_timeout_s", "inference_deadline_ms", "max_messages_per_s",
+        for name in ("rejoin_grace_s", "idle_timeout_s", "room_wait_s", "inference_deadline_ms", "max_messages_per_s",
                      "connection_idle_s", "new_games_per_minute", "max_replay_mb", "export_cache_mb",
                      "header_timeout_s"):
             check_number(self, name, "a finite number > 0", lambda v: v > 0)

@@ -1,17 +1,22 @@
 // The play page: the server owns the game; this page draws states and sends keys. What it offers and
-// how it draws (followers, presets, modes, keys, colors, agents) all come from the server.
+// how it draws (followers, presets, modes, teams, keys, colors, agents) all come from the server. A team of
+// several people meets in a room first (web/room.js draws it).
 import { drawBoard, drawBelief, setLook } from "./board.js";
 import { countdown } from "./countdown.js";
 import { playSocket } from "./socket.js";
 import { plainEnding, plainError, stepsMessage } from "./messages.js";
+import { queryParam } from "./params.js";
+import { LEFT_ENDING, drawBeliefs, markYou, plainRoomClosed, plainRoomError, showRoom, showSeats, showTeam,
+         showTeamScores } from "./room.js";
 
 const $ = (id) => document.getElementById(id);
 const ARROWS = { ArrowUp: "↑", ArrowDown: "↓", ArrowLeft: "←", ArrowRight: "→" };
-let options = null, socket = null, game = null, seq = 0, beliefHidden = false, lastState = null;
+let options = null, socket = null, game = null, room = null, seq = 0, beliefHidden = false, lastState = null;
 
 async function loadOptions() {
   options = await (await fetch("/api/options")).json();
   setLook(options.look);
+  fill($("team"), options.teams, options.teams[0].value);
   fill($("follower"), options.follower_info, options.default_follower);
   fill($("preset"), options.presets.map((v) => ({ value: v, label: v })), options.default_preset);
   fill($("mode"), options.modes, options.modes[0].value);
@@ -20,7 +25,7 @@ async function loadOptions() {
     for (const el of document.querySelectorAll(`[data-symbol="${agent.name}"]`)) el.textContent = agent.symbol;
   }
   $("move-keys").textContent = moveKeys(options.keys);
-  showFollower();
+  showTeamChoice();
   showPreset();
   showMode();
   $("tick-note").textContent = `real time runs at ${options.tick_hz} steps/s`;
@@ -35,6 +40,25 @@ function moveKeys(keys) {
     byAction.set(action, [...new Set([...(byAction.get(action) ?? []), shown])]);
   }
   return [...byAction.values()].map((names) => names.join(" or ")).join(", ");
+}
+
+function chosenTeam() {
+  return options.teams.find((t) => t.value === $("team").value);
+}
+
+function showTeamChoice() {
+  // the followers that play in the chosen team, and what starting it does
+  const team = chosenTeam(), current = $("follower").value;
+  const offered = options.follower_info.filter((f) => team.followers.includes(f.value));
+  fill($("follower"), offered, team.followers.includes(current) ? current : team.followers[0]);
+  showFollower();
+  $("start").textContent = team.room ? "Create a room" : "Start";
+  $("team-help").textContent = team.room
+    ? `You and ${team.people - 1 === 1 ? "another person" : `${team.people - 1} other people`} lead together ` +
+      `(${team.ai_followers === 1 ? "one AI follower" : `${team.ai_followers} AI followers`}): create a room, ` +
+      "send its link, and the game starts when everyone is ready. In turn-based play the world steps once " +
+      "every person has moved."
+    : team.ai_followers > 1 ? `${team.ai_followers} AI followers assist you; each forms its own belief.` : "";
 }
 
 function followerInfo(name) {
@@ -75,20 +99,58 @@ function status(text, kind = "", detail = "") {
 }
 
 function connect(firstMessage) {
+  if (socket) {  // the last game's socket, or one whose game was refused: it has nothing more to say
+    socket.onclose = socket.onmessage = null;
+    socket.close();
+  }
   playSocket(firstMessage, {
     onOpen: (opened) => { socket = opened; },
     onMessage,
     liveGame: () => (game && !game.over && !game.replaced ? game : null),
+    liveRoom: () => room?.code ?? null,
     onDrop: () => status("connection lost: rejoining...", "warn"),
   });
 }
 
+function onRoom(msg) {
+  const first = !room;
+  room = msg;
+  history.replaceState(null, "", msg.link);  // a reload joins the room again
+  $("setup").hidden = true;
+  $("over").hidden = true;
+  $("game").hidden = true;
+  $("room").hidden = false;
+  room.ready = showRoom(msg, options);
+  if (msg.starting_in_s) {  // real time: the server starts the game after this countdown
+    countdown($("countdown"), msg.starting_in_s).then(() => {
+      $("countdown").textContent = "go";
+      setTimeout(() => { $("countdown").hidden = true; }, 700);
+    });
+  } else {
+    $("countdown").hidden = true;  // a countdown under way stopped: someone left
+  }
+  if (msg.starting_in_s != null) status("everyone is ready: the game starts...");
+  else status(first ? "room open: send the link to the person you lead with" : "");
+}
+
 function onMessage(msg) {
-  if (msg.type === "welcome") {
+  if (msg.type === "room") {
+    onRoom(msg);
+  } else if (msg.type === "room_closed") {
+    room = null;
+    history.replaceState(null, "", "/");
+    $("room").hidden = true;
+    $("countdown").hidden = true;
+    $("setup").hidden = false;
+    status(plainRoomClosed(msg), "error", `room_closed: ${msg.reason}: ${msg.message}`);
+  } else if (msg.type === "welcome") {
     game = { ...msg, over: false };
+    room = null;
+    if (location.search) history.replaceState(null, "", "/");  // a reload rejoins the game, not the room
     setLook(msg.look);
     sessionStorage.setItem("colorgrid-game", JSON.stringify({ game_id: msg.game_id, token: msg.token }));
     $("setup").hidden = true;
+    $("room").hidden = true;
     $("over").hidden = true;
     $("game").hidden = false;
     $("quit").hidden = false;
@@ -97,36 +159,48 @@ function onMessage(msg) {
       setTimeout(() => { $("countdown").hidden = true; }, 700);
     }
     const mode = options.modes.find((m) => m.value === msg.mode)?.label ?? msg.mode;
-    $("mode-label").textContent = msg.tick_hz ? `${mode}, ${msg.tick_hz} steps/s` : `${mode}: the world moves when you do`;
+    const together = msg.seats?.length > 1;  // turn-based with other people: a step once everyone has moved
+    $("mode-label").textContent = msg.tick_hz ? `${mode}, ${msg.tick_hz} steps/s`
+      : `${mode}: the world moves when ${together ? "everyone has moved" : "you do"}`;
     const follower = followerInfo(msg.follower);
     $("follower-label").textContent = follower.label;
     $("follower-label").title = follower.description;
+    $("solo-scores").hidden = Boolean(msg.team);
+    $("team-scores").hidden = !msg.team;
+    if (msg.team) showTeam(game, follower.label);
+    const followers = game.look.agents.filter((a) => a.role === "follower").length;
+    $("belief-whose").textContent = followers > 1 ? "followers believe" : "follower believes";
     $("belief-panel").hidden = !(msg.show_belief && follower.has_belief);
     status(`your move: ${moveKeys(options.keys)}`);
   } else if (msg.type === "state") {
     lastState = msg;
     render(msg);
+    if (game.team && game.mode === "turn") status(`your move: ${moveKeys(options.keys)}`);
+  } else if (msg.type === "seats") {
+    showSeats(game, msg.seats, followerInfo(game.follower).label);
   } else if (msg.type === "game_over") {
     game.over = true;
     sessionStorage.removeItem("colorgrid-game");
     $("quit").hidden = true;
     $("over").hidden = false;
-    const [you, partner] = game.look.agents;  // in index order: the leader (the player), then the follower
-    $("over-scores").textContent = `team ${fmt(msg.scores.team)} (you ${fmt(msg.scores[you.name])}, ` +
-      `${partner.name} ${fmt(msg.scores[partner.name])}) after ${msg.steps} steps`;
+    $("over-scores").textContent = `team ${fmt(msg.scores.team)} (${agentScores(msg.scores)}) after ${msg.steps} steps`;
     const link = $("replay-link");
     link.hidden = !msg.replay_id;
     if (msg.replay_id) link.href = `/replay?id=${encodeURIComponent(msg.replay_id)}`;
-    status(plainEnding(msg.reason), "", `game_over: ${msg.reason}`);
+    status(msg.reason === "left" ? LEFT_ENDING : plainEnding(msg.reason), "", `game_over: ${msg.reason}`);
   } else if (msg.type === "error" || msg.type === "full") {
     const detail = msg.type === "full" ? `full: ${msg.message}` : `${msg.code}: ${msg.message}`;
     console.info(detail);
-    if (!game) {  // the game was not made (or could not be resumed): back to the setup
+    const roomWords = plainRoomError(msg);
+    if (!game && (!room || roomWords)) {  // the game or room was not made (or could not be resumed): back to the setup
       sessionStorage.removeItem("colorgrid-game");
+      if (roomWords) history.replaceState(null, "", "/");
+      room = null;
       $("countdown").hidden = true;
+      $("room").hidden = true;
       $("setup").hidden = false;
     }
-    status(plainError(msg, options.horizon.max), "error", detail);
+    status(roomWords ?? plainError(msg, options.horizon.max), "error", detail);
   } else if (msg.type === "replaced") {
     game.replaced = true;  // another tab rejoined this game: it plays there now, so do not take it back
     status("this game continues in another tab or window", "warn");
@@ -135,12 +209,26 @@ function onMessage(msg) {
 
 const fmt = (x) => (x > 0 ? "+" : "") + x;
 
+function agentScores(scores) {
+  // "you +1, follower +2" (1:1, in index order: the leader, who plays, then the follower); a team's by symbol
+  if (!game.team) {
+    const [you, partner] = game.look.agents;
+    return `you ${fmt(scores[you.name])}, ${partner.name} ${fmt(scores[partner.name])}`;
+  }
+  return game.look.agents.map((a) => `${a.symbol}${a.name === game.agent ? " (you)" : ""} ${fmt(scores[a.name])}`)
+    .join(", ");
+}
+
 function render(state) {
   const canvas = $("board");
-  drawBoard(canvas, { height: game.height, width: game.width, ...state });
+  const cell = drawBoard(canvas, { height: game.height, width: game.width, ...state });
   for (const agent of game.look.agents) {
     canvas.dataset[agent.name] = state[agent.name];  // agents' cells, for assistive tools and tests
-    $(`score-${agent.name}`).textContent = fmt(state.scores[agent.name]);
+    if (!game.team) $(`score-${agent.name}`).textContent = fmt(state.scores[agent.name]);
+  }
+  if (game.team) {
+    markYou(canvas, cell, game.width, state[game.agent]);
+    showTeamScores(game, state.scores, fmt);
   }
   canvas.dataset.step = state.step;
   $("step").textContent = `${state.step} / ${state.horizon}`;
@@ -148,9 +236,11 @@ function render(state) {
   $("score-team").textContent = fmt(state.scores.team);
   $("goal-swatch").style.background = game.look.palette[state.goal];
   $("goal-name").textContent = game.colors[state.goal];
-  drawBelief($("belief"), beliefHidden ? null : state.belief, game.colors);
+  if (game.team) drawBeliefs($("belief"), beliefHidden ? null : state.beliefs, game, drawBelief);
+  else drawBelief($("belief"), beliefHidden ? null : state.belief, game.colors);
+  const named = (name) => (game.team ? game.look.agents.find((a) => a.name === name)?.symbol ?? name : name);
   const events = state.events.map((e) => e.switch !== undefined ? `goal switched to ${game.colors[e.switch]}`
-    : `${e.agent} took ${game.colors[e.color]} (${e.goal ? "+" : "-"})`);
+    : `${named(e.agent)} took ${game.colors[e.color]} (${e.goal ? "+" : "-"})`);
   if (events.length) $("events").textContent = events.join("; ");
 }
 
@@ -158,6 +248,9 @@ document.addEventListener("keydown", (event) => {
   if (!game || game.over || !socket || socket.readyState !== WebSocket.OPEN || !Object.hasOwn(options.keys, event.key)) return;
   event.preventDefault();
   socket.send(JSON.stringify({ type: "key", key: event.key, seq: seq++, t_client: performance.timeOrigin + performance.now() }));
+  if (game.team && game.mode === "turn" && game.seats.filter((s) => s.status !== "left").length > 1) {
+    status("waiting for the other person to move...");
+  }
 });
 
 $("start").addEventListener("click", async () => {
@@ -165,17 +258,16 @@ $("start").addEventListener("click", async () => {
     status(stepsMessage(options.horizon.max), "error");
     return;
   }
-  const request = { type: "new_game", follower: $("follower").value, preset: $("preset").value, mode: $("mode").value,
+  const team = chosenTeam();
+  const request = { type: team.room ? "create_room" : "new_game", team: team.value, follower: $("follower").value,
+                    preset: $("preset").value, mode: $("mode").value,
                     horizon: $("horizon").value ? Number($("horizon").value) : null, show_belief: true,
                     viewport: [window.innerWidth, window.innerHeight] };
   seq = 0;
   game = null;
+  room = null;
   status("");
-  if (socket) {  // the last game's socket, or one whose game was refused: it has nothing more to say
-    socket.onclose = socket.onmessage = null;
-    socket.close();
-  }
-  if (request.mode === "realtime") {
+  if (request.mode === "realtime" && !team.room) {  // a room's countdown is the server's, once all are ready
     // The countdown runs before the game exists: the server steps a real-time world from its first
     // moment, so nothing moves, and no key counts, until "go".
     $("setup").hidden = true;
@@ -184,6 +276,25 @@ $("start").addEventListener("click", async () => {
   }
   connect(request);
 });
+function joinRoom(code) {
+  seq = 0;
+  game = null;
+  room = null;
+  connect({ type: "join_room", code, viewport: [window.innerWidth, window.innerHeight] });
+}
+
+$("join").addEventListener("click", () => joinRoom($("join-code").value.trim()));
+$("ready").addEventListener("click", () => socket?.send(JSON.stringify({ type: "ready", ready: !room?.ready })));
+$("leave-room").addEventListener("click", () => {
+  socket?.send(JSON.stringify({ type: "quit" }));
+  room = null;
+  history.replaceState(null, "", "/");
+  $("room").hidden = true;
+  $("setup").hidden = false;
+  status("");
+});
+$("copy-link").addEventListener("click", () => navigator.clipboard?.writeText($("room-link").href));
+$("team").addEventListener("change", showTeamChoice);
 $("follower").addEventListener("change", showFollower);
 $("preset").addEventListener("change", showPreset);
 $("mode").addEventListener("change", showMode);
@@ -196,5 +307,7 @@ $("belief-toggle").addEventListener("change", (event) => {
 
 loadOptions().then(() => {
   const saved = sessionStorage.getItem("colorgrid-game");
+  const code = queryParam("room");
   if (saved) connect({ type: "rejoin", ...JSON.parse(saved) });
+  else if (code) joinRoom(code);  // a shared room link
 });
