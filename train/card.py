@@ -32,6 +32,10 @@ def model_card(checkpoint: str, agent: str, run_dir: str | None, command: str, e
                seed: int = 0) -> tuple[str, dict]:
     ckpt = load_checkpoint(checkpoint)
     config = EnvConfig.from_dict(ckpt["env_config"])
+    if not config.one_to_one:
+        raise ValueError(f"{checkpoint} was trained in a team of {config.num_leaders} leader(s) and "
+                         f"{config.num_followers} follower(s); model cards compare an agent of the 1:1 team with "
+                         f"its baselines: evaluate a team with colorgrid eval")
     train_cfg = ckpt["config"]
     if agent == AGENTS[FOLLOWER]:
         partner = train_cfg[AGENTS[LEADER]]["policy"]

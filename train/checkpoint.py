@@ -4,8 +4,13 @@ Layout (``torch.save`` of plain containers, loadable with ``weights_only=True``)
 
     format: "colorgrid-ippo", version: 1
     config: the TrainConfig as a dict        env_config: the EnvConfig as a dict
-    step, iteration                          agents: {"leader": entry | None, "follower": entry | None}
-    entry: {"net": NetConfig dict, "agent_index", "state_dict", "optimizer" (or None when exported)}
+    step, iteration                          agents: {name: entry | None}
+    entry: {"net": NetConfig dict, "agent_index", "state_dict", "optimizer" (or None when exported)},
+           and "agents" (the indices it plays) for a network shared within a role
+
+``agents`` has one key per network, named after its agent (``env.agent_names``: ``leader`` and
+``follower`` in the 1:1 team) or, for a network shared within a role, after the role; an agent
+that did not learn appears under its own name with None.
     trainer_state: tensors and plain values (format 2: env state, last step's inputs, recurrent states,
                    partners' state_dicts, RNG states), or None when exported
 
@@ -23,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.config import ROLES, EnvConfig
 from colorgrid.files import atomic_path
 from colorgrid.configkit import from_dict
 from train.config import NetConfig, TrainConfigError
@@ -33,9 +38,44 @@ FORMAT, VERSION = "colorgrid-ippo", 1
 
 
 def agent_entry(model: ActorCritic, optimizer: torch.optim.Optimizer | None) -> dict:
-    return {"net": dataclasses.asdict(model.net), "agent_index": model.agent_index,
-            "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
-            "optimizer": optimizer.state_dict() if optimizer is not None else None}
+    entry = {"net": dataclasses.asdict(model.net), "agent_index": model.agent_index,
+             "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+             "optimizer": optimizer.state_dict() if optimizer is not None else None}
+    if model.shared:
+        entry["agents"] = list(model.agents)
+    return entry
+
+
+def network_agents(entry: dict) -> tuple[int, ...]:
+    """The agent indices a checkpoint entry's network plays."""
+    return tuple(int(a) for a in entry["agents"]) if "agents" in entry else (int(entry["agent_index"]),)
+
+
+def find_network(ckpt: dict, env: EnvConfig, name: str | None, what: str) -> tuple[str, dict]:
+    """``(key, entry)`` of the network that plays ``name`` in a checkpoint (``env``: its team).
+
+    ``name`` is a key of ``ckpt["agents"]`` (an agent's name, or a role whose agents share a
+    network), an agent's name (``follower_1``: the network it plays, its own or its role's), a
+    role (``follower``: the role's only network), or None (the only network).
+    """
+    trained = {key: entry for key, entry in ckpt["agents"].items() if entry is not None}
+    if name is None:
+        if len(trained) != 1:
+            raise ValueError(f"{what} holds trained agents {sorted(trained)}; say which one to load")
+        return next(iter(trained.items()))
+    if name in trained:
+        return name, trained[name]
+    plays = {key: network_agents(entry) for key, entry in trained.items()}
+    found = []
+    if name in env.agent_names:
+        found = [key for key, agents in plays.items() if env.agent_names.index(name) in agents]
+    elif name in ROLES:
+        found = [key for key, agents in plays.items() if any(env.roles[a] == name for a in agents)]
+    if len(found) > 1:
+        raise ValueError(f"{what} holds several trained {name}s ({', '.join(found)}); say which one to load")
+    if not found:
+        raise ValueError(f"{what} holds no trained {name} (it has: {sorted(trained) or 'none'})")
+    return found[0], trained[found[0]]
 
 
 def save_checkpoint(path: str | Path, payload: dict) -> Path:
@@ -95,7 +135,8 @@ def build_model(entry: dict, env: EnvConfig, what: str) -> ActorCritic:
         net = from_dict(NetConfig, entry["net"], "net")
     except TrainConfigError as err:
         raise ValueError(f"{what}: {err}") from None
-    model = ActorCritic(net, env, int(entry["agent_index"]))
+    agents = network_agents(entry)
+    model = ActorCritic(net, env, agents if len(agents) > 1 else agents[0])
     load_weights(model, entry["state_dict"], what)
     return model
 
@@ -107,19 +148,19 @@ def load_weights(model: ActorCritic, state_dict: dict, what: str) -> None:
     shapes = [f"{k}: checkpoint {tuple(state_dict[k].shape)}, network {tuple(own[k].shape)}"
               for k in own if k in state_dict and own[k].shape != state_dict[k].shape]
     if missing or extra or shapes:
-        raise ValueError(f"{what} does not match the network {model.net} for {AGENTS[model.agent_index]}: "
+        players = ", ".join(model.env.agent_names[a] for a in model.agents)
+        raise ValueError(f"{what} does not match the network {model.net} for the {players}: "
                          f"missing {missing[:4]}, unexpected {extra[:4]}, shape mismatches {shapes[:4]}")
     model.load_state_dict(state_dict)
 
 
 def export_agent(src: str | Path, role: str, dst: str | Path) -> Path:
-    """Keep only one agent's weights and configs (no optimizer, no trainer state): a small file to ship."""
+    """Keep only one network's weights and configs (no optimizer, no trainer state): a small file to ship.
+    ``role`` names it as ``find_network`` takes it (an agent's name, or a role)."""
     ckpt = load_checkpoint(src)
-    entry = ckpt["agents"].get(role)
-    if entry is None:
-        raise ValueError(f"{src} holds no trained {role}")
-    agents = {name: None for name in AGENTS}
-    agents[role] = {**entry, "optimizer": None}
+    key, entry = find_network(ckpt, EnvConfig.from_dict(ckpt["env_config"]), role, str(src))
+    agents = {name: None for name in ckpt["agents"]}
+    agents[key] = {**entry, "optimizer": None}
     return save_checkpoint(dst, {"config": ckpt["config"], "env_config": ckpt["env_config"], "step": ckpt["step"],
                                  "iteration": ckpt.get("iteration"), "wall_time_s": ckpt.get("wall_time_s"),
                                  "device": ckpt.get("device"), "agents": agents, "trainer_state": None})

@@ -30,7 +30,8 @@ def add_train_commands(sub) -> None:
     ck = sub.add_parser("checkpoint", help="inspect a checkpoint or export one agent as a small policy file")
     ck.add_argument("action", choices=["info", "export", "card"])
     ck.add_argument("path", help="a checkpoint .pt")
-    ck.add_argument("--agent", choices=["leader", "follower"], help="export: which agent to keep")
+    ck.add_argument("--agent", help="export, card: which network: leader or follower (1:1 team), an agent's name "
+                                    "(leader_1, follower_0) or the role whose agents share one network")
     ck.add_argument("--out", help="export: destination .pt; card: destination .md (a .json of the reports beside it)")
     ck.add_argument("--run", help="card: the run directory (for the wall time)")
     ck.add_argument("--command", dest="train_command", default="",  # not "command": that names the sub-command
@@ -117,7 +118,7 @@ def cmd_checkpoint(args: argparse.Namespace) -> int:
                          indent=2))
         return 0
     if not args.agent or not args.out:
-        raise ValueError("needs --agent (leader or follower) and --out PATH")
+        raise ValueError("needs --agent (leader, follower, or an agent's name such as follower_1) and --out PATH")
     if args.action == "card":
         from train.card import write_card
 

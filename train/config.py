@@ -1,21 +1,25 @@
 """Training configuration: frozen dataclasses, validated on construction, loadable from preset files.
 
-A run is one ``TrainConfig``: the environment, one ``AgentConfig`` per agent (learn,
-freeze a checkpoint, or play a scripted policy), the PPO settings (defaults are the
-paper's table), the schedules, and where and how often to log, evaluate and save.
-Presets in ``train/presets/*.json`` hold only the fields that differ from these defaults.
+A run is one ``TrainConfig``: the environment (a team of any shape), one ``AgentConfig`` per
+role (``leader``: every leader, ``follower``: every follower; each agent learns, plays a
+frozen checkpoint or a scripted policy, and a role's learners may share one network), the
+PPO settings (defaults are the paper's table), the schedules, and where and how often to
+log, evaluate and save. Presets in ``train/presets/*.json`` hold only the fields that differ
+from these defaults.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 from colorgrid import configkit
-from colorgrid.config import AGENTS, EnvConfig
-from colorgrid.configkit import (ConfigError, Presets, check_bool, check_choice, check_int, check_number, fail, merge,
-                                 override_dict)
+from colorgrid.config import ROLES, EnvConfig
+from colorgrid.configkit import (ConfigError, Presets, check_bool, check_choice, check_int, check_number,
+                                 check_strings, fail, merge, override_dict)
 from colorgrid.policies import SCRIPTED, registry
 
 PRESETS_DIR = Path(__file__).parent / "presets"
@@ -75,12 +79,20 @@ class NetConfig:
 
 @dataclass(frozen=True)
 class AgentConfig:
-    """How one agent takes part in a run."""
+    """How the agents of one role take part in a run: ``TrainConfig.leader`` holds every leader's settings,
+    ``TrainConfig.follower`` every follower's (in the 1:1 team, the one leader's and the one follower's)."""
 
     policy: str = "learn"
-    """``learn`` (trained here), a scripted policy name (``astar``, ``idle``, ``bayes``, ...), or a checkpoint path (frozen)."""
+    """``learn`` (trained here), a scripted policy name (``astar``, ``idle``, ``bayes``, ...), or a checkpoint path
+    (frozen), for every agent of the role (``policies`` sets one per agent)."""
+    policies: tuple[str, ...] = ()
+    """One policy per agent of the role, in index order, each as ``policy`` takes it; empty: every agent plays
+    ``policy``. E.g. ``leader.policies=["astar", "learn"]``: the first leader is scripted, the second learns."""
+    share_network: bool = False
+    """With two or more learning agents in the role: one network and optimizer for all of them (parameter
+    sharing), which gets each agent's position among them as a one-hot input; false: one network each."""
     init: str | None = None
-    """For ``learn``: warm-start weights (and network settings) from this checkpoint."""
+    """For ``learn``: warm-start weights (and network settings) from this checkpoint (every learner of the role)."""
     net: NetConfig = field(default_factory=NetConfig)
     aux_coef: float = 0.2
     """Weight kappa of the auxiliary goal-prediction cross-entropy (0 turns it off)."""
@@ -99,17 +111,27 @@ class AgentConfig:
     def learns(self) -> bool:
         return self.policy == "learn"
 
+    def agent_policies(self, count: int) -> tuple[str, ...]:
+        """The policy of each of the role's ``count`` agents (``policies``, or ``policy`` for every one)."""
+        return self.policies or (self.policy,) * count
+
     def __post_init__(self):
         if not isinstance(self.policy, str) or not self.policy:
             fail(self, "policy", "'learn', a scripted policy name or a checkpoint path ending in .pt")
         names = sorted(SCRIPTED) + registry.registered_names()
+        allowed = (f"'learn', one of {names} (scripted ones with parameters as name:key=value,...), a population "
+                   f"(population:NAME[#PART] or FILE.json[#PART]) or a checkpoint path ending in .pt")
         if not self.learns and not _policy_spec(self.policy, names):
-            fail(self, "policy", f"'learn', one of {names} (scripted ones with parameters as name:key=value,...), "
-                                 f"a population (population:NAME[#PART] or FILE.json[#PART]) or a checkpoint path "
-                                 f"ending in .pt")
+            fail(self, "policy", allowed)
+        check_strings(self, "policies", allowed="a list of policies, one per agent of the role, or [] to give "
+                                                "every agent the role's policy")
+        for spec in self.policies:
+            if spec != "learn" and not _policy_spec(spec, names):
+                fail(self, "policies", f"{spec!r} is not a policy: each one {allowed}")
+        check_bool(self, "share_network")
         if self.init is not None and not isinstance(self.init, str):
             fail(self, "init", "a checkpoint path (a string) or null")
-        if self.init is not None and not self.learns:
+        if self.init is not None and "learn" not in (self.policies or (self.policy,)):
             fail(self, "init", "warm-starting only applies to policy='learn'")
         check_number(self, "aux_coef", "a number in [0, 100]", _between(0.0, 100.0))
         check_choice(self, "train_reward", ("env", "own"), "'env' (the env's reward) or 'own' (own block reward)")
@@ -214,8 +236,11 @@ class TrainConfig:
     """One training run."""
 
     env: EnvConfig = field(default_factory=EnvConfig)
+    """The environment; ``env.num_leaders`` and ``env.num_followers`` set the team."""
     leader: AgentConfig = field(default_factory=AgentConfig)
+    """Every leader's settings."""
     follower: AgentConfig = field(default_factory=AgentConfig)
+    """Every follower's settings."""
     ppo: PPOConfig = field(default_factory=PPOConfig)
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
     total_steps: int = 1_000_000
@@ -237,9 +262,19 @@ class TrainConfig:
     1.6x faster; the process then keeps its peak memory. On in the ``paper_*`` presets."""
 
     def __post_init__(self):
-        if not any(a.learns for a in self.agents):
-            fail(self, "leader.policy/follower.policy", "at least one agent must have policy='learn'",
-                 (self.leader.policy, self.follower.policy))
+        for role in ROLES:
+            section, count = self.section(role), self.role_size(role)
+            if section.policies and len(section.policies) != count:
+                fail(self, f"{role}.policies", f"one policy per {role} (env.num_{role}s={count}), or [] to give "
+                                               f"every {role} {role}.policy", section.policies)
+            learning = section.agent_policies(count).count("learn")
+            if section.share_network and learning < 2:
+                fail(self, f"{role}.share_network", f"false unless two or more {role}s learn (this team has "
+                                                    f"{learning} learning {role}{'' if learning == 1 else 's'})",
+                     section.share_network)
+        policies = tuple(a.policy for a in self.agents)
+        if "learn" not in policies:
+            fail(self, "leader.policy/follower.policy", "at least one agent must have policy='learn'", policies)
         check_choice(self, "device", DEVICES, f"choose one of {list(DEVICES)}")
         for name, lo in (("total_steps", 1), ("seed", 0), ("eval_every", 0), ("eval_episodes", 1),
                          ("replay_episodes", 0), ("save_every", 1), ("threads", 0)):
@@ -247,12 +282,43 @@ class TrainConfig:
         check_bool(self, "keep_freed_memory")
         if self.replay_episodes > self.eval_episodes:
             fail(self, "replay_episodes", f"at most eval_episodes={self.eval_episodes}")
-        if self.env.num_agents != len(AGENTS):
-            fail(self, "env", "the trainer handles one leader and one follower", self.env.num_agents)
 
-    @property
-    def agents(self) -> tuple[AgentConfig, AgentConfig]:
-        return (self.leader, self.follower)
+    def section(self, role: str) -> AgentConfig:
+        """The settings of every agent of ``role`` (``leader`` or ``follower``)."""
+        return self.leader if role == "leader" else self.follower
+
+    def role_size(self, role: str) -> int:
+        return self.env.num_leaders if role == "leader" else self.env.num_followers
+
+    @cached_property
+    def agents(self) -> tuple[AgentConfig, ...]:
+        """Each agent's settings, in index order: its role's section, with its own policy where
+        ``policies`` gives one (the 1:1 team: ``(leader, follower)``)."""
+        out = []
+        for role in ROLES:
+            section = self.section(role)
+            for policy in section.agent_policies(self.role_size(role)):
+                if policy == section.policy and not section.policies:
+                    out.append(section)
+                else:
+                    out.append(dataclasses.replace(section, policy=policy, policies=(),
+                                                   init=section.init if policy == "learn" else None))
+        return tuple(out)
+
+    @cached_property
+    def networks(self) -> tuple[tuple[str, tuple[int, ...]], ...]:
+        """The networks trained here, in the order of their first agent: ``(name, agents it plays)``.
+
+        One per learning agent, named after it (``env.agent_names``); with ``share_network``, one for
+        the role's learning agents together, named after the role.
+        """
+        names, roles = self.env.agent_names, self.env.roles
+        out: dict[str, list[int]] = {}
+        for i, agent in enumerate(self.agents):
+            if agent.learns:
+                key = roles[i] if self.section(roles[i]).share_network else names[i]
+                out.setdefault(key, []).append(i)
+        return tuple((name, tuple(agents)) for name, agents in out.items())
 
     @property
     def batch_steps(self) -> int:

@@ -31,3 +31,11 @@ def step_tensors(inp: AgentInput, env: EnvConfig, agent_index: int, device) -> d
     arrays = {"obs": obs, "me": me, "goal": inp.goal_info.astype(np.float32), "extras": extras,
               "starts": np.asarray(inp.episode_start, dtype=bool)}
     return {k: torch.as_tensor(np.array(v, copy=True))[None].to(device) for k, v in arrays.items()}
+
+
+def rows_of_agents(steps: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:
+    """Several agents' ``step_tensors`` as one batch, agent-major along the batch axis (``[1, k * B, ...]``):
+    the rows of a network that those agents share. One agent's are returned as they are."""
+    if len(steps) == 1:
+        return steps[0]
+    return {k: torch.cat([s[k] for s in steps], dim=1) for k in steps[0]}

@@ -1,4 +1,9 @@
-"""One learning agent: its network, optimizer, rollout buffer and PPO update (IPPO: nothing is shared)."""
+"""One learning network: its optimizer, rollout buffer and PPO update (IPPO: learners share nothing).
+
+A network plays one agent, or several agents of a role that share it: its rows are then the
+envs of each of those agents in turn (agent-major, ``len(agents) * num_envs`` rows), acted on
+in one batch and updated together as one larger batch.
+"""
 
 from __future__ import annotations
 
@@ -15,17 +20,21 @@ _SIDE = ("goal", "extras", "starts")
 class Learner:
     """Acts during rollouts (keeping its recurrent state), then updates on the whole rollout.
 
-    Recurrent networks are trained on whole sequences: minibatches are sets of envs, each
-    replayed over the full rollout from the recurrent state it had at the rollout's start,
-    with the state zeroed at episode starts, exactly as during the rollout.
+    Recurrent networks are trained on whole sequences: minibatches are sets of rows (an
+    agent in an env), each replayed over the full rollout from the recurrent state it had at
+    the rollout's start, with the state zeroed at episode starts, exactly as during the rollout.
+    ``name`` names the network in logs and checkpoints (its agent's name, or its role's when shared).
     """
 
     def __init__(self, model: ActorCritic, ppo: PPOConfig, weights: LossWeights, lr: float, seed: int,
-                 device: torch.device):
+                 device: torch.device, name: str = ""):
         self.model, self.ppo, self.weights, self.device = model.to(device), ppo, weights, device
+        self.name, self.agents = name, model.agents
         self.optimizer = torch.optim.Adam(self.model.parameters(), lr=lr, eps=1e-5, fused=True)
         self.generator = torch.Generator().manual_seed(seed)
-        self.state = self.model.initial_state(ppo.num_envs, device)
+        self.rows = len(self.agents) * ppo.num_envs
+        self.state = self.model.initial_state(self.rows, device)
+        self.identity = self.model.identity(self.agents, ppo.num_envs, device)  # None unless shared
         self.buffer: dict[str, list] = {}
 
     # ------------------------------------------------------------ rollout
@@ -36,8 +45,8 @@ class Learner:
 
     @torch.inference_mode()
     def act(self, x: dict[str, torch.Tensor]) -> tuple[np.ndarray, np.ndarray]:
-        """One step for every env: sampled actions and goal probabilities."""
-        view = self.model.prepare(x["obs"], x["me"])
+        """One step for every row: sampled actions ``[rows]`` and goal probabilities ``[rows, C]``."""
+        view = self.model.prepare(x["obs"], x["me"], self.identity)
         logits, value, goal_logits, self.state = self.model(view, *(x[k] for k in _SIDE), self.state)
         probs = torch.softmax(logits[0], dim=1)
         actions = sample(probs, self.generator)
@@ -52,13 +61,14 @@ class Learner:
     @torch.inference_mode()
     def value(self, x: dict[str, torch.Tensor]) -> torch.Tensor:
         """Values of observations ``x`` under the current recurrent state, without advancing it."""
-        view = self.model.prepare(x["obs"], x["me"])
+        view = self.model.prepare(x["obs"], x["me"], self.identity)
         _, value, _, _ = self.model(view, *(x[k] for k in _SIDE), self.state)
         return value[0]
 
     def record(self, reward: np.ndarray, done: np.ndarray, true_goal: np.ndarray,
                final_value: torch.Tensor | None) -> None:
-        """The outcome of the last action; ``final_value`` holds V(final observation) where ``done``."""
+        """The outcome of the last action, per row (``[rows]``); ``final_value`` holds V(final observation)
+        where ``done``."""
         as_t = lambda a, dt: torch.as_tensor(np.asarray(a), dtype=dt, device=self.device)  # noqa: E731
         self.buffer["rewards"].append(as_t(reward, torch.float32))
         self.buffer["dones"].append(as_t(done, torch.bool))

@@ -1,4 +1,9 @@
-"""Run logs: one JSON line per record (complete), CSV per stream (fixed columns), TensorBoard scalars."""
+"""Run logs: one JSON line per record (complete), CSV per stream (fixed columns), TensorBoard scalars.
+
+And the names of what is logged about a team: a column per agent (``follower_1_goal_pickups``)
+and, beyond the 1:1 team, a column per role (its agents' sum: ``followers_goal_pickups``), for
+the rollouts' finished episodes (``episode_columns``) and for evaluations (``evaluation_row``).
+"""
 
 from __future__ import annotations
 
@@ -6,6 +11,10 @@ import csv
 import json
 import math
 from pathlib import Path
+
+import numpy as np
+
+from colorgrid.config import ROLES, EnvConfig
 
 
 class MetricsLog:
@@ -54,3 +63,34 @@ def _plain(v):
     if isinstance(v, float) and not math.isfinite(v):
         return None
     return v
+
+
+def episode_columns(env: EnvConfig, totals: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Per-episode totals ``{metric: [E, A]}`` as columns ``{agent name}_{metric}`` (``[E]`` each), agent by agent,
+    then, beyond the 1:1 team, ``{role}s_{metric}``: the sum over the role's agents."""
+    out = {}
+    for a, name in enumerate(env.agent_names):
+        for metric, values in totals.items():
+            out[f"{name}_{metric}"] = values[:, a]
+    if not env.one_to_one:
+        for role in ROLES:
+            members = [a for a, r in enumerate(env.roles) if r == role]
+            for metric, values in totals.items():
+                out[f"{role}s_{metric}"] = values[:, members].sum(axis=1)
+    return out
+
+
+def evaluation_row(env: EnvConfig, report: dict) -> dict[str, float]:
+    """An evaluation report's means (``colorgrid_apps.evaluate.summarize``) as log columns: the team reward, each
+    agent's goal, wrong and net pickups and goal-prediction accuracy (if it states a belief), then, beyond the 1:1
+    team, each role's (``followers_net_pickups``: the sum over its agents; ``followers_goal_accuracy``: the mean)."""
+    row = {"team_reward": report["team_reward"]["mean"]}
+    sections = [(name, report["agents"][name]) for name in env.agent_names]
+    if not env.one_to_one:
+        sections += [(f"{role}s", report["roles"][role]) for role in ROLES]
+    for name, entry in sections:
+        for key in ("goal_pickups", "wrong_pickups", "net_pickups"):
+            row[f"{name}_{key}"] = entry[key]["mean"]
+        if "belief" in entry:
+            row[f"{name}_goal_accuracy"] = entry["belief"]["accuracy"]
+    return row

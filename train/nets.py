@@ -17,7 +17,7 @@ from train.config import NetConfig
 
 
 def extra_size(env: EnvConfig) -> int:
-    """Last step's reward (1), both agents' actions (one-hot) and collected colors (one-hot)."""
+    """Last step's reward (1), every agent's action (one-hot) and collected color (one-hot)."""
     return 1 + env.num_agents * env.num_actions + env.num_agents * env.num_colors
 
 
@@ -179,15 +179,23 @@ class ActorCritic(nn.Module):
     goal), the LSTM is a *belief core* over the last-step inputs: its goal head's (detached)
     softmax weights the block planes the encoder sees, so the follower looks at the board
     through what it believes the goal is.
+
+    ``agents`` is the agent index the network plays, or a tuple of two or more indices that
+    share it (parameter sharing within a role): each then gets its position in the tuple as a
+    one-hot input (``identity``), joined to the encoder's side inputs, so that one network can
+    act differently for each of them.
     """
 
-    def __init__(self, net: NetConfig, env: EnvConfig, agent_index: int):
+    def __init__(self, net: NetConfig, env: EnvConfig, agents: int | tuple[int, ...]):
         super().__init__()
-        self.net, self.env, self.agent_index = net, env, agent_index
+        self.net, self.env = net, env
+        self.agents = tuple(int(a) for a in agents) if isinstance(agents, (tuple, list)) else (int(agents),)
+        self.shared = len(self.agents) > 1
         C = env.num_colors
         planes = net.goal_fusion == "planes"
         self.belief_core = planes and net.belief_input
-        side = (C if net.goal_fusion == "early" else 0) + (extra_size(env) if net.extra_inputs else 0)
+        side = ((C if net.goal_fusion == "early" else 0) + (extra_size(env) if net.extra_inputs else 0)
+                + (len(self.agents) if self.shared else 0))
         self.encoder = (PaperEncoder(env, side, planes) if net.arch == "paper"
                         else FastEncoder(env, side, net.hidden, planes))
         core = self.encoder.out_size
@@ -201,6 +209,19 @@ class ActorCritic(nn.Module):
         self.policy = _head(head_in, env.num_actions, 0.01)
         self.value = _head(head_in, 1, 1.0)
         self.aux = nn.Sequential(nn.Linear(aux_in, 64), nn.Tanh(), nn.Linear(64, C))
+
+    @property
+    def agent_index(self) -> int:
+        """The agent this network plays (the first of those sharing it)."""
+        return self.agents[0]
+
+    def identity(self, agents: tuple[int, ...], batch: int, device=None) -> torch.Tensor | None:
+        """``[1, len(agents) * batch, k]``: for rows of ``batch`` envs per agent (agent-major), the one-hot of each
+        row's agent among the ``k`` sharing this network; None for a network of one agent (it needs none)."""
+        if not self.shared:
+            return None
+        slots = torch.tensor([self.agents.index(a) for a in agents], device=device).repeat_interleave(batch)
+        return F.one_hot(slots, len(self.agents)).float()[None]
 
     def _recur(self, x, starts, state):
         """Run the LSTM over ``x [T, B, F]`` in segments that start where any env starts an episode."""
@@ -220,11 +241,19 @@ class ActorCritic(nn.Module):
         zeros = torch.zeros(1, batch, self.net.lstm_size, device=device)
         return (zeros, zeros.clone())
 
-    def prepare(self, obs: torch.Tensor, me: torch.Tensor) -> dict[str, torch.Tensor]:
-        """``obs [T, B, P, H, W]`` (uint8) and own cell ``me [T, B, 2]`` to the encoder's input view, ``[T, B, ...]``."""
+    def prepare(self, obs: torch.Tensor, me: torch.Tensor, identity: torch.Tensor | None = None
+                ) -> dict[str, torch.Tensor]:
+        """``obs [T, B, P, H, W]`` (uint8) and own cell ``me [T, B, 2]`` to the encoder's input view, ``[T, B, ...]``;
+        a shared network's view also holds each row's ``identity [T, B, k]`` (see ``identity``)."""
         T, B = obs.shape[:2]
         view = self.encoder.prepare(obs.reshape(T * B, *obs.shape[2:]), me.reshape(T * B, 2))
-        return {k: v.reshape(T, B, *v.shape[1:]) for k, v in view.items()}
+        view = {k: v.reshape(T, B, *v.shape[1:]) for k, v in view.items()}
+        if self.shared:
+            if identity is None:
+                raise ValueError(f"this network is shared by agents {list(self.agents)}: say which one each row is "
+                                 f"(ActorCritic.identity)")
+            view["identity"] = identity
+        return view
 
     def forward(self, view, goal, extras, starts, state):
         """``view`` from ``prepare``; all inputs ``[T, B, ...]``. Returns ``(logits, value, goal_logits, state)``.
@@ -238,6 +267,8 @@ class ActorCritic(nn.Module):
             side.append(goal)
         if self.net.extra_inputs:
             side.append(extras)
+        if self.shared:
+            side.append(view["identity"])
         side = join(side, dim=2) if side else goal.new_zeros(T, B, 0)
         flat = {k: v.reshape(T * B, *v.shape[2:]) for k, v in view.items()}
         goal_logits, g = None, goal

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.config import EnvConfig
 from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
 from train.inputs import step_tensors
 from train.nets import ActorCritic
@@ -17,7 +17,8 @@ class NetPolicy(Policy):
     """Acts with an ``ActorCritic``; its goal probabilities are the auxiliary head's softmax.
 
     ``greedy`` picks the most likely action instead of sampling (sampling is the default,
-    as trained). Keeps one recurrent state per env row, cleared at episode starts.
+    as trained). Keeps one recurrent state per env row, cleared at episode starts. A network
+    shared by several agents plays any one of them (the one ``reset`` names).
     """
 
     def __init__(self, model: ActorCritic, name: str = "net", greedy: bool = False, source: str | None = None):
@@ -30,9 +31,10 @@ class NetPolicy(Policy):
     def reset(self, config: EnvConfig, num_envs: int, agent_index: int, seed: int = 0) -> None:
         super().reset(config, num_envs, agent_index, seed)
         check_compatible(self.model.env, config, self.source or self.name)
-        if agent_index != self.model.agent_index:
-            raise ValueError(f"{self.source or self.name} was trained as the {AGENTS[self.model.agent_index]}, "
-                             f"not the {AGENTS[agent_index]}")
+        if agent_index not in self.model.agents:
+            trained = " or ".join(f"the {self.model.env.agent_names[a]}" for a in self.model.agents)
+            raise ValueError(f"{self.source or self.name} was trained as {trained}, not the "
+                             f"{config.agent_names[agent_index]}")
         self.state = self.model.initial_state(num_envs, self.device)
         self.generator = torch.Generator().manual_seed(int(seed) * 2 + agent_index)
 
@@ -53,7 +55,8 @@ class NetPolicy(Policy):
         state = None
         if self.state is not None:
             state = (self.state[0][:, rows_idx], self.state[1][:, rows_idx])
-        view = self.model.prepare(x["obs"], x["me"])
+        view = self.model.prepare(x["obs"], x["me"], self.model.identity((self.agent_index,), len(rows_idx),
+                                                                          self.device))
         logits, _, goal_logits, new_state = self.model(view, x["goal"], x["extras"], x["starts"], state)
         if self.state is not None:
             self.state[0][:, rows_idx], self.state[1][:, rows_idx] = new_state
@@ -73,13 +76,14 @@ class NetPolicy(Policy):
 
 
 def check_compatible(trained: EnvConfig, wanted: EnvConfig, what: str) -> None:
-    """A network fits an env with the same grid and colors, and the same actions or more.
+    """A network fits an env with the same grid, colors and team, and the same actions or more.
 
     A network trained without ``stay`` may act where ``stay`` exists (the play server's
     real-time mode gives the leader one): it never chooses it, and a partner's ``stay`` shows
-    in its last-action inputs as no move.
+    in its last-action inputs as no move. The team's shape sets the number of agent planes
+    and last-step inputs.
     """
-    keys = ("height", "width", "num_colors")
+    keys = ("height", "width", "num_colors", "num_leaders", "num_followers")
     diff = {k: (getattr(trained, k), getattr(wanted, k)) for k in keys if getattr(trained, k) != getattr(wanted, k)}
     if trained.allow_stay and not wanted.allow_stay:
         diff["allow_stay"] = (True, False)
@@ -91,7 +95,8 @@ def check_compatible(trained: EnvConfig, wanted: EnvConfig, what: str) -> None:
 
 def load_policy(path: str | Path, role: str | None = None, greedy: bool = False,
                 cache: "ModelCache | None" = None) -> NetPolicy:
-    """A ``NetPolicy`` from a checkpoint: the agent named ``role`` (default: the only trained one).
+    """A ``NetPolicy`` from a checkpoint: the network of ``role`` (see ``find_network``; default: the only
+    trained one).
 
     With a ``cache`` the network comes from it (shared with other policies of the same file);
     each policy keeps its own recurrent state and random generator.
@@ -101,14 +106,9 @@ def load_policy(path: str | Path, role: str | None = None, greedy: bool = False,
 
 
 def load_model(path: str | Path, role: str | None) -> ActorCritic:
-    from train.checkpoint import build_model, load_checkpoint
+    from train.checkpoint import build_model, find_network, load_checkpoint
 
     ckpt = load_checkpoint(path)
-    agents = {name: entry for name, entry in ckpt["agents"].items() if entry is not None}
-    if role is None:
-        if len(agents) != 1:
-            raise ValueError(f"{path} holds trained agents {sorted(agents)}; say which one to load")
-        role = next(iter(agents))
-    if role not in agents:
-        raise ValueError(f"{path} holds no trained {role} (it has: {sorted(agents) or 'none'})")
-    return build_model(agents[role], EnvConfig.from_dict(ckpt["env_config"]), str(path))
+    env = EnvConfig.from_dict(ckpt["env_config"])
+    _, entry = find_network(ckpt, env, role, str(path))
+    return build_model(entry, env, str(path))

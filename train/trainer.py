@@ -1,9 +1,12 @@
 """IPPO for ColorGrid, top to bottom: build agents, then loop rollout -> update -> log -> evaluate -> save.
 
-Each learning agent has its own actor-critic and optimizer (independent PPO); a partner
-that does not learn is any ``Policy``: scripted (A*, idle, ...) or a frozen checkpoint.
-Everything that decides what happens next (env state, recurrent states, last-step inputs,
-RNGs) is saved in checkpoints, so a resumed run continues exactly as if never stopped.
+The team may have any shape (``env.num_leaders``, ``env.num_followers``). Each learning
+agent has its own actor-critic and optimizer (independent PPO), or the learning agents of a
+role share one (``share_network``: one network acts for all of them in one batch and updates
+on all their experience); an agent that does not learn is any ``Policy``: scripted (A*,
+idle, ...) or a frozen checkpoint. Everything that decides what happens next (env state,
+recurrent states, last-step inputs, RNGs) is saved in checkpoints, so a resumed run
+continues exactly as if never stopped.
 """
 
 from __future__ import annotations
@@ -18,21 +21,21 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.config import EnvConfig
 from colorgrid.env import BatchEnv
 from colorgrid.policies import make_policy
 from colorgrid.replay import describe_agent
-from colorgrid.rollout import run_episodes
+from colorgrid.rollout import run_team
 from colorgrid.state import EnvState
 from colorgrid.step_inputs import StepInputs
-from colorgrid_apps.evaluate import evaluate, record_batch
-from train.checkpoint import (agent_entry, build_model, load_checkpoint, load_weights, save_checkpoint,
-                              to_arrays, to_tensors)
+from colorgrid_apps.evaluate import record_team, summarize
+from train.checkpoint import (agent_entry, build_model, find_network, load_checkpoint, load_weights,
+                              save_checkpoint, to_arrays, to_tensors)
 from train.config import TrainConfig
-from train.inputs import step_tensors
+from train.inputs import rows_of_agents, step_tensors
 from train.learner import Learner
 from train.memory import keep_freed_memory
-from train.metrics import MetricsLog
+from train.metrics import MetricsLog, episode_columns, evaluation_row
 from train.nets import ActorCritic
 from train.policy import NetPolicy, check_compatible
 
@@ -79,13 +82,15 @@ class Trainer:
         if config.keep_freed_memory and self.device.type == "cpu" and not keep_freed_memory():
             warnings.warn("keep_freed_memory=true needs glibc's malloc (Linux); memory is used as usual", stacklevel=2)
         self.env = BatchEnv(config.env, num_envs=config.ppo.num_envs, seed=config.seed)
-        self.learners: dict[int, Learner] = {}
-        self.partners: dict[int, object] = {}
+        self.names = config.env.agent_names
+        networks = {agents[0]: (name, agents) for name, agents in config.networks}
+        self.learners: dict[int, Learner] = {}  # by the first agent each network plays
+        self.partners: dict[int, object] = {}  # by agent
         for i, agent in enumerate(config.agents):
-            if agent.learns:
-                self.learners[i] = self._make_learner(i)
-            else:
-                self.partners[i] = make_policy(agent.policy, role=AGENTS[i])
+            if i in networks:
+                self.learners[i] = self._make_learner(*networks[i])
+            elif not agent.learns:
+                self.partners[i] = make_policy(agent.policy, role=self.names[i])
                 self.partners[i].reset(config.env, config.ppo.num_envs, i, seed=config.seed)
         self.step, self.iteration = 0, 0
         self.wall_time = 0.0  # wall-clock seconds of training so far, across resumes
@@ -95,23 +100,27 @@ class Trainer:
         self.log: MetricsLog | None = None
         self._pool: ThreadPoolExecutor | None = None
 
-    def _make_learner(self, i: int) -> Learner:
-        cfg, agent = self.config, self.config.agents[i]
+    def _make_learner(self, name: str, agents: tuple[int, ...]) -> Learner:
+        """The network ``name`` that plays ``agents`` (one, or a role's learners sharing it), new or warm-started."""
+        cfg, agent = self.config, self.config.agents[agents[0]]
+        role = cfg.env.roles[agents[0]]
         if agent.init is None:
-            model = ActorCritic(agent.net, cfg.env, i)
+            model = ActorCritic(agent.net, cfg.env, agents if len(agents) > 1 else agents[0])
         else:
             ckpt = load_checkpoint(agent.init)
-            entry = ckpt["agents"].get(AGENTS[i])
-            if entry is None:
-                raise ValueError(f"{AGENTS[i]}.init={agent.init!r} holds no trained {AGENTS[i]}")
-            trained = build_model(entry, EnvConfig.from_dict(ckpt["env_config"]), agent.init)
+            trained_env = EnvConfig.from_dict(ckpt["env_config"])
+            check_compatible(trained_env, cfg.env, agent.init)
+            _, entry = find_network(ckpt, trained_env, name, f"{role}.init={agent.init!r}")
+            trained = build_model(entry, trained_env, agent.init)
             if trained.net != agent.net:
-                raise ValueError(f"{AGENTS[i]}.init={agent.init!r} was trained with {trained.net}, but this run "
-                                 f"asks for {agent.net}; set {AGENTS[i]}.net to match the checkpoint")
-            check_compatible(trained.env, cfg.env, agent.init)
+                raise ValueError(f"{role}.init={agent.init!r} was trained with {trained.net}, but this run "
+                                 f"asks for {agent.net}; set {role}.net to match the checkpoint")
+            if trained.agents != agents:
+                raise ValueError(f"{role}.init={agent.init!r} was trained to play agents {list(trained.agents)}, "
+                                 f"but this run's {name} plays {list(agents)}")
             model = trained
         return Learner(model, cfg.ppo, cfg.ppo.loss_weights(agent.aux_coef), agent.lr or cfg.ppo.lr,
-                       cfg.seed * 2 + i + 1, self.device)
+                       cfg.seed * 2 + agents[0] + 1, self.device, name)
 
     def _begin_episodes(self) -> None:
         B, A = self.config.ppo.num_envs, self.config.env.num_agents
@@ -158,9 +167,11 @@ class Trainer:
         t1 = time.perf_counter()
         stats = {}
         for i, result in self._update_learners().items():
+            learner = self.learners[i]
             for key, value in result.items():
-                stats[f"{AGENTS[i]}/{key}"] = value
-            stats[f"{AGENTS[i]}/rollout_goal_accuracy"] = accuracy[i]
+                stats[f"{learner.name}/{key}"] = value
+            for a in learner.agents:
+                stats[f"{self.names[a]}/rollout_goal_accuracy"] = accuracy[a]
         t2 = time.perf_counter()
         self.wall_time += t2 - self._tick  # includes the last evaluation and save
         self._tick = t2
@@ -176,22 +187,23 @@ class Trainer:
     def _update_learners(self) -> dict[int, dict]:
         """Every learner's PPO update on the rollout just collected.
 
-        On a CPU with two learners and two or more torch threads, the two updates run side
-        by side, each on its own thread with ``threads // learners`` torch threads: small
-        networks use one core each far better than two cores one after the other. The
-        learners share nothing (own model, optimizer and random generator), and each one's
-        whole update, its bootstrap value included, runs at that thread count, so the result
-        is bit for bit the learners updated one after the other with that many threads, on
-        any CPU. (It is not bit for bit an update with all the threads: on some CPUs MKL and
-        oneDNN split a small matrix product's sum across threads; see docs/TRAINING.md.)
+        On a CPU with two or more learners and two or more torch threads, the updates run side
+        by side, on ``min(learners, threads)`` threads with ``max(1, threads // learners)``
+        torch threads each: small networks use one core each far better than two cores one
+        after the other. The learners share nothing (own model, optimizer and random
+        generator), and each one's whole update, its bootstrap value included, runs at that
+        thread count, so the result is bit for bit the learners updated one after the other
+        with that many threads, on any CPU. (It is not bit for bit an update with all the
+        threads: on some CPUs MKL and oneDNN split a small matrix product's sum across
+        threads; see docs/TRAINING.md.)
         """
-        inputs = {i: self._tensors(i, self._inputs(i)) for i in self.learners}
+        inputs = {i: self._learner_tensors(lr) for i, lr in self.learners.items()}
         threads = torch.get_num_threads()
         if self.device.type != "cpu" or len(self.learners) < 2 or threads < 2:
             return {i: update_learner(lr, inputs[i]) for i, lr in self.learners.items()}
         if self._pool is None:
-            self._pool = ThreadPoolExecutor(len(self.learners), thread_name_prefix="learner")
-        each = threads // len(self.learners)
+            self._pool = ThreadPoolExecutor(min(len(self.learners), threads), thread_name_prefix="learner")
+        each = max(1, threads // len(self.learners))
         torch.set_num_threads(each)
         try:
             futures = {i: self._pool.submit(update_learner, lr, inputs[i], each) for i, lr in self.learners.items()}
@@ -200,7 +212,7 @@ class Trainer:
             torch.set_num_threads(threads)
 
     def collect_rollout(self) -> tuple[dict, dict]:
-        """``num_steps`` steps of every env; returns episode means and each learner's goal accuracy."""
+        """``num_steps`` steps of every env; returns episode means and each learning agent's goal accuracy."""
         cfg, env = self.config, self.env
         B, A = cfg.ppo.num_envs, cfg.env.num_agents
         shaping = cfg.schedule.shaping_on(self.step)
@@ -208,17 +220,17 @@ class Trainer:
             learner.start_rollout()
         done_eps: dict[str, list] = {}
         shaped_sum = self.shaped_sum
-        hits = {i: 0.0 for i in self.learners}
+        hits = {a: 0.0 for learner in self.learners.values() for a in learner.agents}
         for _ in range(cfg.ppo.num_steps):
             true_goal = env.state.goal.copy()
             actions = np.zeros((B, A), dtype=np.int64)
-            for i in range(A):
-                inp = self._inputs(i, true_goal)
-                if i in self.learners:
-                    actions[:, i], probs = self.learners[i].act(self._tensors(i, inp))
-                    hits[i] += float((probs.argmax(axis=1) == true_goal).mean())
-                else:
-                    actions[:, i] = self.partners[i].act(inp).actions
+            for learner in self.learners.values():
+                chosen, probs = learner.act(self._learner_tensors(learner, true_goal))
+                for k, a in enumerate(learner.agents):  # rows are agent-major: agent k's envs are rows kB..(k+1)B
+                    actions[:, a] = chosen[k * B:(k + 1) * B]
+                    hits[a] += float((probs[k * B:(k + 1) * B].argmax(axis=1) == true_goal).mean())
+            for i, partner in self.partners.items():
+                actions[:, i] = partner.act(self._inputs(i, true_goal)).actions
             self.obs, rewards, terms, truncs, infos = env.step(actions)
             rewards = self._training_rewards(rewards, infos, shaping)
             shaped_sum += rewards
@@ -226,20 +238,22 @@ class Trainer:
             self.last.record(actions, infos, done)
             final = self._final_values(infos, done) if done.any() else {}
             for i, learner in self.learners.items():
-                learner.record(rewards[:, i], done, true_goal, final.get(i))
+                k = len(learner.agents)
+                learner.record(rewards[:, learner.agents].T.reshape(-1), np.tile(done, k), np.tile(true_goal, k),
+                               final.get(i))
             if done.any():
                 fi = infos["final_info"]
-                for a, name in enumerate(AGENTS):
-                    done_eps.setdefault(f"{name}_block_reward", []).extend(fi["episode_block_reward"][done, a])
-                    done_eps.setdefault(f"{name}_goal_pickups", []).extend(fi["episode_goal_pickups"][done, a])
-                    done_eps.setdefault(f"{name}_wrong_pickups", []).extend(fi["episode_wrong_pickups"][done, a])
-                    done_eps.setdefault(f"{name}_training_reward", []).extend(shaped_sum[done, a])
+                totals = {"block_reward": fi["episode_block_reward"][done],
+                          "goal_pickups": fi["episode_goal_pickups"][done],
+                          "wrong_pickups": fi["episode_wrong_pickups"][done], "training_reward": shaped_sum[done]}
+                for key, values in episode_columns(cfg.env, totals).items():
+                    done_eps.setdefault(key, []).extend(values)
                 done_eps.setdefault("team_reward", []).extend(fi["episode_block_reward"][done].sum(axis=1))
                 shaped_sum[done] = 0.0
         episodes = {k: float(np.mean(v)) for k, v in done_eps.items()}
         if done_eps:
             episodes["episodes"] = len(done_eps["team_reward"])
-        return episodes, {i: h / cfg.ppo.num_steps for i, h in hits.items()}
+        return episodes, {a: h / cfg.ppo.num_steps for a, h in hits.items()}
 
     def _training_rewards(self, rewards: np.ndarray, infos: dict, shaping: bool) -> np.ndarray:
         """Each agent's learning signal: the env's reward or its own block reward; shaping only while on."""
@@ -255,17 +269,24 @@ class Trainer:
         return self.last.agent_input(self.obs, i, self.env.penalty_coef,
                                      self.env.state.goal.copy() if true_goal is None else true_goal)
 
-    def _tensors(self, i: int, inp) -> dict:
-        return step_tensors(inp, self.config.env, i, self.device)
+    def _learner_tensors(self, learner: Learner, true_goal: np.ndarray | None = None, obs: dict | None = None,
+                         episode_start: np.ndarray | None = None) -> dict:
+        """The network inputs of every agent ``learner`` plays, as its rows (agent-major); ``obs`` and
+        ``episode_start`` replace the current observations and the recorded starts."""
+        goal = self.env.state.goal.copy() if true_goal is None else true_goal
+        return rows_of_agents([
+            step_tensors(self.last.agent_input(self.obs if obs is None else obs, a, self.env.penalty_coef, goal,
+                                               episode_start=episode_start), self.config.env, a, self.device)
+            for a in learner.agents])
 
     def _final_values(self, infos: dict, done: np.ndarray) -> dict[int, torch.Tensor]:
         """V(final observation) of ended episodes, so that time-limit truncation is bootstrapped."""
         out = {}
         for i, learner in self.learners.items():
-            inp = self.last.agent_input(infos["final_obs"], i, self.env.penalty_coef, self.env.state.goal,
-                                        episode_start=np.zeros_like(done))
-            value = learner.value(self._tensors(i, inp))
-            out[i] = torch.where(torch.as_tensor(done, device=self.device), value, torch.zeros_like(value))
+            value = learner.value(self._learner_tensors(learner, self.env.state.goal, infos["final_obs"],
+                                                        np.zeros_like(done)))
+            ended = torch.as_tensor(np.tile(done, len(learner.agents)), device=self.device)
+            out[i] = torch.where(ended, value, torch.zeros_like(value))
         return out
 
     # ------------------------------------------------------ evaluate / save
@@ -273,44 +294,42 @@ class Trainer:
         """The evaluation harness on fixed seeds, plus a few sample episodes saved as replays."""
         cfg = self.config
         seed = 1_000_000 + cfg.seed
-        report = evaluate(cfg.env, *self._fresh_policies(), cfg.eval_episodes, seed)
-        row = {"team_reward": report["team_reward"]["mean"]}
-        for name in AGENTS:
-            entry = report["agents"][name]
-            for key in ("goal_pickups", "wrong_pickups", "net_pickups"):
-                row[f"{name}_{key}"] = entry[key]["mean"]
-            if "belief" in entry:
-                row[f"{name}_goal_accuracy"] = entry["belief"]["accuracy"]
+        row = evaluation_row(cfg.env, summarize(run_team(cfg.env, self._fresh_policies(), cfg.eval_episodes, seed)))
         self.log.write("eval", self.step, row)
         if cfg.replay_episodes:
-            leader, follower = self._fresh_policies()
-            batch = run_episodes(cfg.env, leader, follower, cfg.replay_episodes, seed, record_hashes=True)
-            record_batch(batch, leader.name, follower.name, leader, follower,
-                         self.run_dir / "replays" / f"step_{self.step:09d}", source="train",
-                         meta={"train_step": self.step, "run": str(self.run_dir)})
+            policies = self._fresh_policies()
+            batch = run_team(cfg.env, policies, cfg.replay_episodes, seed, record_hashes=True)
+            record_team(batch, [p.name for p in policies], policies, self.run_dir / "replays" / f"step_{self.step:09d}",
+                        source="train", meta={"train_step": self.step, "run": str(self.run_dir)})
         return {f"eval/{k}": v for k, v in row.items()}
 
     def _fresh_policies(self) -> list:
-        """Policies for a separate evaluation: partners are rebuilt so the training batch's state is untouched."""
+        """One policy per agent for a separate evaluation: partners are rebuilt so the training batch's state is
+        untouched; a shared network plays each of its agents through a policy of its own."""
         out = []
         for i, agent in enumerate(self.config.agents):
-            if i in self.learners:
-                out.append(NetPolicy(self.learners[i].model, name=f"{AGENTS[i]}@{self.step}"))
+            learner = next((lr for lr in self.learners.values() if i in lr.agents), None)
+            if learner is not None:
+                out.append(NetPolicy(learner.model, name=f"{self.names[i]}@{self.step}"))
             else:
-                out.append(make_policy(agent.policy, role=AGENTS[i]))
+                out.append(make_policy(agent.policy, role=self.names[i]))
         return out
 
     def checkpoint_payload(self) -> dict:
-        agents = {name: None for name in AGENTS}
-        for i, learner in self.learners.items():
-            agents[AGENTS[i]] = agent_entry(learner.model, learner.optimizer)
+        agents = {}
+        for i, name in enumerate(self.names):
+            if i in self.learners:
+                learner = self.learners[i]
+                agents[learner.name] = agent_entry(learner.model, learner.optimizer)
+            elif i in self.partners:
+                agents[name] = None
         state = {
             "format": TRAINER_STATE_FORMAT,
             "env_state": {f.name: getattr(self.env.state, f.name) for f in dataclasses.fields(self.env.state)},
             "penalty_coef": self.env.penalty_coef, "last_step": self.last.state_dict(), "shaped_sum": self.shaped_sum,
-            "learners": {AGENTS[i]: {"recurrent": None if lr.state is None else list(lr.state),
-                                     "generator": lr.generator.get_state()} for i, lr in self.learners.items()},
-            "partners": {AGENTS[i]: {"describe": describe_agent(p.describe()), "state": p.state_dict()}
+            "learners": {lr.name: {"recurrent": None if lr.state is None else list(lr.state),
+                                   "generator": lr.generator.get_state()} for lr in self.learners.values()},
+            "partners": {self.names[i]: {"describe": describe_agent(p.describe()), "state": p.state_dict()}
                          for i, p in self.partners.items()},
             "torch_rng": torch.get_rng_state(),
         }
@@ -330,10 +349,10 @@ class Trainer:
         ckpt = load_checkpoint(path)
         if ckpt.get("trainer_state") is None:
             raise ValueError(f"{path} is an exported policy (no trainer state); resume from a run's checkpoints/")
-        for i, learner in self.learners.items():
-            entry = ckpt["agents"].get(AGENTS[i])
+        for learner in self.learners.values():
+            entry = ckpt["agents"].get(learner.name)
             if entry is None:
-                raise ValueError(f"{path} holds no trained {AGENTS[i]}, but this run trains one")
+                raise ValueError(f"{path} holds no trained {learner.name}, but this run trains one")
             load_weights(learner.model, entry["state_dict"], str(path))
             learner.optimizer.load_state_dict(entry["optimizer"])
         state = ckpt["trainer_state"]
@@ -344,14 +363,14 @@ class Trainer:
         self.env.penalty_coef = float(state["penalty_coef"])
         self.last.load_state_dict(to_arrays(state["last_step"]))
         self.shaped_sum = to_arrays(state["shaped_sum"])
-        for i, learner in self.learners.items():
-            saved = state["learners"][AGENTS[i]]
+        for learner in self.learners.values():
+            saved = state["learners"][learner.name]
             learner.state = None if saved["recurrent"] is None else tuple(t.to(self.device) for t in saved["recurrent"])
             learner.generator.set_state(saved["generator"])
         for i, partner in self.partners.items():
-            saved = state["partners"][AGENTS[i]]
+            saved = state["partners"][self.names[i]]
             if saved["describe"] != describe_agent(partner.describe()):
-                raise ValueError(f"{path}: the {AGENTS[i]} partner was {saved['describe']}, now it is "
+                raise ValueError(f"{path}: the {self.names[i]} partner was {saved['describe']}, now it is "
                                  f"{describe_agent(partner.describe())}; resume with the same partner")
             partner.load_state_dict(saved["state"])
         torch.set_rng_state(state["torch_rng"])
