@@ -8,7 +8,6 @@ import time
 
 import numpy as np
 
-from colorgrid.config import AGENTS
 from colorgrid_apps.cli_env import add_config_arguments, config_from_args
 
 
@@ -18,7 +17,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from colorgrid.render import render_ansi
 
     config = config_from_args(args)
-    env = BatchEnv(config, num_envs=1, seed=args.seed)
+    env = BatchEnv(config, num_envs=1, seed=args.seed, autoreset=False)  # the scores stay after the last step
     env.reset()
     rng = np.random.default_rng(args.seed)
     for _ in range(config.horizon):
@@ -28,7 +27,7 @@ def cmd_demo(args: argparse.Namespace) -> int:
             time.sleep(1.0 / args.fps)
         if truncs.all():
             break
-    scores = dict(zip(AGENTS, env.state.score[0].tolist()))
+    scores = dict(zip(config.agent_names, env.state.score[0].tolist()))
     print(f"episode over: {scores}")
     return 0
 

@@ -13,7 +13,7 @@ import stat
 from dataclasses import dataclass
 from pathlib import Path
 
-from colorgrid.config import AGENTS
+from colorgrid.config import ROLES
 from colorgrid.replay import ReplayError, load
 
 ID_PATTERN = re.compile(r"^[A-Za-z0-9_.+-]{1,200}$")
@@ -88,6 +88,14 @@ def regular_files(root: Path):
                 yield path, info
 
 
+def role_policies(replay, role: str) -> str | None:
+    """The policy of the role's agent (1:1), or the role's distinct policies joined with "+" (``human+astar``)."""
+    names = [name for name, r in zip(replay.config.agent_names, replay.config.roles) if r == role]
+    policies = [replay.agents.get(name, {}).get("policy") for name in names]
+    distinct = list(dict.fromkeys(str(p) for p in policies if p is not None))
+    return "+".join(distinct) if distinct else None
+
+
 def summarize(path: Path, replay_id: str, collection: str, max_bytes: int | None = None) -> dict:
     """What the list shows for one file; a file that does not load is listed with its error."""
     base = {"id": replay_id, "collection": collection, "file": path.name}
@@ -98,7 +106,8 @@ def summarize(path: Path, replay_id: str, collection: str, max_bytes: int | None
     cfg = replay.config
     return {
         **base, "source": replay.source, "created": replay.created, "kind": replay.kind, "ended": replay.ended,
-        "steps": replay.num_steps, **{name: replay.agents.get(name, {}).get("policy") for name in AGENTS},
+        "steps": replay.num_steps, **{role: role_policies(replay, role) for role in ROLES},
+        "team": f"{cfg.num_leaders}:{cfg.num_followers}",
         "final": replay.final(),
         "config": {"asymmetric": cfg.asymmetric, "goal_reward": cfg.goal_reward, "wrong_penalty": cfg.wrong_penalty,
                    "switch_prob": cfg.switch_prob, "horizon": cfg.horizon},

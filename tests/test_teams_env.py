@@ -233,3 +233,21 @@ def test_hemispheres_need_room_for_the_larger_role():
     EnvConfig(num_leaders=4, num_followers=1, height=4, width=4, block_density=0.2, hemispheres=True)
     with pytest.raises(ValueError, match="keeps a free cell"):
         EnvConfig(num_leaders=8, num_followers=1, height=4, width=4, block_density=0.2, hemispheres=True)
+
+
+def test_demo_prints_every_agents_score_of_the_episode_it_played():
+    import ast
+    import subprocess
+    import sys
+
+    out = subprocess.run([sys.executable, "-m", "colorgrid_apps", "demo", "--quiet", "--seed", "2", "--set",
+                          "num_leaders=2"], capture_output=True, text=True, check=True).stdout
+    printed = ast.literal_eval(out.strip().removeprefix("episode over: "))
+    cfg = EnvConfig(num_leaders=2)
+    e = BatchEnv(cfg, num_envs=1, seed=2, autoreset=False)
+    e.reset()
+    rng = np.random.default_rng(2)
+    for _ in range(cfg.horizon):
+        e.step(rng.integers(0, cfg.num_actions, (1, cfg.num_agents)))
+    assert printed == dict(zip(cfg.agent_names, e.state.score[0].tolist()))
+    assert any(printed.values()), "the scores of the finished episode, not of the next one"

@@ -371,3 +371,17 @@ def test_a_one_to_one_replay_keeps_its_page(server, browser):
         assert "L (leader) at row" in described and "F (follower) at row" in described
     finally:
         page.close()
+
+
+def test_the_replay_list_names_each_roles_policies_and_the_team(tmp_path):
+    from server.replays import summarize
+
+    replay = team_replay(2, 1)
+    replay.agents = {"leader_0": {"policy": "human"}, "leader_1": {"policy": "human", "replaced_by": "astar"},
+                     "follower_0": {"policy": "bayes"}}
+    save(replay, tmp_path / "a.replay.json")
+    summary = summarize(tmp_path / "a.replay.json", "a", "recorded")
+    assert (summary["leader"], summary["follower"], summary["team"]) == ("human", "bayes", "2:1")
+    replay.agents["leader_1"] = {"policy": "astar"}
+    save(replay, tmp_path / "b.replay.json")
+    assert summarize(tmp_path / "b.replay.json", "b", "recorded")["leader"] == "human+astar"
