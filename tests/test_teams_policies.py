@@ -352,3 +352,21 @@ def test_eval_rejects_a_bad_team_in_one_line(args, words):
     assert line.startswith("colorgrid eval: error: ")
     for word in words:
         assert word in line, (word, line)
+
+
+def test_an_astar_agent_in_a_followers_seat_respects_no_leaders_claim():
+    cfg = EnvConfig(height=5, width=5, block_density=0.24, switch_prob=0.0, asymmetric=False)
+    state = state_from_text(cfg, """
+        L.r.g
+        .....
+        ..F..
+        .....
+        g.rbb
+    """, goal="red")
+    env = BatchEnv(cfg, num_envs=1)
+    obs = env.load_state(state)
+    follower = make_policy("astar")
+    follower.reset(cfg, 1, 1)
+    inp = StepInputs.begin(cfg, 1).agent_input(obs, 1, 1.0, state.goal.copy())
+    # both red blocks are two steps away; the leader heads for the top one, and the follower may too (up)
+    assert follower.act(inp).actions.tolist() == [0]

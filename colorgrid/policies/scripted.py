@@ -38,8 +38,10 @@ class Seeker(Policy):
         self.mover = Mover(config, agent_index)
         self.allowed = allowed_cells(config, agent_index)
         self.rng = np.random.default_rng([seed, agent_index, 7])
-        # the leaders before this one, if it is a leader: whose blocks it leaves alone (``claims``)
-        self.claimants = [j for j in config.leaders if j < agent_index]
+        # the leaders before this one, if it is a leader: whose blocks it leaves alone (``claims``); an agent in
+        # a follower's seat (an A* follower in the symmetric setting) respects no claims
+        is_leader = config.roles[agent_index] == "leader"
+        self.claimants = [j for j in config.leaders if j < agent_index] if is_leader else []
         self.claimant_movers = [Mover(config, j) for j in self.claimants]
         self.claimant_cells = [allowed_cells(config, j) for j in self.claimants]
 
