@@ -295,6 +295,8 @@ def create_app(settings: ServerSettings | None = None, study=None) -> FastAPI:
                                      f"got {body.follower!r}")
         if replay_id.startswith("branches--"):
             raise HTTPException(422, "a branch cannot be branched again: branch the original replay")
+        if entry.summary.get("team", "1:1") != "1:1":
+            raise HTTPException(422, f"only 1:1 replays can be branched; this one's team is {entry.summary['team']}")
         if not branch_limits.bucket(request.client.host if request.client else "?").allow():
             raise HTTPException(429, f"too many branches from this address: at most {BRANCHES_PER_MINUTE} a minute")
         steps = entry.summary["steps"]

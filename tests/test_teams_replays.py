@@ -385,3 +385,11 @@ def test_the_replay_list_names_each_roles_policies_and_the_team(tmp_path):
     replay.agents["leader_1"] = {"policy": "astar"}
     save(replay, tmp_path / "b.replay.json")
     assert summarize(tmp_path / "b.replay.json", "b", "recorded")["leader"] == "human+astar"
+
+
+def test_branching_a_team_replay_is_refused_with_its_reason():
+    from colorgrid_apps.branch import branch
+    from colorgrid.replay import ReplayError
+
+    with pytest.raises(ReplayError, match="only 1:1 replays can be branched; this one's team is 2:1"):
+        branch(team_replay(2, 1), 5, "copy")
