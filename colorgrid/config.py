@@ -182,7 +182,12 @@ class EnvConfig:
         return EnvConfig.from_dict({**self.to_dict(), **changes})
 
     def to_dict(self) -> dict[str, Any]:
-        return to_dict(self)
+        """Plain data. The 1:1 team leaves out ``num_leaders`` and ``num_followers`` (both 1, the defaults), so
+        that 1:1 replays, checkpoints and run configs read exactly as they did before teams existed."""
+        data = to_dict(self)
+        if self.one_to_one:
+            del data["num_leaders"], data["num_followers"]
+        return data
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> "EnvConfig":

@@ -251,3 +251,11 @@ def test_demo_prints_every_agents_score_of_the_episode_it_played():
         e.step(rng.integers(0, cfg.num_actions, (1, cfg.num_agents)))
     assert printed == dict(zip(cfg.agent_names, e.state.score[0].tolist()))
     assert any(printed.values()), "the scores of the finished episode, not of the next one"
+
+
+def test_a_one_to_one_config_writes_no_team_fields_and_a_team_config_round_trips():
+    assert "num_leaders" not in EnvConfig().to_dict() and "num_followers" not in EnvConfig().to_dict()
+    team_config = EnvConfig(num_leaders=2, num_followers=3)
+    assert team_config.to_dict()["num_leaders"] == 2
+    assert EnvConfig.from_dict(team_config.to_dict()) == team_config
+    assert EnvConfig.from_dict(EnvConfig().to_dict()) == EnvConfig()
