@@ -292,7 +292,12 @@ class GameHub:
             client.detach()
             await self._send_to(client, self._game_over(game, "left", None))
         await self._send_seats(game)
-        pool = await self.pool_for(STAND_IN, game.config, seat.agent)
+        try:
+            pool = await self.pool_for(STAND_IN, game.config, seat.agent)
+        except Exception:  # without a stand-in the seat could never move again: end the game, saved
+            log.exception("could not load the stand-in leader for game %s", game.game_id)
+            await self.finish(game, "stand_in_failed")
+            return
         if game.game_id not in self.games:  # ended while the stand-in loaded
             return
         game.attach(seat.agent, pool, pool.acquire())
@@ -387,10 +392,12 @@ class GameHub:
         finally:
             room.opening = False
         for client, _ in people:
-            if client in room.dropped:
-                self.disconnect(game, client)
-            else:
+            if client not in room.dropped:
                 client.attach(game)
+        for client, _ in people:  # its welcome (and rejoin token) went to a closed socket: it can never come back
+            seat = game.seat_of(client) if client in room.dropped else None
+            if seat is not None:
+                await self._leave(game, seat, "disconnected")
 
     async def _close_room(self, room: Room, reason: str, message: str) -> None:
         if self.rooms.pop(room.code, None) is None:

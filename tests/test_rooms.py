@@ -335,3 +335,32 @@ def test_a_real_time_room_counts_down_and_steps_with_each_persons_latest_key(ser
     assert replay.meta["tick_hz"] == 20 and {e["agent"] for e in replay.key_events} == {"leader_0", "leader_1"}
     for client in (first, second):
         client.close()
+
+
+def test_a_person_whose_socket_closes_while_the_game_is_made_leaves_at_once(tmp_path):
+    async def scenario():
+        hub = GameHub(ServerSettings(replays_dir=tmp_path, follower="copy", rejoin_grace_s=30))
+        first, second = Inbox(), Inbox()
+        room = await hub.create_room("2:1", "bayes", None, "turn", 5, True, first)
+        await hub.join_room(room.code, second)
+        await hub.set_ready(room, first)
+        await hub.set_ready(room, second)
+        while not room.opening:  # the game is being made (its follower pool loads off the event loop)
+            await asyncio.sleep(0.001)
+        await hub.leave_room(room, second)  # the second page's socket closes now: it never gets its token
+        while not hub.games or room.opening:
+            await asyncio.sleep(0.001)
+        game = next(iter(hub.games.values()))
+        for _ in range(5000):  # the stand-in leader loads off the event loop, then takes the seat
+            if game.controlled():
+                break
+            await asyncio.sleep(0.001)
+        assert not game.paused, "the game must not wait the whole rejoin grace for a token nobody holds"
+        await hub.key(game, "ArrowUp", 0, 0.0)  # the first person moves; the stand-in plays the other seat
+        steps, seats = int(game.env.state.t[0]), [(s.name, s.left, s.left_at_step) for s in game.seats]
+        await hub.stop()
+        return steps, seats
+
+    steps, seats = run(scenario)
+    assert seats == [("leader_0", None, None), ("leader_1", "disconnected", 0)]
+    assert steps == 1
