@@ -573,6 +573,9 @@ class Connection:
                                       client_info=client_info, team=msg.team)
         if msg.study is None:
             raise ValueError("this server runs a study: games start from the study page")
+        if msg.team != Team.ONE_TO_ONE:
+            raise ValueError("a study's games are one person with one AI follower (team 1:1); the study file sets "
+                             "everything else")
         try:
             game, meta = await asyncio.get_running_loop().run_in_executor(
                 None, self.study.game_for, msg.study.participant, msg.study.session)

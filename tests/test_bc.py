@@ -160,3 +160,22 @@ def test_broken_files_are_skipped_with_one_warning(recordings, tmp_path):
     assert result.episodes == {"train": 4, "held_out": 1}
     assert [w.split(" (")[0] for w in warnings] == ["warning: skipped 1 of 7 replay files that do not load",
                                                     "warning: left out 1 frames replays"]
+
+
+def test_games_of_other_teams_are_left_out_with_a_warning(recordings, tmp_path):
+    from tests.test_teams_replays import team_replay
+
+    folder = tmp_path / "rooms"
+    folder.mkdir()
+    save(team_replay(2, 1), folder / "room.replay.json")
+    with pytest.raises(ValueError, match=r"is a 1:1 game \(1 games of other teams\)") as err:
+        train_bc([folder], tmp_path / "never.pt", BCConfig(epochs=1, threads=1), log=lambda line: None,
+                 warn=lambda line: None)
+    assert "\n" not in str(err.value)
+    for path in sorted((recordings / "astar").glob("*.replay.json"))[:3]:
+        (folder / path.name).write_bytes(path.read_bytes())
+    warnings = []
+    result = train_bc([folder], tmp_path / "small.pt", BCConfig(epochs=1, threads=1), log=lambda line: None,
+                      warn=warnings.append)
+    assert sum(result.episodes.values()) == 3
+    assert [w.split(" (")[0] for w in warnings] == ["skipped 1 games of other teams than one leader and one follower"]

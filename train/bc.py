@@ -155,7 +155,7 @@ def read_recordings(folders: list[str | Path], warn: Callable[[str], None]) -> l
     """The leader's view of every usable actions replay under ``folders``; files that do not load are skipped
     with one warning line. Refuses (``ValueError``, one line) when nothing usable is left."""
     files = replay_files(folders)
-    episodes, bad, frames, branches = [], [], 0, 0
+    episodes, bad, frames, branches, teams = [], [], 0, 0, 0
     for path in files:
         try:
             replay = load(path)
@@ -165,6 +165,9 @@ def read_recordings(folders: list[str | Path], warn: Callable[[str], None]) -> l
             if "branch_of" in replay.meta:  # what-if branches: after the branch step the leader's moves are
                 branches += 1               # open-loop copies, not play
                 continue
+            if not replay.config.one_to_one:  # a room's game: the cloned leader is the 1:1 team's
+                teams += 1
+                continue
             episodes.append(leader_episode(replay, path))
         except ReplayError as err:
             bad.append(err)
@@ -172,7 +175,13 @@ def read_recordings(folders: list[str | Path], warn: Callable[[str], None]) -> l
         warn(f"warning: skipped {len(bad)} of {len(files)} replay files that do not load (first: {bad[0]})")
     if branches:
         warn(f"skipped {branches} what-if branches (meta.branch_of): their leader moves are not play")
+    if teams:
+        warn(f"skipped {teams} games of other teams than one leader and one follower (behaviour cloning learns "
+             f"the 1:1 leader)")
     if not episodes:
+        if teams:
+            raise ValueError(f"none of the {len(files)} replays in {', '.join(map(str, folders))} is a 1:1 game "
+                             f"({teams} games of other teams); behaviour cloning learns the 1:1 leader")
         if frames:
             raise ValueError(f"none of the {len(files)} replays in {', '.join(map(str, folders))} holds actions "
                              f"({frames} frames replays: their agents' actions are not recorded)")
