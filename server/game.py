@@ -50,6 +50,7 @@ class Seat:
     last_key_at: float = field(default_factory=time.monotonic)
     left: str | None = None  # why the person left ("quit", "disconnected", "idle"); None while they play
     left_at_step: int | None = None
+    last_applied_seq: int | None = None  # the highest ``seq`` of this person's keys applied so far
 
     def action(self) -> int:
         """The pending key's move, or stay (real time with no key pending)."""
@@ -216,6 +217,7 @@ class Game:
             joint[0, seat.agent] = seat.action()
             if seat.pending is not None:
                 seat.pending["status"], seat.pending["applied_step"] = "applied", t
+                seat.last_applied_seq = max(seat.pending["seq"], seat.last_applied_seq or 0)
                 seat.pending = None
         missed = False
         for agent, (action, belief, miss) in moves.items():
@@ -290,13 +292,9 @@ class Game:
             message["beliefs"] = {cfg.agent_names[p.agent]: p.beliefs[-1] if (self.show_belief and p.beliefs)
                                   else None for p in self.followers()}
         message["events"] = self.last_events
-        message["last_applied_seq"] = self._last_applied_seq(self.seats[0]) if self.solo else {
-            seat.name: self._last_applied_seq(seat) for seat in self.seats}
+        message["last_applied_seq"] = self.seats[0].last_applied_seq if self.solo else {
+            seat.name: seat.last_applied_seq for seat in self.seats}
         return message
-
-    def _last_applied_seq(self, seat: Seat) -> int | None:
-        return max((e["seq"] for e in self.key_log
-                    if e["status"] == "applied" and e.get("agent", seat.name) == seat.name), default=None)
 
     def to_replay(self, ended: str, descriptions: dict[int, dict]) -> Replay:
         """The game as a replay; ``descriptions``: agent index -> its policy's ``agents`` entry (each AI follower)."""

@@ -75,6 +75,8 @@ def serve(settings: ServerSettings, log_level: str = "info", study=None) -> None
     """Run the play server until interrupted (serving ``study``, a ``StudySetup``, when given)."""
     app = create_app(settings, study)
     protocol = type("Protocol", (HeaderTimeoutProtocol,), {"header_timeout_s": settings.header_timeout_s})
+    # No per-message compression: deflating every state message for every player cost the event loop more
+    # than any other part of a tick (a state is about 1.3 KB, 5 a second: bandwidth is not the limit).
     config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=log_level, ws_max_size=65536,
-                            http=protocol, timeout_graceful_shutdown=10)
+                            ws_per_message_deflate=False, http=protocol, timeout_graceful_shutdown=10)
     PlayServer(config, app).run()
