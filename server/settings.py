@@ -26,7 +26,8 @@ class ServerSettings:
     follower: str = "bayes-people"
     """Default follower: the best assistant for people on the held-out population (docs/EVALUATION.md); a
     policy name or a checkpoint path. Players may pick another allowed one."""
-    followers: tuple[str, ...] = ("bayes-people", "ippo-people", "ippo", "bayes", "copy", "oracle", "idle", "random")
+    followers: tuple[str, ...] = ("bayes-people", "ippo-cautious", "ippo-people", "ippo", "bayes", "copy", "oracle",
+                                  "idle", "random")
     """Followers a player may choose from (the default is always allowed)."""
     preset: str = "default"
     """Default environment preset (see ``colorgrid.presets.PRESETS``)."""

@@ -447,6 +447,27 @@ def test_the_people_follower_reproduces_its_card_and_its_held_out_matrix():
     assert net["mean"] > 0 and copy["mean"] - copy["ci95"] > 0  # better than the copy follower beside this leader
 
 
+def test_the_cautious_follower_reproduces_its_card_and_meets_its_held_out_figures():
+    """The card's row beside the training population, one held-out cell recomputed, and what the card claims of
+    the held-out matrix it ships: more net pickups than ``bayes`` on average, better than ``copy`` beside every
+    leader, fewer wrong pickups than the follower it was trained from."""
+    from colorgrid_apps.evaluate import evaluate
+    from colorgrid_apps.matrix import cell
+
+    follower = str(CARDS / "follower_cautious.pt")
+    report = evaluate(EnvConfig(), "population:people#training", follower, episodes=100, seed=0)
+    assert_reproduces(report, card_report("follower_cautious", "population", "checkpoints/follower_cautious.pt"))
+    matrix = json.loads((CARDS / "follower_cautious.held_out.json").read_text())
+    metrics, _ = cell(EnvConfig(), matrix["leaders"]["wanderer"], "ippo-cautious", 100, 0)
+    expected = matrix["cells"]["wanderer"]["ippo-cautious"]
+    assert metrics["net_pickups"] == expected["net_pickups"] and metrics["wrong_pickups"] == expected["wrong_pickups"]
+    mean = matrix["mean_over_leaders"]
+    assert mean["ippo-cautious"]["net_pickups"] >= mean["bayes"]["net_pickups"]
+    assert mean["ippo-cautious"]["wrong_pickups"] < mean["ippo-people"]["wrong_pickups"]
+    for leader, difference in matrix["paired_difference"]["ippo-cautious"].items():
+        assert difference["mean"] - difference["ci95"] > 0, leader  # better than copy beside every leader
+
+
 def test_resume_with_a_population_partner_continues_exactly(tmp_path):
     """Population play resumes with each env's drawn member and every member's own state."""
     changes = dict(leader={"policy": "population:people#held_out"}, total_steps=4 * 64, env={"horizon": 12})

@@ -11,9 +11,11 @@ from pathlib import Path
 from train.model_cache import ModelCache
 
 CHECKPOINTS_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
-SHIPPED = {"ippo": "follower.pt", "ippo-people": "follower_people.pt", "ippo-leader": "leader.pt"}
+SHIPPED = {"ippo": "follower.pt", "ippo-people": "follower_people.pt", "ippo-cautious": "follower_cautious.pt",
+           "ippo-leader": "leader.pt"}
 """Trained agents that ship in ``checkpoints/``, by name: the IPPO follower (trained beside A*), the same follower
-trained further beside a population of person-like leaders, and the IPPO leader (see their model cards)."""
+trained further beside a population of person-like leaders, that one trained further to take fewer wrong blocks,
+and the IPPO leader (see their model cards)."""
 
 
 def shipped_policy(name: str, role: str | None, cache: ModelCache | None = None):
