@@ -231,6 +231,9 @@ def test_checkpoints_name_what_they_hold(tmp_path):
         load_policy(ckpt, "leader")
     with pytest.raises(ValueError, match=r"holds trained agents \['follower_0', 'leader_0', 'leader_1'\]"):
         load_policy(ckpt)
+    with pytest.raises(ValueError, match=r"trained in a team of 2 leader\(s\) and 1 follower\(s\), whose agents are "
+                                         r"\['leader_0', 'leader_1', 'follower_0'\]: it has no follower_1"):
+        load_policy(ckpt, "follower_1")
     with pytest.raises(ValueError, match="does not fit this environment .*num_leaders: trained 2, requested 1"):
         load_policy(ckpt, "leader_0").reset(EnvConfig(horizon=12, height=16, width=16), 1, 0)
     one_to_one = tiny({"leader": {"init": str(ckpt), "net": SMALL_NET}, "follower": {"policy": "idle"}})

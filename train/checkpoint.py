@@ -65,6 +65,9 @@ def find_network(ckpt: dict, env: EnvConfig, name: str | None, what: str) -> tup
         return next(iter(trained.items()))
     if name in trained:
         return name, trained[name]
+    if name not in env.agent_names and name not in ROLES:  # e.g. a 1:1 network asked to play in a team
+        raise ValueError(f"{what} was trained in a team of {env.num_leaders} leader(s) and {env.num_followers} "
+                         f"follower(s), whose agents are {list(env.agent_names)}: it has no {name}")
     plays = {key: network_agents(entry) for key, entry in trained.items()}
     found = []
     if name in env.agent_names:
