@@ -19,8 +19,8 @@ import numpy as np
 from colorgrid.config import EnvConfig
 from colorgrid.configkit import check_int, check_number, fail
 from colorgrid.policies.base import AgentInput, PolicyOutput
-from colorgrid.policies.grid import INF, decode, distance_field
-from colorgrid.policies.scripted import Seeker, at
+from colorgrid.policies.grid import INF, decode
+from colorgrid.policies.scripted import Seeker
 
 
 @dataclass(frozen=True)
@@ -148,14 +148,7 @@ class PersonLeader(Seeker):
         """
         B = block_color.shape[0]
         is_wanted, _, passable = self.cells(wanted, block_color, other)
-        if claimed is None:
-            dist = distance_field(is_wanted, passable, start_cell=me).reshape(B, -1)
-        else:
-            dist = distance_field(is_wanted & ~claimed, passable, start_cell=me)
-            lost = at(dist, me) >= INF
-            if lost.any():
-                dist[lost] = distance_field(is_wanted[lost], passable[lost], start_cell=me[lost])
-            dist = dist.reshape(B, -1)
+        dist = self.field(is_wanted, passable, passable, me, avoid_unwanted=False, claimed=claimed).reshape(B, -1)
         nxt, moves = self.mover.neighbours(me, other)
         values = dist[np.arange(B)[:, None], nxt]
         stuck = values >= INF
