@@ -3,7 +3,7 @@ plays with, and what each has scored. Every module that needs one of these asks 
 
 from __future__ import annotations
 
-from colorgrid.config import FOLLOWER, LEADER, EnvConfig
+from colorgrid.config import EnvConfig
 from colorgrid.state import EnvState
 
 
@@ -17,11 +17,6 @@ def columns(config: EnvConfig, agent: int) -> tuple[int, int]:
         return 0, config.width
     half = config.width // 2
     return (0, half) if config.roles[agent] == "leader" else (half, config.width)
-
-
-def partner(agent: int) -> int:
-    """The index of the other agent of a 1:1 team."""
-    return FOLLOWER if agent == LEADER else LEADER
 
 
 def others(config: EnvConfig, agent: int) -> list[int]:
