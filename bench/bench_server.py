@@ -1,7 +1,7 @@
 """Load on the play server: N concurrent scripted players in real time over WebSockets on loopback.
 
 Usage: python bench/bench_server.py [--players 100] [--seconds 20] [--tick-hz 5] [--follower bayes]
-                                   [--exports 8] [--large-replays]
+                                   [--exports 8] [--large-replays] [--client-nice 10]
 
 Starts ``colorgrid play`` on a free loopback port, connects N players (real-time games
 that last the whole run), each pressing a random move key about 3 times a second, then
@@ -14,6 +14,12 @@ misses, the server's CPU use, and whether every game was saved. Bounded: N conne
 server runs with ``--max-exports K``); ``--large-replays`` puts a 150 MB file (over the
 server's limit) and a 40 MB replay (under it) among the server's replays and requests both,
 list, file and timeline, over and over. Both measure whether live games stay on time.
+
+The load clients run in this process on the same machine as the server; in a deployment they
+are people's browsers elsewhere. ``--client-nice N`` lowers this process's CPU priority by N
+(Linux ``nice``; the server keeps its own), so that on a machine with few cores the clients
+take what the server leaves instead of competing with it. The clients' CPU use is printed
+either way.
 """
 
 from __future__ import annotations
@@ -134,8 +140,10 @@ async def run(args) -> None:
                                           str(10 * args.players), "--max-exports", str(max(1, args.exports)),
                                           "--released-dir", str(folder))
     port = base.rsplit(":", 1)[1]
+    if args.client_nice:
+        os.nice(args.client_nice)  # this thread, and the executor threads it starts from here on
     try:
-        cpu0, wall0 = cpu_seconds(server.pid), time.perf_counter()
+        cpu0, wall0, own0 = cpu_seconds(server.pid), time.perf_counter(), cpu_seconds(os.getpid())
         latencies: list[float] = []
         results: list[dict] = []
         rng = random.Random(0)
@@ -148,6 +156,7 @@ async def run(args) -> None:
         await asyncio.gather(*side, *(player(f"ws://127.0.0.1:{port}/ws/play", args.seconds, latencies, results,
                                              random.Random(rng.random())) for _ in range(args.players)))
         cpu, wall = cpu_seconds(server.pid) - cpu0, time.perf_counter() - wall0
+        own = cpu_seconds(os.getpid()) - own0
         health = json.loads(urllib.request.urlopen(base + "/api/health", timeout=5).read())
         saved = len(list(tmp.glob("play-*.replay.json")))
         await asyncio.sleep(0)
@@ -162,6 +171,7 @@ async def run(args) -> None:
                   f"(a key waits for the next tick: up to {1000 / args.tick_hz:.0f} ms by design)")
         print(f"follower deadline misses: {health['deadline_misses']}")
         print(f"server CPU: {cpu:.1f} s over {wall:.1f} s wall ({100 * cpu / wall:.0f}% of one core)")
+        print(f"load clients' CPU: {own:.1f} s ({100 * own / wall:.0f}% of one core), nice +{args.client_nice}")
         print(f"games ended {ended}/{args.players}, replays saved {saved}/{args.players}; server log {tmp / 'server.log'}")
         if args.exports:
             print(f"exports alongside ({args.exports} in flight): {export_counts.get(200, 0)} made, "
@@ -182,7 +192,11 @@ def main() -> None:
     parser.add_argument("--follower", default="bayes")
     parser.add_argument("--exports", type=int, default=0, help="exports kept in flight during the run (0..16)")
     parser.add_argument("--large-replays", action="store_true", help="also request a 150 MB and a 40 MB replay")
+    parser.add_argument("--client-nice", type=int, default=0,
+                        help="lower the load clients' CPU priority by this much (0..19; the server keeps its own)")
     args = parser.parse_args()
+    if not 0 <= args.client_nice <= 19:
+        raise SystemExit("--client-nice must be in 0..19")
     if not 0 <= args.exports <= 16:
         raise SystemExit("--exports must be in 0..16")
     if not 1 <= args.players <= 500 or not 1 <= args.seconds <= 300:

@@ -174,7 +174,7 @@ def test_a_shared_network_plays_each_agent_as_in_training(tmp_path):
         logits, _, goal_logits, _ = learner.model(view, x["goal"], x["extras"], x["starts"], learner.state)
     for k, a in enumerate(learner.agents):
         rows_of_a = slice(4 * k, 4 * (k + 1))
-        policy = load_policy(tmp_path / "checkpoints" / "latest.pt", config.env.agent_names[a], greedy=True)
+        policy = load_policy(tmp_path / "checkpoints" / "latest.pt", config.env.agent_names[a], temperature=0)
         policy.reset(config.env, 4, a)
         policy.state = tuple(s[:, rows_of_a].clone() for s in learner.state)
         out = policy.act(trainer._inputs(a))

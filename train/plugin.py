@@ -18,21 +18,28 @@ trained further beside a population of person-like leaders, that one trained fur
 and the IPPO leader (see their model cards)."""
 
 
-def shipped_policy(name: str, role: str | None, cache: ModelCache | None = None):
+ACTING = {}
+"""Shipped agents that act at another temperature than 1 (sampling, as trained) unless the name gives one
+(``ippo-cautious:temperature=1``); their model cards say why."""
+
+
+def shipped_policy(name: str, role: str | None, cache: ModelCache | None = None, temperature: float | None = None):
     path = CHECKPOINTS_DIR / SHIPPED[name]
     if not path.is_file():
         raise ValueError(f"the shipped checkpoint for {name!r} is missing: {path} (it is part of the repository)")
     from train.policy import load_policy
 
-    policy = load_policy(path, role=role, cache=cache)
+    if temperature is None:
+        temperature = ACTING.get(name, 1.0)
+    policy = load_policy(path, role=role, temperature=temperature, cache=cache)
     policy.name = name
     return policy
 
 
-def checkpoint_policy(path: str, role: str | None, cache: ModelCache | None = None):
+def checkpoint_policy(path: str, role: str | None, cache: ModelCache | None = None, temperature: float = 1.0):
     from train.policy import load_policy
 
-    return load_policy(path, role=role, cache=cache)
+    return load_policy(path, role=role, temperature=temperature, cache=cache)
 
 
 def register_policies() -> None:
@@ -41,5 +48,7 @@ def register_policies() -> None:
 
     cache = ModelCache()
     for name in SHIPPED:
-        register_policy(name, lambda role, name=name: shipped_policy(name, role, cache))
-    register_loader(".pt", lambda path, role: checkpoint_policy(path, role, cache), "a checkpoint path ending in .pt")
+        register_policy(name, lambda role, name=name, **params: shipped_policy(name, role, cache, **params),
+                        params=("temperature",))
+    register_loader(".pt", lambda path, role, **params: checkpoint_policy(path, role, cache, **params),
+                    "a checkpoint path ending in .pt", params=("temperature",))

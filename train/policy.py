@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -16,15 +17,16 @@ from train.nets import ActorCritic
 class NetPolicy(Policy):
     """Acts with an ``ActorCritic``; its goal probabilities are the auxiliary head's softmax.
 
-    ``greedy`` picks the most likely action instead of sampling (sampling is the default,
-    as trained). Keeps one recurrent state per env row, cleared at episode starts. A network
-    shared by several agents plays any one of them (the one ``reset`` names).
+    ``temperature`` is the acting temperature: actions are sampled from ``softmax(logits / temperature)``;
+    1 (the default) samples as the network was trained, 0 takes the most likely action (greedy), values
+    between sharpen the sampling. Keeps one recurrent state per env row, cleared at episode starts. A
+    network shared by several agents plays any one of them (the one ``reset`` names).
     """
 
-    def __init__(self, model: ActorCritic, name: str = "net", greedy: bool = False, source: str | None = None):
+    def __init__(self, model: ActorCritic, name: str = "net", temperature: float = 1.0, source: str | None = None):
         self.model = model
         self.name = name
-        self.greedy = greedy
+        self.temperature = check_temperature(temperature, source or name)
         self.source = source
         self.device = next(model.parameters()).device
 
@@ -61,18 +63,29 @@ class NetPolicy(Policy):
         if self.state is not None:
             self.state[0][:, rows_idx], self.state[1][:, rows_idx] = new_state
         logits = logits[0].cpu()
-        if self.greedy:
+        if self.temperature == 0:
             actions = logits.argmax(dim=1)
         else:
-            actions = torch.multinomial(torch.softmax(logits, dim=1), 1, generator=self.generator)[:, 0]
+            probs = torch.softmax(logits if self.temperature == 1 else logits / self.temperature, dim=1)
+            actions = torch.multinomial(probs, 1, generator=self.generator)[:, 0]
         probs = torch.softmax(goal_logits[0], dim=1).cpu().numpy().astype(np.float32)
         return PolicyOutput(actions.numpy().astype(np.int64), probs)
 
     def describe(self) -> dict:
         d = {"policy": self.name, "arch": self.model.net.arch, "lstm": self.model.net.lstm}
+        if self.temperature != 1:  # as trained is the default, and what replays without the field played
+            d["temperature"] = self.temperature
         if self.source:
             d["checkpoint"] = self.source
         return d
+
+
+def check_temperature(value, what: str) -> float:
+    """A finite number >= 0, as a float; anything else is refused in one line."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+        raise ValueError(f"{what}: temperature={value!r} is invalid: a finite number >= 0 (0 acts greedily, "
+                         f"1 samples as trained)")
+    return float(value)
 
 
 def check_compatible(trained: EnvConfig, wanted: EnvConfig, what: str) -> None:
@@ -93,16 +106,16 @@ def check_compatible(trained: EnvConfig, wanted: EnvConfig, what: str) -> None:
                          f"shapes depend on these fields")
 
 
-def load_policy(path: str | Path, role: str | None = None, greedy: bool = False,
+def load_policy(path: str | Path, role: str | None = None, temperature: float = 1.0,
                 cache: "ModelCache | None" = None) -> NetPolicy:
     """A ``NetPolicy`` from a checkpoint: the network of ``role`` (see ``find_network``; default: the only
-    trained one).
+    trained one), acting at ``temperature`` (see ``NetPolicy``).
 
     With a ``cache`` the network comes from it (shared with other policies of the same file);
     each policy keeps its own recurrent state and random generator.
     """
     model = cache.get(path, role) if cache is not None else load_model(path, role)
-    return NetPolicy(model, name=f"{Path(path).stem}", greedy=greedy, source=str(path))
+    return NetPolicy(model, name=f"{Path(path).stem}", temperature=temperature, source=str(path))
 
 
 def load_model(path: str | Path, role: str | None) -> ActorCritic:

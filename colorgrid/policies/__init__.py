@@ -26,7 +26,8 @@ Those with parameters take them in the name: ``person:slip=0.1,notice_delay=3``,
 def make_policy(name: str, role: str | None = None) -> Policy:
     """A policy by name: scripted (``SCRIPTED``, with parameters as ``name:key=value,...``), a population
     (``FILE.json[#PART]`` or ``population:NAME[#PART]``), or registered by an installed application (the
-    trainer's shipped agents ``ippo`` and ``ippo-leader``, and checkpoint files ``*.pt``).
+    trainer's shipped agents ``ippo``, ``ippo-cautious``, ... and checkpoint files ``*.pt``, which take their
+    acting temperature the same way: ``ippo-cautious:temperature=1``).
 
     For a checkpoint holding both agents, ``role`` (``"leader"``/``"follower"``) says which to load.
     """
@@ -38,20 +39,18 @@ def make_policy(name: str, role: str | None = None) -> Policy:
     if sep and base in SCRIPTED:
         return SCRIPTED[base](parse_params(SCRIPTED[base], params, name))
     policy = registry.find(name, role)
+    if policy is None and sep:  # a registered name or file with parameters: ``ippo:temperature=0``
+        policy = registry.find(base, role, read_params(params, name), spec=name)
     if policy is not None:
         return policy
     files = "".join(f" or {what}" for what in registry.registered_files())
     raise ValueError(f"unknown policy {name!r}; choose one of {sorted(SCRIPTED) + registry.registered_names()}{files}")
 
 
-def parse_params(kind, text: str, name: str):
-    """``"slip=0.1,notice_delay=3"`` -> ``kind.Params(slip=0.1, notice_delay=3)`` (values read as JSON)."""
-    import dataclasses
+def read_params(text: str, name: str) -> dict:
+    """``"slip=0.1,notice_delay=3"`` -> ``{"slip": 0.1, "notice_delay": 3}`` (values read as JSON, else text)."""
     import json
 
-    params = getattr(kind, "Params", None)
-    if params is None:
-        raise ValueError(f"{name!r}: policy {kind.name!r} takes no parameters")
     values = {}
     for item in filter(None, text.split(",")):
         key, sep, raw = item.partition("=")
@@ -61,6 +60,17 @@ def parse_params(kind, text: str, name: str):
             values[key.strip()] = json.loads(raw)
         except json.JSONDecodeError:
             values[key.strip()] = raw
+    return values
+
+
+def parse_params(kind, text: str, name: str):
+    """``"slip=0.1,notice_delay=3"`` -> ``kind.Params(slip=0.1, notice_delay=3)``."""
+    import dataclasses
+
+    params = getattr(kind, "Params", None)
+    if params is None:
+        raise ValueError(f"{name!r}: policy {kind.name!r} takes no parameters")
+    values = read_params(text, name)
     fields = [f.name for f in dataclasses.fields(params)]
     unknown = sorted(set(values) - set(fields))
     if unknown:

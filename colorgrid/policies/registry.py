@@ -12,25 +12,27 @@ from typing import Callable
 
 from colorgrid.policies.base import Policy
 
-Factory = Callable[[str | None], Policy]
-"""``factory(role) -> Policy``; ``role`` is ``"leader"``, ``"follower"`` or None."""
-Loader = Callable[[str, str | None], Policy]
-"""``loader(path, role) -> Policy`` for a file of a registered suffix."""
+Factory = Callable[..., Policy]
+"""``factory(role, **params) -> Policy``; ``role`` is ``"leader"``, ``"follower"`` or None, ``params`` those
+the name gave (``NAME:key=value,...``), each one the factory declared."""
+Loader = Callable[..., Policy]
+"""``loader(path, role, **params) -> Policy`` for a file of a registered suffix."""
 
-_NAMED: dict[str, Factory] = {}
-_LOADERS: dict[str, tuple[Loader, str]] = {}
+_NAMED: dict[str, tuple[Factory, tuple[str, ...]]] = {}
+_LOADERS: dict[str, tuple[Loader, str, tuple[str, ...]]] = {}
 _discovered = False
 
 
-def register_policy(name: str, factory: Factory) -> None:
-    """Make ``name`` usable anywhere a policy name is (``colorgrid eval``, training partners, the server)."""
-    _NAMED[name] = factory
+def register_policy(name: str, factory: Factory, params: tuple[str, ...] = ()) -> None:
+    """Make ``name`` usable anywhere a policy name is (``colorgrid eval``, training partners, the server);
+    ``params`` are the keyword parameters it takes in the name (``NAME:key=value``)."""
+    _NAMED[name] = (factory, tuple(params))
 
 
-def register_loader(suffix: str, loader: Loader, what: str) -> None:
+def register_loader(suffix: str, loader: Loader, what: str, params: tuple[str, ...] = ()) -> None:
     """Load files ending in ``suffix`` (e.g. ``".pt"``) as policies; ``what`` names them in errors
-    (e.g. ``"a checkpoint path ending in .pt"``)."""
-    _LOADERS[suffix] = (loader, what)
+    (e.g. ``"a checkpoint path ending in .pt"``); ``params`` as for ``register_policy``."""
+    _LOADERS[suffix] = (loader, what, tuple(params))
 
 
 def discover() -> None:
@@ -57,15 +59,28 @@ def registered_names() -> list[str]:
 def registered_files() -> list[str]:
     """What each registered file loader accepts, in words."""
     discover()
-    return [what for _, what in _LOADERS.values()]
+    return [what for _, what, _ in _LOADERS.values()]
 
 
-def find(name: str, role: str | None) -> Policy | None:
-    """The registered policy ``name`` (or file of a registered suffix), or None."""
+def find(name: str, role: str | None, params: dict | None = None, spec: str | None = None) -> Policy | None:
+    """The registered policy ``name`` (or file of a registered suffix) with ``params``, or None.
+
+    A parameter the policy does not declare is refused with the ones it takes (``spec``, the whole name
+    as given, names it in the message)."""
     discover()
+    params = params or {}
     if name in _NAMED:
-        return _NAMED[name](role)
-    for suffix, (loader, _) in _LOADERS.items():
+        factory, allowed = _NAMED[name]
+        return factory(role, **_checked(params, allowed, spec or name, repr(name)))
+    for suffix, (loader, what, allowed) in _LOADERS.items():
         if name.endswith(suffix):
-            return loader(name, role)
+            return loader(name, role, **_checked(params, allowed, spec or name, what))
     return None
+
+
+def _checked(params: dict, allowed: tuple[str, ...], spec: str, what: str) -> dict:
+    unknown = sorted(set(params) - set(allowed))
+    if unknown:
+        takes = f"allowed: {list(allowed)}" if allowed else "it takes none"
+        raise ValueError(f"{spec!r}: unknown parameter(s) {unknown} of {what}; {takes}")
+    return params

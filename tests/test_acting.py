@@ -1,0 +1,93 @@
+"""A trained network's acting temperature: ``NAME:temperature=T`` on any shipped agent or checkpoint."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from colorgrid.config import FOLLOWER, EnvConfig
+from colorgrid.policies import make_policy
+from colorgrid.rollout import run_episodes
+from train.inputs import step_tensors
+
+CHECKPOINT = str(Path(__file__).resolve().parents[1] / "checkpoints" / "follower.pt")
+CONFIG = EnvConfig(horizon=24)
+
+
+def play(follower: str, seed: int = 0):
+    return run_episodes(CONFIG, make_policy("astar", "leader"), make_policy(follower, "follower"), 8, seed)
+
+
+def test_temperature_zero_takes_the_most_likely_action_of_the_network():
+    """Step by step, the greedy follower's action is the argmax of the network's own logits."""
+    from colorgrid.env import BatchEnv
+    from colorgrid.step_inputs import StepInputs
+
+    policy = make_policy(f"{CHECKPOINT}:temperature=0", "follower")
+    shadow = make_policy(CHECKPOINT, "follower")  # the same network, to read its logits alongside
+    leader = make_policy("astar", "leader")
+    env = BatchEnv(CONFIG, num_envs=4, seed=3)
+    obs, _ = env.reset()
+    last = StepInputs.begin(CONFIG, 4)
+    for p, agent in ((policy, FOLLOWER), (shadow, FOLLOWER), (leader, 0)):
+        p.reset(CONFIG, 4, agent, seed=agent + 1)
+    for _ in range(20):
+        mine = last.agent_input(obs, FOLLOWER, env.penalty_coef, env.state.goal.copy())
+        x = step_tensors(mine, CONFIG, FOLLOWER, "cpu")
+        with torch.inference_mode():
+            view = shadow.model.prepare(x["obs"], x["me"])
+            logits, _, _, shadow.state = shadow.model(view, x["goal"], x["extras"], x["starts"], shadow.state)
+        actions = np.stack([leader.act(last.agent_input(obs, 0, env.penalty_coef, env.state.goal.copy())).actions,
+                            policy.act(mine).actions], axis=1)
+        assert (actions[:, 1] == logits[0].argmax(dim=1).numpy()).all()
+        obs, _, _, _, info = env.step(actions)
+        last.record(actions, info)
+
+
+def test_a_greedy_follower_ignores_its_random_generator_and_a_sampling_one_does_not():
+    """The same episodes with the follower's generator seeded differently: greedy actions are the same."""
+    def actions(spec: str, follower_seed: int) -> np.ndarray:
+        policy = make_policy(spec, "follower")
+        reset = policy.reset
+        policy.reset = lambda config, n, agent, seed=0: reset(config, n, agent, seed=follower_seed)
+        return run_episodes(CONFIG, make_policy("astar", "leader"), policy, 8, 0).actions[:, :, FOLLOWER]
+
+    assert (actions("ippo:temperature=0", 1) == actions("ippo:temperature=0", 2)).all()
+    assert (actions("ippo", 1) != actions("ippo", 2)).any()
+
+
+def test_temperature_one_is_the_default_and_acts_identically():
+    default, explicit = play("ippo"), play("ippo:temperature=1")
+    assert (default.actions == explicit.actions).all()
+    assert "temperature" not in make_policy("ippo", "follower").describe()  # replays as before
+
+
+def test_a_low_temperature_sharpens_sampling_towards_the_greedy_actions():
+    """Over the same episodes, temperature 0.2 agrees with greedy on more steps than temperature 1 does."""
+    greedy = play("ippo:temperature=0").actions[:, :, FOLLOWER]
+    cold = play("ippo:temperature=0.2").actions[:, :, FOLLOWER]
+    warm = play("ippo:temperature=1").actions[:, :, FOLLOWER]
+    assert (cold == greedy).mean() > (warm == greedy).mean()
+
+
+def test_the_temperature_is_recorded_in_the_policy_description():
+    assert make_policy("ippo-people:temperature=0.5", "follower").describe()["temperature"] == 0.5
+    assert make_policy(f"{CHECKPOINT}:temperature=0", "follower").describe()["temperature"] == 0.0
+
+
+@pytest.mark.parametrize("spec, words", [
+    ("ippo:temperature=-0.5", ["temperature=-0.5 is invalid", "a finite number >= 0"]),
+    ("ippo:temperature=true", ["temperature=True is invalid"]),
+    ("ippo:temperature=hot", ["temperature='hot' is invalid"]),
+    ("ippo:heat=1", ["unknown parameter(s) ['heat']", "allowed: ['temperature']"]),
+    (f"{CHECKPOINT}:heat=1", ["unknown parameter(s) ['heat']", "a checkpoint path ending in .pt"]),
+    ("ippo:temperature", ["expected NAME:KEY=VALUE"]),
+])
+def test_a_bad_temperature_or_parameter_is_refused_in_one_line(spec, words):
+    with pytest.raises(ValueError) as err:
+        make_policy(spec, "follower")
+    message = str(err.value)
+    assert "\n" not in message and all(w in message for w in words), message
