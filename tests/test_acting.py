@@ -91,3 +91,29 @@ def test_a_bad_temperature_or_parameter_is_refused_in_one_line(spec, words):
         make_policy(spec, "follower")
     message = str(err.value)
     assert "\n" not in message and all(w in message for w in words), message
+
+
+def test_an_exported_checkpoint_carries_how_it_acts_and_a_name_can_override_it(tmp_path):
+    """``checkpoint export --temperature 0``: the file acts greedily wherever it is loaded without a temperature;
+    ``:temperature=1`` still samples; ``checkpoint info`` shows it."""
+    import json
+    import subprocess
+    import sys
+
+    greedy_file = tmp_path / "greedy.pt"
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run([sys.executable, "-m", "colorgrid_apps", "checkpoint", "export", CHECKPOINT, "--agent",
+                           "follower", "--temperature", "0", "--out", str(greedy_file)], cwd=root,
+                          capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert make_policy(str(greedy_file), "follower").temperature == 0.0
+    assert (play(str(greedy_file)).actions == play("ippo:temperature=0").actions).all()
+    assert (play(f"{greedy_file}:temperature=1").actions == play("ippo").actions).all()
+    info = subprocess.run([sys.executable, "-m", "colorgrid_apps", "checkpoint", "info", str(greedy_file)], cwd=root,
+                          capture_output=True, text=True, timeout=120)
+    assert json.loads(info.stdout)["temperature"] == {"follower": 0.0}
+    bad = subprocess.run([sys.executable, "-m", "colorgrid_apps", "checkpoint", "export", CHECKPOINT, "--agent",
+                          "follower", "--temperature", "-2", "--out", str(tmp_path / "bad.pt")], cwd=root,
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "temperature=-2.0 is invalid" in bad.stderr and len(bad.stderr.splitlines()) == 1
+    assert not (tmp_path / "bad.pt").exists()

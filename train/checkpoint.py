@@ -6,7 +6,8 @@ Layout (``torch.save`` of plain containers, loadable with ``weights_only=True``)
     config: the TrainConfig as a dict        env_config: the EnvConfig as a dict
     step, iteration                          agents: {name: entry | None}
     entry: {"net": NetConfig dict, "agent_index", "state_dict", "optimizer" (or None when exported)},
-           and "agents" (the indices it plays) for a network shared within a role
+           and "agents" (the indices it plays) for a network shared within a role, and "temperature"
+           (how it acts unless told otherwise: 1 samples as trained, 0 is greedy) when exported with one
 
 ``agents`` has one key per network, named after its agent (``env.agent_names``: ``leader`` and
 ``follower`` in the 1:1 team) or, for a network shared within a role, after the role; an agent
@@ -141,6 +142,9 @@ def build_model(entry: dict, env: EnvConfig, what: str) -> ActorCritic:
     agents = network_agents(entry)
     model = ActorCritic(net, env, agents if len(agents) > 1 else agents[0])
     load_weights(model, entry["state_dict"], what)
+    from train.policy import check_temperature
+
+    model.temperature = check_temperature(entry.get("temperature", 1.0), what)  # how the file says to act
     return model
 
 
@@ -157,13 +161,19 @@ def load_weights(model: ActorCritic, state_dict: dict, what: str) -> None:
     model.load_state_dict(state_dict)
 
 
-def export_agent(src: str | Path, role: str, dst: str | Path) -> Path:
+def export_agent(src: str | Path, role: str, dst: str | Path, temperature: float | None = None) -> Path:
     """Keep only one network's weights and configs (no optimizer, no trainer state): a small file to ship.
-    ``role`` names it as ``find_network`` takes it (an agent's name, or a role)."""
+    ``role`` names it as ``find_network`` takes it (an agent's name, or a role). ``temperature`` is stored
+    as how the network acts wherever the file (or a shipped name for it) is loaded without one; None keeps
+    the source's (1, sampling as trained, unless it was exported with another)."""
+    from train.policy import check_temperature
+
     ckpt = load_checkpoint(src)
     key, entry = find_network(ckpt, EnvConfig.from_dict(ckpt["env_config"]), role, str(src))
     agents = {name: None for name in ckpt["agents"]}
     agents[key] = {**entry, "optimizer": None}
+    if temperature is not None:
+        agents[key]["temperature"] = check_temperature(temperature, f"--temperature")
     return save_checkpoint(dst, {"config": ckpt["config"], "env_config": ckpt["env_config"], "step": ckpt["step"],
                                  "iteration": ckpt.get("iteration"), "wall_time_s": ckpt.get("wall_time_s"),
                                  "device": ckpt.get("device"), "agents": agents, "trainer_state": None})

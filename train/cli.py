@@ -34,6 +34,9 @@ def add_train_commands(sub) -> None:
                                     "(leader_1, follower_0) or the role whose agents share one network")
     ck.add_argument("--out", help="export: destination .pt; card: destination .md (a .json of the reports beside it)")
     ck.add_argument("--run", help="card: the run directory (for the wall time)")
+    ck.add_argument("--temperature", type=float,
+                    help="export: how the network acts wherever the file is loaded without a temperature of its "
+                         "own (1 samples as trained, 0 is greedy; default: the source's)")
     ck.add_argument("--command", dest="train_command", default="",  # not "command": that names the sub-command
                     help="card: the command that trained it")
     ck.set_defaults(func=cmd_checkpoint)
@@ -113,7 +116,9 @@ def cmd_checkpoint(args: argparse.Namespace) -> int:
     if args.action == "info":
         ckpt = load_checkpoint(args.path)
         agents = {k: (v["net"] if v else None) for k, v in ckpt["agents"].items()}
+        acting = {k: v.get("temperature", 1.0) for k, v in ckpt["agents"].items() if v}
         print(json.dumps({"step": ckpt["step"], "iteration": ckpt.get("iteration"), "agents": agents,
+                          "temperature": acting,
                           "env_config": ckpt["env_config"], "resumable": ckpt.get("trainer_state") is not None},
                          indent=2))
         return 0
@@ -124,7 +129,7 @@ def cmd_checkpoint(args: argparse.Namespace) -> int:
 
         print(f"wrote {write_card(args.path, args.agent, args.run, args.train_command, args.out)}")
         return 0
-    path = export_agent(args.path, args.agent, args.out)
+    path = export_agent(args.path, args.agent, args.out, args.temperature)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
     return 0
 

@@ -18,25 +18,19 @@ trained further beside a population of person-like leaders, that one trained fur
 and the IPPO leader (see their model cards)."""
 
 
-ACTING = {}
-"""Shipped agents that act at another temperature than 1 (sampling, as trained) unless the name gives one
-(``ippo-cautious:temperature=1``); their model cards say why."""
-
-
 def shipped_policy(name: str, role: str | None, cache: ModelCache | None = None, temperature: float | None = None):
     path = CHECKPOINTS_DIR / SHIPPED[name]
     if not path.is_file():
         raise ValueError(f"the shipped checkpoint for {name!r} is missing: {path} (it is part of the repository)")
     from train.policy import load_policy
 
-    if temperature is None:
-        temperature = ACTING.get(name, 1.0)
     policy = load_policy(path, role=role, temperature=temperature, cache=cache)
     policy.name = name
     return policy
 
 
-def checkpoint_policy(path: str, role: str | None, cache: ModelCache | None = None, temperature: float = 1.0):
+def checkpoint_policy(path: str, role: str | None, cache: ModelCache | None = None,
+                      temperature: float | None = None):
     from train.policy import load_policy
 
     return load_policy(path, role=role, temperature=temperature, cache=cache)

@@ -106,15 +106,17 @@ def check_compatible(trained: EnvConfig, wanted: EnvConfig, what: str) -> None:
                          f"shapes depend on these fields")
 
 
-def load_policy(path: str | Path, role: str | None = None, temperature: float = 1.0,
+def load_policy(path: str | Path, role: str | None = None, temperature: float | None = None,
                 cache: "ModelCache | None" = None) -> NetPolicy:
     """A ``NetPolicy`` from a checkpoint: the network of ``role`` (see ``find_network``; default: the only
-    trained one), acting at ``temperature`` (see ``NetPolicy``).
+    trained one), acting at ``temperature`` (see ``NetPolicy``; None: the one the file stores, else 1).
 
     With a ``cache`` the network comes from it (shared with other policies of the same file);
     each policy keeps its own recurrent state and random generator.
     """
     model = cache.get(path, role) if cache is not None else load_model(path, role)
+    if temperature is None:
+        temperature = getattr(model, "temperature", 1.0)
     return NetPolicy(model, name=f"{Path(path).stem}", temperature=temperature, source=str(path))
 
 
