@@ -3,7 +3,6 @@ batched call."""
 
 from __future__ import annotations
 
-import sys
 import time
 
 import numpy as np
@@ -12,6 +11,7 @@ from colorgrid.config import FOLLOWER, EnvConfig
 from colorgrid.policies import SCRIPTED, IdleFollower, make_policy
 from colorgrid.policies.base import AgentInput
 from colorgrid.step_inputs import StepInputs
+from server.inference import InferenceWorker, RemotePolicy
 
 
 def plays_in_teams(name: str) -> bool:
@@ -24,16 +24,19 @@ class FollowerPool:
     """A policy playing agent ``agent_index`` (a follower, or the scripted leader in the seat of a person who
     left), with one row ("slot") per concurrent game of one config.
 
-    ``act`` runs the policy for any subset of slots in one call. ``fallback`` is the
-    documented move used when inference misses its deadline: a step to a free
-    neighbouring cell that collects nothing (the ``idle`` follower).
+    ``act`` runs the policy for any subset of slots in one call. With a ``worker`` the policy is
+    built and run in the inference process (``server.inference``); without one, here. ``fallback``
+    is the documented move used when inference misses its deadline: a step to a free
+    neighbouring cell that collects nothing (the ``idle`` follower), always computed here.
     """
 
-    def __init__(self, name: str, config: EnvConfig, capacity: int, seed: int = 0, agent_index: int = FOLLOWER):
+    def __init__(self, name: str, config: EnvConfig, capacity: int, seed: int = 0, agent_index: int = FOLLOWER,
+                 worker: InferenceWorker | None = None):
         self.name = name
         self.config = config
         self.agent_index = agent_index
-        self.policy = make_policy(name, role=config.roles[agent_index])
+        role = config.roles[agent_index]
+        self.policy = RemotePolicy(worker, name, role) if worker is not None else make_policy(name, role=role)
         self.policy.reset(config, capacity, agent_index=agent_index, seed=seed)
         self.idle = IdleFollower()
         self.idle.reset(config, capacity, agent_index=agent_index, seed=seed + 1)
@@ -84,13 +87,13 @@ class FollowerPool:
     def fallback(self, inputs: list[AgentInput], slots: list[int]) -> np.ndarray:
         return self.idle.act(AgentInput.concat(inputs), rows=np.asarray(slots)).actions
 
+    def close(self) -> None:
+        """Free the policy (in the inference process, its memory there)."""
+        if isinstance(self.policy, RemotePolicy):
+            self.policy.close()
 
-def build_pool(name: str, config: EnvConfig, capacity: int, agent_index: int = FOLLOWER) -> FollowerPool:
-    """A pool, built on the inference thread that will run it. A trained follower then runs on one torch
-    thread, so that torch's worker threads never spin against the event loop and the replay saver."""
-    pool = FollowerPool(name, config, capacity, agent_index=agent_index)
-    if "torch" in sys.modules:
-        import torch
 
-        torch.set_num_threads(1)
-    return pool
+def build_pool(name: str, config: EnvConfig, capacity: int, agent_index: int = FOLLOWER,
+               worker: InferenceWorker | None = None) -> FollowerPool:
+    """A pool, built from the inference thread that will run it (in ``worker``'s process when given)."""
+    return FollowerPool(name, config, capacity, agent_index=agent_index, worker=worker)

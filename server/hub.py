@@ -17,6 +17,7 @@ from colorgrid.replay import save
 from colorgrid.replay.format import describe_agent
 from colorgrid.roles import scores
 from server.followers import FollowerPool, build_pool, plays_in_teams
+from server.inference import InferenceLost, InferenceWorker
 from server.game import STAND_IN, Game, Seat
 from server.protocol import ROOM_COUNTDOWN_S, Mode, Team
 from server.rooms import Room, RoomError, new_code, parse_code
@@ -55,7 +56,8 @@ class GameHub:
         self.pools: dict[tuple, FollowerPool] = {}
         self._loading: dict[tuple, asyncio.Future] = {}
         self.ready = False  # the default follower and the compiled env step are loaded
-        self.executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="follower")
+        self.executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="follower")  # waits on the worker
+        self.inference = InferenceWorker()  # every pool's policy runs in this process, away from the GIL here
         self.saver = ThreadPoolExecutor(max_workers=1, thread_name_prefix="replay-saver")
         self.lock = asyncio.Lock()  # one step at a time: ticks and turn-based keys never interleave
         self.stats = {"ticks": 0, "late_ticks": 0, "max_lateness_ms": 0.0, "deadline_misses": 0, "games_saved": 0,
@@ -114,6 +116,7 @@ class GameHub:
             except Exception:
                 log.exception("could not finish game %s at shutdown", game.game_id)
         self.executor.shutdown(wait=False, cancel_futures=True)
+        await asyncio.get_running_loop().run_in_executor(None, self.inference.stop)
         self.saver.shutdown(wait=True)
         return told
 
@@ -137,7 +140,7 @@ class GameHub:
         loading = self._loading.get(key)
         if loading is None:  # the first game to ask builds it; games arriving meanwhile wait for the same one
             loading = asyncio.get_running_loop().run_in_executor(
-                self.executor, build_pool, follower, config, self.settings.max_sessions, agent_index)
+                self.executor, build_pool, follower, config, self.settings.max_sessions, agent_index, self.inference)
             self._loading[key] = loading
         try:
             pool = await asyncio.shield(loading)
@@ -453,8 +456,13 @@ class GameHub:
             try:
                 actions, beliefs = await asyncio.wait_for(asyncio.shield(future), deadline)
                 return actions, beliefs, False
-            except asyncio.TimeoutError:
-                pass
+            except asyncio.TimeoutError:  # the call goes on; its late failure, if any, is logged
+                future.add_done_callback(lambda f: f.cancelled() or f.exception() is None or log.error(
+                    "follower %s failed after its deadline: %s", pool.name, f.exception()))
+            except InferenceLost as err:  # a new process serves the next call; this step takes the fallback
+                log.error("follower %s: %s", pool.name, err)
+            except Exception:  # a policy's own failure costs its games this step's move, not the tick
+                log.exception("follower %s failed", pool.name)
         self.stats["deadline_misses"] += len(slots)
         log.warning("follower %s missed its %.0f ms deadline for %d game(s)", pool.name, deadline * 1000, len(slots))
         return pool.fallback(inputs, slots), None, True
@@ -513,6 +521,7 @@ class GameHub:
         for key, pool in list(self.pools.items()):
             if key[0] not in self.keep_warm and pool.idle_for() > POOL_IDLE_S:
                 del self.pools[key]
+                await asyncio.get_running_loop().run_in_executor(self.executor, pool.close)
 
     # ------------------------------------------------------------ ending
     async def finish(self, game: Game, reason: str) -> None:

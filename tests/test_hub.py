@@ -135,3 +135,55 @@ def test_the_key_log_is_capped_and_the_dropped_keys_are_counted(tmp_path):
 def test_settings_refuse_what_would_break_the_server(changes, words):
     with pytest.raises(ValueError, match=words):
         ServerSettings(**changes)
+
+
+def test_inference_runs_in_its_own_process_and_a_killed_one_costs_one_step_not_the_game(tmp_path):
+    """The follower's policy lives in the inference process (not this one); kill -9 it mid-game: that step takes
+    the documented fallback move (a recorded deadline miss), the next starts a new process with the follower
+    built afresh, and the game plays to the end and verifies."""
+    import os
+    import signal
+
+    async def scenario():
+        hub = make_hub(tmp_path)
+        game, client = await start(hub, "bayes", horizon=12)
+        first = hub.inference.pid
+        assert first is not None and first != os.getpid()
+        for t in range(4):
+            await hub.key(game, "ArrowRight", t, 0.0)
+        os.kill(first, signal.SIGKILL)
+        for _ in range(100):  # until the process is gone for its parent too
+            if not hub.inference._process.is_alive():
+                break
+            await asyncio.sleep(0.05)
+        await hub.key(game, "ArrowLeft", 4, 0.0)  # finds it dead: the fallback move, and a new process starts
+        await asyncio.get_running_loop().run_in_executor(hub.executor, hub.inference.call, "ping")  # it is up
+        for t in range(5, 12):
+            await hub.key(game, "ArrowLeft" if t % 2 else "ArrowDown", t, 0.0)
+        second = hub.inference.pid
+        await hub.stop()
+        return hub, game, client, first, second
+
+    hub, game, client, first, second = asyncio.run(scenario())
+    over = client.last("game_over")
+    assert over["reason"] == "complete" and over["steps"] == 12
+    assert second != first and hub.inference.generation == 2
+    assert game.deadline_misses == [4] and hub.stats["deadline_misses"] == 1
+    replay = load(tmp_path / f"{over['replay_id']}.replay.json")
+    assert verify(replay).ok and replay.agents["follower"]["policy"] == "bayes"
+    assert replay.meta["deadline_misses"] == [4]
+
+
+def test_a_follower_that_cannot_be_built_is_refused_with_its_reason_and_the_process_serves_on(tmp_path):
+    async def scenario():
+        hub = make_hub(tmp_path)
+        with pytest.raises(ValueError, match="unknown policy 'nosuch'"):
+            await hub.pool_for("nosuch", hub.make_config("default", hub_module.Mode.TURN, 10))
+        game, client = await start(hub, "copy", horizon=3)
+        for t in range(3):
+            await hub.key(game, "ArrowUp", t, 0.0)
+        await hub.stop()
+        return hub, client
+
+    hub, client = asyncio.run(scenario())
+    assert client.last("game_over")["reason"] == "complete" and hub.inference.generation == 1

@@ -39,11 +39,14 @@ def recv(ws, *types, timeout=20.0):
 
 
 def play_turns(ws, steps, start_seq=0):
-    """Press ``steps`` keys in a turn-based game, each waiting for its state; returns the last state."""
+    """Press ``steps`` keys in a turn-based game, each waiting for the state that applied it (not an earlier
+    state still in flight, such as the one sent with ``welcome``); returns the last state."""
     state = None
     for t in range(steps):
         ws.send(json.dumps({"type": "key", "key": MOVES[t % 4], "seq": start_seq + t, "t_client": time.time() * 1000}))
         state = recv(ws, "state")
+        while state["last_applied_seq"] != start_seq + t:
+            state = recv(ws, "state")
     return state
 
 

@@ -1,0 +1,178 @@
+"""Follower inference in a process of its own.
+
+Every follower pool's policy lives in one worker process; the server's inference thread sends it
+a batch and waits on the pipe (without the GIL) for the actions. A batched call then never waits
+for the event loop to hand back the GIL between torch operations, and the event loop never waits
+for inference: the two share no interpreter lock, only the CPUs.
+
+If the worker dies (killed, out of memory), the next call starts a new one and rebuilds each
+pool's policy there as it is next used: the games go on, and each follower starts its belief
+afresh from that step. The call that found it dead fails (the hub plays the documented fallback
+move for that step and counts a deadline miss).
+"""
+
+from __future__ import annotations
+
+import logging
+import multiprocessing
+import threading
+from itertools import count
+
+import numpy as np
+
+from colorgrid.config import EnvConfig
+from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
+
+log = logging.getLogger("colorgrid.server")
+
+
+class InferenceLost(RuntimeError):
+    """The worker process ended during a call."""
+
+
+class InferenceWorker:
+    """The worker process and the pipe to it. ``call`` is made from one thread at a time (the hub's inference
+    thread); a lock keeps requests and replies paired even if two threads call."""
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self._process = None
+        self._conn = None
+        self.generation = 0  # counts the processes started: a policy built in an older one must be rebuilt
+        self.closed = False
+
+    def _ensure(self, op: str) -> None:
+        if self._process is not None and self._process.is_alive():
+            return
+        lost = self._process is not None
+        if lost:
+            log.error("the inference process ended (exit code %s); starting a new one", self._process.exitcode)
+            self._conn.close()
+        ctx = multiprocessing.get_context("spawn")  # the server has threads: forking it would copy held locks
+        parent, child = ctx.Pipe()
+        self._process = ctx.Process(target=serve, args=(child,), name="colorgrid-inference", daemon=True)
+        self._process.start()
+        child.close()
+        self._conn = parent
+        self.generation += 1
+        if lost and op != "build":  # what this call meant died with the old process
+            raise InferenceLost(f"the inference process had ended before {op!r}; a new one started")
+
+    def call(self, op: str, *args):
+        """Run ``op`` in the worker and return its result; the worker's own error is raised here as
+        ``ValueError`` with its message, a dead worker as ``InferenceLost``."""
+        with self._lock:
+            if self.closed:
+                raise InferenceLost("the inference process was stopped")
+            self._ensure(op)
+            try:
+                self._conn.send((op, args))
+                status, value = self._conn.recv()
+            except (EOFError, OSError) as err:
+                raise InferenceLost(f"the inference process ended during {op!r} ({type(err).__name__})") from None
+        if status == "error":
+            raise ValueError(value)
+        return value
+
+    @property
+    def pid(self) -> int | None:
+        return self._process.pid if self._process is not None else None
+
+    def stop(self, timeout: float = 5.0) -> None:
+        with self._lock:
+            self.closed = True
+            if self._process is None:
+                return
+            try:
+                self._conn.send(("stop", ()))
+            except OSError:
+                pass
+            self._process.join(timeout)
+            if self._process.is_alive():
+                self._process.kill()
+                self._process.join(timeout)
+            self._conn.close()
+
+
+_ids = count()
+
+
+class RemotePolicy(Policy):
+    """A policy built and run in the worker, behind the ``Policy`` interface the follower pools use."""
+
+    def __init__(self, worker: InferenceWorker, name: str, role: str | None):
+        self.worker = worker
+        self.spec, self.role = name, role
+        self.key = next(_ids)
+        self.built_in = None  # the worker generation holding this policy
+        self.description: dict = {}
+        self.name = name
+
+    def reset(self, config: EnvConfig, num_envs: int, agent_index: int, seed: int = 0) -> None:
+        super().reset(config, num_envs, agent_index, seed)
+        self._build()
+
+    def _build(self) -> None:
+        self.description = self.worker.call("build", self.key, self.spec, self.role, self.config.to_dict(),
+                                            self.num_envs, self.agent_index, self.seed)
+        self.built_in = self.worker.generation  # the process that answered (a call starts one if none runs)
+
+    def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
+        if self.built_in != self.worker.generation:  # the worker was restarted: this policy starts afresh
+            self._build()
+        actions, probs = self.worker.call("act", self.key, inp, None if rows is None else np.asarray(rows))
+        if self.built_in != self.worker.generation:  # it died and came back within the call
+            raise InferenceLost("the inference process was restarted during the call")
+        return PolicyOutput(actions, probs)
+
+    def describe(self) -> dict:
+        return dict(self.description)
+
+    def close(self) -> None:
+        if self.built_in == self.worker.generation and not self.worker.closed:
+            try:
+                self.worker.call("drop", self.key)
+            except (InferenceLost, ValueError):
+                pass
+
+
+def serve(conn) -> None:
+    """The worker's loop: build, act, drop, until ``stop`` or the server's end of the pipe closes."""
+    import sys
+
+    from colorgrid.policies import make_policy
+
+    policies: dict[int, Policy] = {}
+    while True:
+        try:
+            op, args = conn.recv()
+        except (EOFError, OSError):
+            return
+        if op == "stop":
+            return
+        try:
+            if op == "build":
+                key, name, role, config, num_envs, agent_index, seed = args
+                policy = make_policy(name, role=role)
+                policy.reset(EnvConfig.from_dict(config), num_envs, agent_index=agent_index, seed=seed)
+                policies[key] = policy
+                reply = policy.describe()
+                if "torch" in sys.modules:  # a trained network: one core for it, no torch threads spinning
+                    import torch
+
+                    torch.set_num_threads(1)
+            elif op == "act":
+                key, inp, rows = args
+                out = policies[key].act(inp, rows=rows)
+                reply = (out.actions, out.goal_probs)
+            elif op == "ping":  # ready: imports done, serving
+                reply = None
+            elif op == "drop":
+                policies.pop(args[0], None)
+                reply = None
+            else:
+                raise ValueError(f"unknown request {op!r}")
+        except Exception as err:  # the policy's own error goes back to the caller, and the worker serves on
+            conn.send(("error", f"{err}"))
+            continue
+        conn.send(("ok", reply))
