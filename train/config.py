@@ -64,14 +64,21 @@ class NetConfig:
     """Also feed last step's team reward, both agents' actions and the colors they collected."""
     belief_input: bool = False
     """Feed the agent's own goal prediction (detached softmax of the auxiliary head) to its policy and value heads."""
+    leader_progress: bool = False
+    """The belief core also reads, for each leader and color, whether the leader's last move took it nearer
+    to (+1) or farther from (-1) the nearest block of that color (``train.inputs.leader_progress``): the
+    evidence a Bayesian follower reads from the board, which the core's other inputs do not show."""
 
     def __post_init__(self):
         check_choice(self, "arch", ARCHS, f"choose one of {list(ARCHS)}")
         check_choice(self, "goal_fusion", GOAL_FUSIONS, f"choose one of {list(GOAL_FUSIONS)}")
         for name in ("lstm_size", "hidden"):
             check_int(self, name, 1, 4096)
-        for name in ("lstm", "extra_inputs", "belief_input"):
+        for name in ("lstm", "extra_inputs", "belief_input", "leader_progress"):
             check_bool(self, name)
+        if self.leader_progress and not (self.goal_fusion == "planes" and self.belief_input):
+            fail(self, "leader_progress", "it is an input of the belief core: set net.goal_fusion='planes', "
+                 "net.belief_input=true, net.lstm=true and net.extra_inputs=true too")
         if self.goal_fusion == "planes" and self.belief_input and not (self.lstm and self.extra_inputs):
             fail(self, "belief_input", "with goal_fusion='planes' the belief comes from an LSTM over the last-step "
                  "inputs: set net.lstm=true and net.extra_inputs=true too")

@@ -17,17 +17,62 @@ def one_hot(values: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-def step_tensors(inp: AgentInput, env: EnvConfig, agent_index: int, device) -> dict[str, torch.Tensor]:
-    """The tensors of one step for ``B`` envs, each with a leading time axis of 1."""
+def cells_of(obs: np.ndarray, plane: int) -> np.ndarray:
+    """``[B, 2]``: the (row, col) of the one cell set in ``obs[:, plane]`` (an agent's plane)."""
+    B, _, H, W = obs.shape
+    flat = obs[:, plane].reshape(B, -1).argmax(axis=1)
+    return np.stack([flat // W, flat % W], axis=1)
+
+
+def leader_progress(inp: AgentInput, env: EnvConfig) -> np.ndarray:
+    """``[B, L * C]`` float32: for each leader and color, +1 if the leader's last move brought it nearer to the
+    nearest block of that color (Manhattan distance on the board now), -1 if farther, 0 if neither, if it did
+    not move (start, stay, or a move into the wall) or if no block of that color is on the board.
+
+    The cell it moved from is its cell now minus its last action's step (the board does not show a move
+    that a wall or another agent blocked: it reads as made, unless that cell is off the grid). This is the
+    evidence the Bayesian follower's leader model weighs: a leader heads for the goal color's blocks.
+    """
+    from colorgrid.env import ACTION_DELTAS
+
     obs = inp.observation
     B, _, H, W = obs.shape
-    flat = obs[:, env.num_colors + agent_index].reshape(B, -1).argmax(axis=1)
-    me = np.stack([flat // W, flat % W], axis=1)
-    extras = np.concatenate([
-        np.asarray(inp.prev_reward, dtype=np.float32).reshape(B, 1),
-        one_hot(inp.prev_actions, env.num_actions).reshape(B, -1),
-        one_hot(inp.prev_picked_color, env.num_colors).reshape(B, -1),
-    ], axis=1)
+    C = env.num_colors
+    blocks = obs[:, :C].astype(bool)  # [B, C, H, W]
+    rows, cols = np.arange(H)[:, None], np.arange(W)[None, :]
+    far = H + W
+
+    def nearest(cell: np.ndarray) -> np.ndarray:  # [B, C]: Manhattan distance to the nearest block per color
+        dist = np.abs(rows[None] - cell[:, 0, None, None]) + np.abs(cols[None] - cell[:, 1, None, None])
+        return np.where(blocks, dist[:, None], far).reshape(B, C, -1).min(axis=2)
+
+    out = np.zeros((B, env.num_leaders, C), dtype=np.float32)
+    for j, leader in enumerate(env.leaders):
+        now = cells_of(obs, C + leader)
+        action = np.asarray(inp.prev_actions)[:, leader]
+        step = np.where((action >= 0)[:, None], ACTION_DELTAS[np.clip(action, 0, len(ACTION_DELTAS) - 1)], 0)
+        before = now - step
+        moved = (step != 0).any(axis=1) & (before >= 0).all(axis=1) & (before[:, 0] < H) & (before[:, 1] < W)
+        before = np.where(moved[:, None], before, now)
+        d_now, d_before = nearest(now), nearest(before)
+        present = blocks.any(axis=(2, 3))
+        out[:, j] = np.where(moved[:, None] & present, np.sign(d_before - d_now), 0)
+    return out.reshape(B, -1)
+
+
+def step_tensors(inp: AgentInput, env: EnvConfig, agent_index: int, device,
+                 progress: bool = False) -> dict[str, torch.Tensor]:
+    """The tensors of one step for ``B`` envs, each with a leading time axis of 1; with ``progress`` the extras
+    end with ``leader_progress`` (a network with ``net.leader_progress``)."""
+    obs = inp.observation
+    B = obs.shape[0]
+    me = cells_of(obs, env.num_colors + agent_index)
+    parts = [np.asarray(inp.prev_reward, dtype=np.float32).reshape(B, 1),
+             one_hot(inp.prev_actions, env.num_actions).reshape(B, -1),
+             one_hot(inp.prev_picked_color, env.num_colors).reshape(B, -1)]
+    if progress:
+        parts.append(leader_progress(inp, env))
+    extras = np.concatenate(parts, axis=1)
     arrays = {"obs": obs, "me": me, "goal": inp.goal_info.astype(np.float32), "extras": extras,
               "starts": np.asarray(inp.episode_start, dtype=bool)}
     return {k: torch.as_tensor(np.array(v, copy=True))[None].to(device) for k, v in arrays.items()}

@@ -8,6 +8,8 @@ feed-forward networks simply flatten the time axis.
 
 from __future__ import annotations
 
+import dataclasses
+
 import torch
 from torch import nn
 from torch.nn import functional as F
@@ -19,6 +21,11 @@ from train.config import NetConfig
 def extra_size(env: EnvConfig) -> int:
     """Last step's reward (1), every agent's action (one-hot) and collected color (one-hot)."""
     return 1 + env.num_agents * env.num_actions + env.num_agents * env.num_colors
+
+
+def progress_size(env: EnvConfig) -> int:
+    """``leader_progress``: one value per leader and color, after the extras (the belief core's only)."""
+    return env.num_leaders * env.num_colors
 
 
 def egocentric(obs: torch.Tensor, me: torch.Tensor, radius: int) -> torch.Tensor:
@@ -201,7 +208,8 @@ class ActorCritic(nn.Module):
         core = self.encoder.out_size
         self.lstm = None
         if net.lstm:
-            self.lstm = nn.LSTM(extra_size(env) if self.belief_core else core, net.lstm_size)
+            core_in = extra_size(env) + (progress_size(env) if net.leader_progress else 0)
+            self.lstm = nn.LSTM(core_in if self.belief_core else core, net.lstm_size)
         aux_in = net.lstm_size if net.lstm else core
         if net.lstm and not self.belief_core:
             core = net.lstm_size
@@ -265,8 +273,8 @@ class ActorCritic(nn.Module):
         side = []
         if self.net.goal_fusion == "early":
             side.append(goal)
-        if self.net.extra_inputs:
-            side.append(extras)
+        if self.net.extra_inputs:  # with leader_progress, the extras' tail is the belief core's alone
+            side.append(extras[..., :extra_size(self.env)] if self.net.leader_progress else extras)
         if self.shared:
             side.append(view["identity"])
         side = join(side, dim=2) if side else goal.new_zeros(T, B, 0)
@@ -288,6 +296,21 @@ class ActorCritic(nn.Module):
             heads.append(torch.softmax(goal_logits, dim=2).detach())
         h = join(heads, dim=2)
         return self.policy(h), self.value(h)[..., 0], goal_logits, state
+
+
+def with_leader_progress(model: ActorCritic) -> ActorCritic:
+    """The same network with ``net.leader_progress`` added: the belief core's new input weights are zero, so it
+    computes exactly what ``model`` does until training gives them weight (a warm start for the new input)."""
+    if model.net.leader_progress or not model.belief_core:
+        raise ValueError(f"leader_progress is added to a belief core without it; this network is {model.net}")
+    wider = ActorCritic(dataclasses.replace(model.net, leader_progress=True), model.env,
+                        model.agents if model.shared else model.agents[0])
+    state = model.state_dict()
+    old = state["lstm.weight_ih_l0"]
+    new = torch.zeros_like(wider.state_dict()["lstm.weight_ih_l0"])
+    new[:, :old.shape[1]] = old
+    wider.load_state_dict({**state, "lstm.weight_ih_l0": new})
+    return wider
 
 
 def count_parameters(module: nn.Module) -> int:

@@ -53,7 +53,8 @@ class NetPolicy(Policy):
     @torch.inference_mode()
     def act(self, inp: AgentInput, rows: np.ndarray | None = None) -> PolicyOutput:
         rows_idx = self._rows(rows)
-        x = step_tensors(inp, self.model.env, self.agent_index, self.device)  # sized as the network was trained
+        x = step_tensors(inp, self.model.env, self.agent_index, self.device,  # sized as the network was trained
+                         progress=self.model.net.leader_progress)
         state = None
         if self.state is not None:
             state = (self.state[0][:, rows_idx], self.state[1][:, rows_idx])

@@ -36,7 +36,7 @@ from train.inputs import rows_of_agents, step_tensors
 from train.learner import Learner
 from train.memory import keep_freed_memory
 from train.metrics import MetricsLog, episode_columns, evaluation_row
-from train.nets import ActorCritic
+from train.nets import ActorCritic, with_leader_progress
 from train.policy import NetPolicy, check_compatible
 
 
@@ -112,6 +112,8 @@ class Trainer:
             check_compatible(trained_env, cfg.env, agent.init)
             _, entry = find_network(ckpt, trained_env, name, f"{role}.init={agent.init!r}")
             trained = build_model(entry, trained_env, agent.init)
+            if agent.net.leader_progress and trained.net == dataclasses.replace(agent.net, leader_progress=False):
+                trained = with_leader_progress(trained)  # the new input starts with zero weight
             if trained.net != agent.net:
                 raise ValueError(f"{role}.init={agent.init!r} was trained with {trained.net}, but this run "
                                  f"asks for {agent.net}; set {role}.net to match the checkpoint")
@@ -276,7 +278,8 @@ class Trainer:
         goal = self.env.state.goal.copy() if true_goal is None else true_goal
         return rows_of_agents([
             step_tensors(self.last.agent_input(self.obs if obs is None else obs, a, self.env.penalty_coef, goal,
-                                               episode_start=episode_start), self.config.env, a, self.device)
+                                               episode_start=episode_start), self.config.env, a, self.device,
+                         progress=learner.model.net.leader_progress)
             for a in learner.agents])
 
     def _final_values(self, infos: dict, done: np.ndarray) -> dict[int, torch.Tensor]:
