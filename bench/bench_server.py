@@ -143,7 +143,10 @@ async def run(args) -> None:
     if args.client_nice:
         os.nice(args.client_nice)  # this thread, and the executor threads it starts from here on
     try:
-        cpu0, wall0, own0 = cpu_seconds(server.pid), time.perf_counter(), cpu_seconds(os.getpid())
+        inference = json.loads(urllib.request.urlopen(base + "/api/health", timeout=5).read()).get("inference_pid")
+        server_pids = [server.pid] + ([inference] if inference else [])
+        cpu0 = [cpu_seconds(pid) for pid in server_pids]
+        wall0, own0 = time.perf_counter(), cpu_seconds(os.getpid())
         latencies: list[float] = []
         results: list[dict] = []
         rng = random.Random(0)
@@ -155,7 +158,8 @@ async def run(args) -> None:
             side.append(large_requests(base, end, large_counts))
         await asyncio.gather(*side, *(player(f"ws://127.0.0.1:{port}/ws/play", args.seconds, latencies, results,
                                              random.Random(rng.random())) for _ in range(args.players)))
-        cpu, wall = cpu_seconds(server.pid) - cpu0, time.perf_counter() - wall0
+        cpu = [cpu_seconds(pid) - c0 for pid, c0 in zip(server_pids, cpu0)]
+        wall = time.perf_counter() - wall0
         own = cpu_seconds(os.getpid()) - own0
         health = json.loads(urllib.request.urlopen(base + "/api/health", timeout=5).read())
         saved = len(list(tmp.glob("play-*.replay.json")))
@@ -170,7 +174,9 @@ async def run(args) -> None:
             print(f"key to applied: p50 {q[49]:.0f} ms, p99 {q[98]:.0f} ms over {len(latencies)} keys "
                   f"(a key waits for the next tick: up to {1000 / args.tick_hz:.0f} ms by design)")
         print(f"follower deadline misses: {health['deadline_misses']}")
-        print(f"server CPU: {cpu:.1f} s over {wall:.1f} s wall ({100 * cpu / wall:.0f}% of one core)")
+        parts = f" (inference process {cpu[1]:.1f} s)" if len(cpu) > 1 else ""
+        print(f"server CPU: {sum(cpu):.1f} s over {wall:.1f} s wall ({100 * sum(cpu) / wall:.0f}% of one core)"
+              f"{parts}; replay and export workers not counted")
         print(f"load clients' CPU: {own:.1f} s ({100 * own / wall:.0f}% of one core), nice +{args.client_nice}")
         print(f"games ended {ended}/{args.players}, replays saved {saved}/{args.players}; server log {tmp / 'server.log'}")
         if args.exports:
