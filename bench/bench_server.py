@@ -45,6 +45,15 @@ from common import machine, start_play_server  # noqa: E402
 KEYS = ["ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight"]
 
 
+def cpu_times() -> tuple[float, float] | None:
+    """(all CPU time, time stolen by the hypervisor), in clock ticks summed over CPUs (``/proc/stat``), or None."""
+    try:
+        fields = [float(x) for x in Path("/proc/stat").read_text().splitlines()[0].split()[1:]]
+    except (OSError, ValueError, IndexError):
+        return None
+    return sum(fields[:8]), fields[7] if len(fields) > 7 else 0.0
+
+
 def cpu_seconds(pid: int) -> float:
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
@@ -146,7 +155,7 @@ async def run(args) -> None:
         inference = json.loads(urllib.request.urlopen(base + "/api/health", timeout=5).read()).get("inference_pid")
         server_pids = [server.pid] + ([inference] if inference else [])
         cpu0 = [cpu_seconds(pid) for pid in server_pids]
-        wall0, own0 = time.perf_counter(), cpu_seconds(os.getpid())
+        wall0, own0, machine0 = time.perf_counter(), cpu_seconds(os.getpid()), cpu_times()
         latencies: list[float] = []
         results: list[dict] = []
         rng = random.Random(0)
@@ -161,6 +170,7 @@ async def run(args) -> None:
         cpu = [cpu_seconds(pid) - c0 for pid, c0 in zip(server_pids, cpu0)]
         wall = time.perf_counter() - wall0
         own = cpu_seconds(os.getpid()) - own0
+        machine1 = cpu_times()
         health = json.loads(urllib.request.urlopen(base + "/api/health", timeout=5).read())
         saved = len(list(tmp.glob("play-*.replay.json")))
         await asyncio.sleep(0)
@@ -178,6 +188,9 @@ async def run(args) -> None:
         print(f"server CPU: {sum(cpu):.1f} s over {wall:.1f} s wall ({100 * sum(cpu) / wall:.0f}% of one core)"
               f"{parts}; replay and export workers not counted")
         print(f"load clients' CPU: {own:.1f} s ({100 * own / wall:.0f}% of one core), nice +{args.client_nice}")
+        if machine0 and machine1 and machine1[0] > machine0[0]:
+            steal = 100 * (machine1[1] - machine0[1]) / (machine1[0] - machine0[0])
+            print(f"CPU time stolen by the hypervisor during the run: {steal:.1f}% (a virtual machine's neighbours)")
         print(f"games ended {ended}/{args.players}, replays saved {saved}/{args.players}; server log {tmp / 'server.log'}")
         if args.exports:
             print(f"exports alongside ({args.exports} in flight): {export_counts.get(200, 0)} made, "
