@@ -55,7 +55,8 @@ FOLLOWER_INFO = {
     "ippo-people": ("Trained assistant for people (IPPO)", "trained further beside leaders that slip, turn late "
                                                              "and make mistakes", True),
     "ippo-cautious": ("Cautious trained assistant for people (IPPO)", "the trained assistant for people, trained "
-                                                                     "further to take fewer wrong blocks", True),
+                                                                     "further to take fewer wrong blocks and to read "
+                                                                     "where your moves lead", True),
     "ippo-leader": ("Trained leader (IPPO)", "the trained leader playing the follower's part: for researchers", True),
     "bayes": ("Bayesian assistant", "works out the goal from your moves and pickups, and collects once it is sure",
               True),
