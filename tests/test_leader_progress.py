@@ -69,7 +69,7 @@ def test_the_values_end_the_extras_only_when_asked():
 def test_adding_the_input_to_a_trained_network_changes_nothing_until_it_learns():
     """``with_leader_progress`` (the trainer's warm start for ``net.leader_progress``) plays the same actions and
     beliefs as the network it widens, episode for episode."""
-    trained = make_policy("ippo-cautious", "follower")
+    trained = make_policy("ippo-people", "follower")
     wider = NetPolicy(with_leader_progress(trained.model), name="wider")
     assert wider.model.net.leader_progress and wider.model.lstm.input_size == trained.model.lstm.input_size + 3
     config = EnvConfig(horizon=40)

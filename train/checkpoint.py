@@ -32,6 +32,7 @@ import torch
 from colorgrid.config import ROLES, EnvConfig
 from colorgrid.files import atomic_path
 from colorgrid.configkit import from_dict
+from train.acting import check_temperature
 from train.config import NetConfig, TrainConfigError
 from train.nets import ActorCritic
 
@@ -142,8 +143,6 @@ def build_model(entry: dict, env: EnvConfig, what: str) -> ActorCritic:
     agents = network_agents(entry)
     model = ActorCritic(net, env, agents if len(agents) > 1 else agents[0])
     load_weights(model, entry["state_dict"], what)
-    from train.policy import check_temperature
-
     model.temperature = check_temperature(entry.get("temperature", 1.0), what)  # how the file says to act
     return model
 
@@ -166,14 +165,12 @@ def export_agent(src: str | Path, role: str, dst: str | Path, temperature: float
     ``role`` names it as ``find_network`` takes it (an agent's name, or a role). ``temperature`` is stored
     as how the network acts wherever the file (or a shipped name for it) is loaded without one; None keeps
     the source's (1, sampling as trained, unless it was exported with another)."""
-    from train.policy import check_temperature
-
     ckpt = load_checkpoint(src)
     key, entry = find_network(ckpt, EnvConfig.from_dict(ckpt["env_config"]), role, str(src))
     agents = {name: None for name in ckpt["agents"]}
     agents[key] = {**entry, "optimizer": None}
     if temperature is not None:
-        agents[key]["temperature"] = check_temperature(temperature, f"--temperature")
+        agents[key]["temperature"] = check_temperature(temperature, "--temperature")
     return save_checkpoint(dst, {"config": ckpt["config"], "env_config": ckpt["env_config"], "step": ckpt["step"],
                                  "iteration": ckpt.get("iteration"), "wall_time_s": ckpt.get("wall_time_s"),
                                  "device": ckpt.get("device"), "agents": agents, "trainer_state": None})

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +9,7 @@ import torch
 
 from colorgrid.config import EnvConfig
 from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
+from train.acting import check_temperature
 from train.inputs import step_tensors
 from train.nets import ActorCritic
 
@@ -79,14 +79,6 @@ class NetPolicy(Policy):
         if self.source:
             d["checkpoint"] = self.source
         return d
-
-
-def check_temperature(value, what: str) -> float:
-    """A finite number >= 0, as a float; anything else is refused in one line."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-        raise ValueError(f"{what}: temperature={value!r} is invalid: a finite number >= 0 (0 acts greedily, "
-                         f"1 samples as trained)")
-    return float(value)
 
 
 def check_compatible(trained: EnvConfig, wanted: EnvConfig, what: str) -> None:
