@@ -42,7 +42,8 @@ class FollowerPool:
         self.idle.reset(config, capacity, agent_index=agent_index, seed=seed + 1)
         self.capacity = capacity
         self.free = list(range(capacity - 1, -1, -1))
-        self.busy = False  # an inference call is still running (it may outlive its deadline)
+        self.pending = None  # the last inference call's future: the next waits until it is done (it may outlive
+        # its deadline), so calls never queue up behind a slow one on old inputs
         self.last_release = time.monotonic()
 
     def warm_up(self) -> None:
@@ -76,12 +77,7 @@ class FollowerPool:
 
     def act(self, inputs: list[AgentInput], slots: list[int]) -> tuple[np.ndarray, np.ndarray | None]:
         """Actions ``[n]`` and beliefs ``[n, C]`` (or None) for the games in ``slots``."""
-        batch = AgentInput.concat(inputs)
-        self.busy = True
-        try:
-            out = self.policy.act(batch, rows=np.asarray(slots))
-        finally:
-            self.busy = False
+        out = self.policy.act(AgentInput.concat(inputs), rows=np.asarray(slots))
         return out.actions, out.goal_probs
 
     def fallback(self, inputs: list[AgentInput], slots: list[int]) -> np.ndarray:

@@ -450,9 +450,9 @@ class GameHub:
     async def _infer(self, pool: FollowerPool, inputs, slots):
         """Run the pool within the deadline; on a miss, fall back to idle moves and say so."""
         deadline = self.settings.inference_deadline_ms / 1000.0
-        if not pool.busy:
+        if pool.pending is None or pool.pending.done():
             loop = asyncio.get_running_loop()
-            future = loop.run_in_executor(self.executor, pool.act, inputs, slots)
+            future = pool.pending = loop.run_in_executor(self.executor, pool.act, inputs, slots)
             try:
                 actions, beliefs = await asyncio.wait_for(asyncio.shield(future), deadline)
                 return actions, beliefs, False
@@ -521,7 +521,7 @@ class GameHub:
         for key, pool in list(self.pools.items()):
             if key[0] not in self.keep_warm and pool.idle_for() > POOL_IDLE_S:
                 del self.pools[key]
-                await asyncio.get_running_loop().run_in_executor(self.executor, pool.close)
+                self.executor.submit(pool.close)  # queued behind inference; the sweep does not wait for it
 
     # ------------------------------------------------------------ ending
     async def finish(self, game: Game, reason: str) -> None:

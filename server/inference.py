@@ -5,10 +5,11 @@ a batch and waits on the pipe (without the GIL) for the actions. A batched call 
 for the event loop to hand back the GIL between torch operations, and the event loop never waits
 for inference: the two share no interpreter lock, only the CPUs.
 
-If the worker dies (killed, out of memory), the next call starts a new one and rebuilds each
-pool's policy there as it is next used: the games go on, and each follower starts its belief
-afresh from that step. The call that found it dead fails (the hub plays the documented fallback
-move for that step and counts a deadline miss).
+If the worker dies (killed, out of memory), the call that finds it dead fails and starts a new
+one at once; each pool's policy is rebuilt there when next used. Until the new process has
+loaded it (imports, and a network's weights: a second or more), that pool's calls miss their
+deadline and its games take the documented fallback move; then they go on, each follower's
+belief starting afresh.
 """
 
 from __future__ import annotations
@@ -28,6 +29,10 @@ log = logging.getLogger("colorgrid.server")
 
 class InferenceLost(RuntimeError):
     """The worker process ended during a call."""
+
+
+class InferenceError(RuntimeError):
+    """A policy failed in the worker in a way other than a bad request (that is a ``ValueError``)."""
 
 
 class InferenceWorker:
@@ -69,9 +74,15 @@ class InferenceWorker:
                 self._conn.send((op, args))
                 status, value = self._conn.recv()
             except (EOFError, OSError) as err:
+                self._process.join(1.0)
+                try:
+                    self._ensure("restart")  # a new process loads while the games take the fallback move
+                except InferenceLost:
+                    pass
                 raise InferenceLost(f"the inference process ended during {op!r} ({type(err).__name__})") from None
         if status == "error":
-            raise ValueError(value)
+            kind, message = value
+            raise (ValueError if kind == "ValueError" else InferenceError)(message)
         return value
 
     @property
@@ -79,19 +90,24 @@ class InferenceWorker:
         return self._process.pid if self._process is not None else None
 
     def stop(self, timeout: float = 5.0) -> None:
-        with self._lock:
-            self.closed = True
+        """End the process: asked to stop once any call in flight is done, killed if that takes over ``timeout``."""
+        self.closed = True
+        locked = self._lock.acquire(timeout=timeout)
+        try:
             if self._process is None:
                 return
-            try:
-                self._conn.send(("stop", ()))
-            except OSError:
-                pass
-            self._process.join(timeout)
+            if locked:
+                try:
+                    self._conn.send(("stop", ()))
+                except OSError:
+                    pass
+                self._process.join(timeout)
             if self._process.is_alive():
                 self._process.kill()
                 self._process.join(timeout)
-            self._conn.close()
+        finally:
+            if locked:
+                self._lock.release()
 
 
 _ids = count()
@@ -134,14 +150,17 @@ class RemotePolicy(Policy):
                 self.worker.call("drop", self.key)
             except (InferenceLost, ValueError):
                 pass
+        self.built_in = None  # used again after all (a game attached meanwhile): built again first
 
 
 def serve(conn) -> None:
     """The worker's loop: build, act, drop, until ``stop`` or the server's end of the pipe closes."""
+    import signal
     import sys
 
     from colorgrid.policies import make_policy
 
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C is the server's to handle: it stops this process
     policies: dict[int, Policy] = {}
     while True:
         try:
@@ -173,6 +192,7 @@ def serve(conn) -> None:
             else:
                 raise ValueError(f"unknown request {op!r}")
         except Exception as err:  # the policy's own error goes back to the caller, and the worker serves on
-            conn.send(("error", f"{err}"))
+            conn.send(("error", (type(err).__name__, f"{type(err).__name__}: {err}" if not isinstance(
+                err, ValueError) else str(err))))
             continue
         conn.send(("ok", reply))

@@ -79,7 +79,8 @@ def test_the_temperature_is_recorded_in_the_policy_description():
 
 
 @pytest.mark.parametrize("spec, words", [
-    ("ippo:temperature=-0.5", ["temperature=-0.5 is invalid", "a finite number >= 0"]),
+    ("ippo:temperature=-0.5", ["temperature=-0.5 is invalid", "0 (greedy) or a finite number >= 0.01"]),
+    ("ippo:temperature=0.001", ["temperature=0.001 is invalid"]),  # logits / 0.001 would overflow float32
     ("ippo:temperature=true", ["temperature=True is invalid"]),
     ("ippo:temperature=hot", ["temperature='hot' is invalid"]),
     ("ippo:heat=1", ["unknown parameter(s) ['heat']", "allowed: ['temperature']"]),

@@ -128,7 +128,7 @@ CLI_CASES = {  # id: (arguments, {name} for a file of `bad`; the command as name
     "view-export-wrapped": (["view", "{wrapped.replay.json}", "--export", "{out}/r.html"], "view",
                             ["wrapped.replay.json", "nested too deeply"]),
     "eval-temperature-negative": (["eval", "--follower", "ippo:temperature=-1", "--episodes", "1"], "eval",
-                                  ["temperature=-1 is invalid", "a finite number >= 0"]),
+                                  ["temperature=-1 is invalid", "0 (greedy) or a finite number >= 0.01"]),
     "eval-unknown-parameter": (["eval", "--follower", "ippo:temp=0", "--episodes", "1"], "eval",
                                ["'ippo:temp=0'", "unknown parameter(s) ['temp']", "allowed: ['temperature']"]),
 }

@@ -157,7 +157,9 @@ def test_inference_runs_in_its_own_process_and_a_killed_one_costs_one_step_not_t
                 break
             await asyncio.sleep(0.05)
         await hub.key(game, "ArrowLeft", 4, 0.0)  # finds it dead: the fallback move, and a new process starts
-        await asyncio.get_running_loop().run_in_executor(hub.executor, hub.inference.call, "ping")  # it is up
+        assert hub.inference.generation == 2 and hub.inference._process.is_alive()  # started by that call
+        # time passes while it loads (steps meanwhile would take the fallback move too): wait until it answers
+        await asyncio.get_running_loop().run_in_executor(hub.executor, hub.inference.call, "ping")
         for t in range(5, 12):
             await hub.key(game, "ArrowLeft" if t % 2 else "ArrowDown", t, 0.0)
         second = hub.inference.pid

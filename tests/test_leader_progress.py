@@ -78,7 +78,13 @@ def test_adding_the_input_to_a_trained_network_changes_nothing_until_it_learns()
     assert (a.actions == b.actions).all() and np.array_equal(a.goal_probs[1], b.goal_probs[1])
 
 
-def test_the_input_belongs_to_a_belief_core():
+def test_the_input_belongs_to_a_belief_core_and_not_to_a_cloned_leader():
+    from colorgrid.configkit import ConfigError
+    from train.bc import bc_config
+
     with pytest.raises(TrainConfigError, match="leader_progress"):
         NetConfig(leader_progress=True)
     NetConfig(goal_fusion="planes", lstm=True, extra_inputs=True, belief_input=True, leader_progress=True)
+    core = ["net.belief_input=true", "net.lstm=true", "net.extra_inputs=true"]
+    with pytest.raises(ConfigError, match="a follower's input"):
+        bc_config({}, ["net.leader_progress=true", *core])

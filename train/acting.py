@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import math
 
+MIN_TEMPERATURE = 0.01
+
 
 def check_temperature(value, what: str) -> float:
-    """A finite number >= 0, as a float; anything else is refused in one line."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
-        raise ValueError(f"{what}: temperature={value!r} is invalid: a finite number >= 0 (0 acts greedily, "
-                         f"1 samples as trained)")
+    """0, or a finite number >= 0.01 (below that, ``logits / temperature`` overflows float32), as a float;
+    anything else is refused in one line."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or \
+            not (value == 0 or value >= MIN_TEMPERATURE):
+        raise ValueError(f"{what}: temperature={value!r} is invalid: 0 (greedy) or a finite number >= "
+                         f"{MIN_TEMPERATURE} (1 samples as trained)")
     return float(value)

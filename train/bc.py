@@ -28,7 +28,7 @@ from torch.nn import functional as F
 
 from colorgrid import configkit
 from colorgrid.config import AGENTS, LEADER, EnvConfig
-from colorgrid.configkit import check_choice, check_int, check_number
+from colorgrid.configkit import check_choice, check_int, check_number, fail
 from colorgrid.env import ACTION_NAMES, BatchEnv
 from colorgrid.replay import SUFFIX, Replay, ReplayError, load, replay_states, verify
 from colorgrid.step_inputs import StepInputs
@@ -75,6 +75,9 @@ class BCConfig:
         check_number(self, "lr", "a positive number", lambda v: v > 0)
         check_number(self, "aux_coef", "a number >= 0", lambda v: v >= 0)
         check_choice(self, "device", DEVICES, f"choose one of {list(DEVICES)}")
+        if self.net.leader_progress:
+            fail(self, "net.leader_progress", "it is a follower's input (how the leader's moves read); a cloned "
+                 "leader sees the goal: leave it false", True)
 
     def to_dict(self) -> dict:
         return configkit.to_dict(self)

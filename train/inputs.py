@@ -26,8 +26,8 @@ def cells_of(obs: np.ndarray, plane: int) -> np.ndarray:
 
 def leader_progress(inp: AgentInput, env: EnvConfig) -> np.ndarray:
     """``[B, L * C]`` float32: for each leader and color, +1 if the leader's last move brought it nearer to the
-    nearest block of that color (Manhattan distance on the board now), -1 if farther, 0 if neither, if it did
-    not move (start, stay, or a move into the wall) or if no block of that color is on the board.
+    nearest block of that color (Manhattan distance on the board now), -1 if farther; 0 if neither, at an
+    episode's start, after a stay, or if no block of that color is on the board.
 
     The cell it moved from is its cell now minus its last action's step (the board does not show a move
     that a wall or another agent blocked: it reads as made, unless that cell is off the grid). This is the
