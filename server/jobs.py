@@ -33,6 +33,10 @@ class Busy(Exception):
 
 # ---------------------------------------------------------------- in the worker processes
 def _lower_priority() -> None:
+    """Each worker's set-up: a lower CPU priority, and Ctrl+C left to the server (which stops the workers)."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         os.nice(10)
     except OSError:  # not allowed here: run at normal priority

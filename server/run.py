@@ -79,4 +79,7 @@ def serve(settings: ServerSettings, log_level: str = "info", study=None) -> None
     # than any other part of a tick (a state is about 1.3 KB, 5 a second: bandwidth is not the limit).
     config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=log_level, ws_max_size=65536,
                             ws_per_message_deflate=False, http=protocol, timeout_graceful_shutdown=10)
-    PlayServer(config, app).run()
+    try:
+        PlayServer(config, app).run()
+    except KeyboardInterrupt:  # Ctrl+C: uvicorn has already shut down (games saved); no traceback for that
+        pass

@@ -34,7 +34,10 @@ class RunningServer:
             return (json.loads(body) if "json" in kind else body), response.status, kind
 
 
-def start_server(tmp: Path, *flags: str, command: tuple[str, ...] = ("play",), env: dict | None = None) -> RunningServer:
+def start_server(tmp: Path, *flags: str, command: tuple[str, ...] = ("play",), env: dict | None = None,
+                 own_group: bool = False) -> RunningServer:
+    """``colorgrid play`` (or ``command``) on a free port, once ready; ``own_group`` starts it in a process group
+    of its own, as a terminal runs a command (Ctrl+C signals the whole group)."""
     port = free_port()
     replays_dir = tmp / "recordings"
     log_path = tmp / "server.log"
@@ -43,6 +46,7 @@ def start_server(tmp: Path, *flags: str, command: tuple[str, ...] = ("play",), e
         [sys.executable, "-m", "colorgrid_apps", *command, "--port", str(port), "--replays-dir", str(replays_dir),
          "--log-level", "warning", *flags],
         cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
+        start_new_session=own_group,
     )
     server = RunningServer(port, replays_dir, process, log_path)
     deadline = time.monotonic() + 180  # a fresh checkout compiles the env step and loads torch first

@@ -6,6 +6,7 @@ own nor anyone else's; finished games are never lost, not even to kill -9 or SIG
 
 import asyncio
 import json
+import os
 import random
 import signal
 import socket
@@ -370,6 +371,22 @@ def test_sigterm_saves_every_live_game_and_tells_each_player(tmp_path):
         assert verify(replay).ok and replay.ended == "server_shutdown" and replay.num_steps == 4
     assert no_partial_files(server.replays_dir)
     assert not any(c.exists() for c in caches), "the export cache is removed at exit"
+
+
+def test_ctrl_c_saves_live_games_and_ends_without_a_traceback(tmp_path):
+    """Ctrl+C in a terminal signals the server and every process it started (replay workers, inference): the
+    server saves and tells each player, and neither it nor its workers print a traceback."""
+    server = start_server(tmp_path, "--follower", "bayes", own_group=True)
+    clients = start_games(server, 2, steps=3, follower="bayes")
+    assert http(server, "/api/replays/released--default--astar+bayes_seed2026/timeline")[0] == 200  # a worker runs
+    os.killpg(server.process.pid, signal.SIGINT)
+    overs = [recv(ws, "game_over", timeout=30) for ws in clients]
+    assert server.process.wait(timeout=30) == 0
+    assert [o["reason"] for o in overs] == ["server_shutdown"] * 2
+    for over in overs:
+        assert verify(load(server.replays_dir / f"{over['replay_id']}.replay.json")).ok
+    log = server.log_path.read_text()
+    assert "Traceback" not in log and "KeyboardInterrupt" not in log, log[-3000:]
 
 
 def test_kill_9_loses_no_finished_game_and_leaves_no_partial_file(tmp_path):
