@@ -33,14 +33,24 @@ class Busy(Exception):
 
 # ---------------------------------------------------------------- in the worker processes
 def _lower_priority() -> None:
-    """Each worker's set-up: a lower CPU priority, and Ctrl+C left to the server (which stops the workers)."""
+    """Each worker's set-up: a lower CPU priority, Ctrl+C left to the server (which stops the workers), and an
+    end of its own if the server is killed (its task queue would never close: the worker would wait for ever)."""
     import signal
+    import threading
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         os.nice(10)
     except OSError:  # not allowed here: run at normal priority
         pass
+    threading.Thread(target=_exit_with_parent, args=(os.getppid(),), daemon=True, name="parent-watch").start()
+
+
+def _exit_with_parent(parent: int, every_s: float = 1.0) -> None:
+    """End this process once ``parent`` is gone (this process is handed to another parent then)."""
+    while os.getppid() == parent:
+        time.sleep(every_s)
+    os._exit(0)
 
 
 def summaries(files: list[tuple[str, str, str]], max_bytes: int) -> list[dict]:

@@ -389,7 +389,15 @@ def test_ctrl_c_saves_live_games_and_ends_without_a_traceback(tmp_path):
     assert "Traceback" not in log and "KeyboardInterrupt" not in log, log[-3000:]
 
 
-def test_kill_9_loses_no_finished_game_and_leaves_no_partial_file(tmp_path):
+def running(pid: str) -> bool:
+    """Whether process ``pid`` runs (a zombie waiting for its parent to read its exit status does not)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except OSError:
+        return False
+
+
+def test_kill_9_loses_no_finished_game_leaves_no_partial_file_and_no_worker(tmp_path):
     server = start_server(tmp_path, "--follower", "copy")
     finished = []
     for _ in range(2):
@@ -399,10 +407,17 @@ def test_kill_9_loses_no_finished_game_and_leaves_no_partial_file(tmp_path):
             play_turns(ws, 8)
             finished.append(recv(ws, "game_over")["replay_id"])
     live = start_games(server, 2, steps=3)
+    assert http(server, "/api/replays/released--default--astar+bayes_seed2026/timeline")[0] == 200  # a worker runs
+    children = subprocess.run(["pgrep", "-P", str(server.process.pid)], capture_output=True, text=True).stdout.split()
+    assert len(children) >= 2  # the inference process and a replay worker
     server.process.send_signal(signal.SIGKILL)
     server.process.wait(timeout=20)
     for ws in live:
         ws.close()
+    end = time.monotonic() + 20
+    while any(map(running, children)) and time.monotonic() < end:
+        time.sleep(0.2)
+    assert not [pid for pid in children if running(pid)], "the server's worker processes end when it is killed"
     saved = sorted(p.name for p in server.replays_dir.glob("*.replay.json"))
     assert saved == sorted(f"{i}.replay.json" for i in finished)
     for replay_id in finished:
