@@ -105,6 +105,11 @@ class EnvConfig:
         return self.num_leaders == 1 and self.num_followers == 1
 
     @property
+    def team(self) -> str:
+        """The team's shape as ``"L:F"`` (``"1:1"``, ``"2:1"``, ...), as the CLI, the server and replay lists write it."""
+        return f"{self.num_leaders}:{self.num_followers}"
+
+    @property
     def env_id(self) -> str:
         """``ENV_ID`` for the 1:1 team, ``TEAM_ENV_ID`` for every other shape."""
         return ENV_ID if self.one_to_one else TEAM_ENV_ID

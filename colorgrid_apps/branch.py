@@ -32,8 +32,7 @@ def branch(parent: Replay, step: int, follower: str, leader: str = "recorded", s
     if parent.kind != "actions":
         raise ReplayError(parent_name, "only actions replays can be branched (a frames replay has no seed)")
     if not parent.config.one_to_one:
-        raise ReplayError(parent_name, f"only 1:1 replays can be branched; this one's team is "
-                                       f"{parent.config.num_leaders}:{parent.config.num_followers}")
+        raise ReplayError(parent_name, f"only 1:1 replays can be branched; this one's team is {parent.config.team}")
     T = parent.num_steps
     if not 0 <= step <= T:
         raise ValueError(f"--step must be in [0, {T}] (the parent has {T} steps), got {step}")

@@ -110,13 +110,8 @@ def team_specs(config: EnvConfig, leader: str | Policy, follower: str | Policy,
     agents = dict(agents or {})
     for name in agents:
         config.index(name)  # an unknown name is an error that lists the team's agents
-    specs = [agents.get(name, leader if role == "leader" else follower)
-             for name, role in zip(config.agent_names, config.roles)]
-    shared = [s for s in specs if isinstance(s, Policy) and sum(t is s for t in specs) > 1]
-    if shared:
-        raise ValueError(f"the policy object {shared[0].name!r} would play several agents; give each agent its own "
-                         "(or a policy name, which builds one per agent)")
-    return specs
+    return [agents.get(name, leader if role == "leader" else follower)
+            for name, role in zip(config.agent_names, config.roles)]  # run_team refuses one object for two
 
 
 def evaluate(config: EnvConfig, leader: str | Policy, follower: str | Policy, episodes: int, seed: int,

@@ -88,8 +88,3 @@ class FollowerPool:
         if isinstance(self.policy, RemotePolicy):
             self.policy.close()
 
-
-def build_pool(name: str, config: EnvConfig, capacity: int, agent_index: int = FOLLOWER,
-               worker: InferenceWorker | None = None) -> FollowerPool:
-    """A pool, built from the inference thread that will run it (in ``worker``'s process when given)."""
-    return FollowerPool(name, config, capacity, agent_index=agent_index, worker=worker)

@@ -92,7 +92,6 @@ class Game:
     def __post_init__(self) -> None:
         self.mode = Mode(self.mode)
         cfg = self.config
-        self.team = f"{cfg.num_leaders}:{cfg.num_followers}"
         self.seats = [Seat(i, cfg.agent_names[i]) for i in cfg.leaders]
         self.ai: dict[int, AIPlayer] = {}  # agent index -> its policy's slot (followers, stand-in leaders)
         self.env = BatchEnv(cfg, num_envs=1, seed=self.seed, autoreset=False)
@@ -271,7 +270,7 @@ class Game:
             "show_belief": self.show_belief, "keys": sorted(KEY_ACTIONS), "look": look(cfg),
         }
         if not self.solo:
-            message.update(team=self.team, agent=seat.name, seats=self.seats_view(), room=self.room)
+            message.update(team=self.config.team, agent=seat.name, seats=self.seats_view(), room=self.room)
         return message
 
     def state_message(self) -> dict:
@@ -318,7 +317,7 @@ class Game:
         if self.solo:
             meta["client"] = self.seats[0].client_info
         else:
-            meta.update(team=self.team, room=self.room,
+            meta.update(team=self.config.team, room=self.room,
                         clients={s.name: s.client_info for s in self.seats},
                         seats_left=[{"agent": s.name, "reason": s.left, "from_step": s.left_at_step,
                                      "replaced_by": STAND_IN} for s in self.seats if s.left])

@@ -7,6 +7,7 @@ import gc
 import logging
 import time
 from concurrent.futures import ThreadPoolExecutor
+from functools import partial
 from pathlib import Path
 from typing import Protocol
 
@@ -16,7 +17,7 @@ from colorgrid.presets import env_config
 from colorgrid.replay import save
 from colorgrid.replay.format import describe_agent
 from colorgrid.roles import scores
-from server.followers import FollowerPool, build_pool, plays_in_teams
+from server.followers import FollowerPool, plays_in_teams
 from server.inference import InferenceLost, InferenceWorker
 from server.game import STAND_IN, Game, Seat
 from server.protocol import ROOM_COUNTDOWN_S, Mode, Team
@@ -140,7 +141,8 @@ class GameHub:
         loading = self._loading.get(key)
         if loading is None:  # the first game to ask builds it; games arriving meanwhile wait for the same one
             loading = asyncio.get_running_loop().run_in_executor(
-                self.executor, build_pool, follower, config, self.settings.max_sessions, agent_index, self.inference)
+                self.executor, partial(FollowerPool, follower, config, self.settings.max_sessions,
+                                       agent_index=agent_index, worker=self.inference))
             self._loading[key] = loading
         try:
             pool = await asyncio.shield(loading)

@@ -47,10 +47,16 @@ class InferenceWorker:
         self.closed = False
 
     def _ensure(self, op: str) -> None:
+        """A running process for ``op``; if it had died, a new one, and ``InferenceLost`` unless ``op`` builds."""
         if self._process is not None and self._process.is_alive():
             return
         lost = self._process is not None
-        if lost:
+        self._start()
+        if lost and op != "build":  # what this call meant died with the old process
+            raise InferenceLost(f"the inference process had ended before {op!r}; a new one started")
+
+    def _start(self) -> None:
+        if self._process is not None:
             log.error("the inference process ended (exit code %s); starting a new one", self._process.exitcode)
             self._conn.close()
         ctx = multiprocessing.get_context("spawn")  # the server has threads: forking it would copy held locks
@@ -60,8 +66,6 @@ class InferenceWorker:
         child.close()
         self._conn = parent
         self.generation += 1
-        if lost and op != "build":  # what this call meant died with the old process
-            raise InferenceLost(f"the inference process had ended before {op!r}; a new one started")
 
     def call(self, op: str, *args):
         """Run ``op`` in the worker and return its result; the worker's own error is raised here as
@@ -75,10 +79,8 @@ class InferenceWorker:
                 status, value = self._conn.recv()
             except (EOFError, OSError) as err:
                 self._process.join(1.0)
-                try:
-                    self._ensure("restart")  # a new process loads while the games take the fallback move
-                except InferenceLost:
-                    pass
+                if not self._process.is_alive():
+                    self._start()  # a new process loads while the games take the fallback move
                 raise InferenceLost(f"the inference process ended during {op!r} ({type(err).__name__})") from None
         if status == "error":
             kind, message = value
@@ -117,19 +119,17 @@ class RemotePolicy(Policy):
     """A policy built and run in the worker, behind the ``Policy`` interface the follower pools use."""
 
     def __init__(self, worker: InferenceWorker, name: str, role: str | None):
-        self.worker = worker
-        self.spec, self.role = name, role
+        self.worker, self.name, self.role = worker, name, role
         self.key = next(_ids)
         self.built_in = None  # the worker generation holding this policy
         self.description: dict = {}
-        self.name = name
 
     def reset(self, config: EnvConfig, num_envs: int, agent_index: int, seed: int = 0) -> None:
         super().reset(config, num_envs, agent_index, seed)
         self._build()
 
     def _build(self) -> None:
-        self.description = self.worker.call("build", self.key, self.spec, self.role, self.config.to_dict(),
+        self.description = self.worker.call("build", self.key, self.name, self.role, self.config.to_dict(),
                                             self.num_envs, self.agent_index, self.seed)
         self.built_in = self.worker.generation  # the process that answered (a call starts one if none runs)
 

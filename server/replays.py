@@ -107,7 +107,7 @@ def summarize(path: Path, replay_id: str, collection: str, max_bytes: int | None
     return {
         **base, "source": replay.source, "created": replay.created, "kind": replay.kind, "ended": replay.ended,
         "steps": replay.num_steps, **{role: role_policies(replay, role) for role in ROLES},
-        "team": f"{cfg.num_leaders}:{cfg.num_followers}",
+        "team": cfg.team,
         "final": replay.final(),
         "config": {"asymmetric": cfg.asymmetric, "goal_reward": cfg.goal_reward, "wrong_penalty": cfg.wrong_penalty,
                    "switch_prob": cfg.switch_prob, "horizon": cfg.horizon},

@@ -37,3 +37,23 @@ def check_consistent(env: BatchEnv) -> None:
         expected = np.zeros((B, HW), dtype=np.uint8)
         expected[np.arange(B), s.agent_cell[:, a]] = 1
         assert (obs[:, cfg.num_colors + a] == expected).all()
+
+
+class Inbox:
+    """A player's connection as the game hub sees it (``server.hub.Client``): it keeps the messages sent to it and
+    the game it plays."""
+
+    def __init__(self):
+        self.messages, self.game = [], None
+
+    async def send(self, message: dict) -> None:
+        self.messages.append(message)
+
+    def detach(self) -> None:
+        self.game = None
+
+    def attach(self, game) -> None:
+        self.game = game
+
+    def last(self, kind: str) -> dict:
+        return [m for m in self.messages if m["type"] == kind][-1]

@@ -10,22 +10,7 @@ from colorgrid.replay import load, verify
 from server import hub as hub_module
 from server.hub import GameHub
 from server.settings import ServerSettings
-
-
-class Inbox:
-    """A player's connection as the hub sees it: it receives messages."""
-
-    def __init__(self):
-        self.messages, self.detached = [], False
-
-    async def send(self, message: dict) -> None:
-        self.messages.append(message)
-
-    def detach(self) -> None:
-        self.detached = True
-
-    def last(self, kind: str) -> dict:
-        return [m for m in self.messages if m["type"] == kind][-1]
+from tests.helpers import Inbox
 
 
 def make_hub(tmp_path, **changes) -> GameHub:

@@ -15,6 +15,7 @@ from server.hub import GameHub, ServerFull
 from server.protocol import ROOM_CODE_ALPHABET, ROOM_CODE_LENGTH
 from server.settings import ServerSettings
 from tests.conftest import start_server, stop_server
+from tests.helpers import Inbox
 from tests.test_server import Client
 
 HORIZON = 12
@@ -241,25 +242,6 @@ def run(scenario):
     """``asyncio.run`` on a thread of its own (this module's chromium keeps an event loop on the main one)."""
     with ThreadPoolExecutor(1) as thread:
         return thread.submit(asyncio.run, scenario()).result()
-
-
-class Inbox:
-    """A connection as the hub sees it."""
-
-    def __init__(self):
-        self.messages, self.game = [], None
-
-    async def send(self, message: dict) -> None:
-        self.messages.append(message)
-
-    def detach(self) -> None:
-        self.game = None
-
-    def attach(self, game) -> None:
-        self.game = game
-
-    def last(self, kind: str) -> dict:
-        return [m for m in self.messages if m["type"] == kind][-1]
 
 
 def test_waiting_rooms_count_as_sessions_and_expire(tmp_path):

@@ -34,30 +34,21 @@ def leader_progress(inp: AgentInput, env: EnvConfig) -> np.ndarray:
     evidence the Bayesian follower's leader model weighs: a leader heads for the goal color's blocks.
     """
     from colorgrid.env import ACTION_DELTAS
+    from colorgrid.policies.grid import decode, manhattan_to_nearest
 
-    obs = inp.observation
-    B, _, H, W = obs.shape
-    C = env.num_colors
-    blocks = obs[:, :C].astype(bool)  # [B, C, H, W]
-    rows, cols = np.arange(H)[:, None], np.arange(W)[None, :]
-    far = H + W
-
-    def nearest(cell: np.ndarray) -> np.ndarray:  # [B, C]: Manhattan distance to the nearest block per color
-        dist = np.abs(rows[None] - cell[:, 0, None, None]) + np.abs(cols[None] - cell[:, 1, None, None])
-        return np.where(blocks, dist[:, None], far).reshape(B, C, -1).min(axis=2)
-
-    out = np.zeros((B, env.num_leaders, C), dtype=np.float32)
+    H, W = env.height, env.width
+    block_color, agent_cell = decode(inp.observation, env)
+    out = np.zeros((len(agent_cell), env.num_leaders, env.num_colors), dtype=np.float32)
     for j, leader in enumerate(env.leaders):
-        now = cells_of(obs, C + leader)
         action = np.asarray(inp.prev_actions)[:, leader]
         step = np.where((action >= 0)[:, None], ACTION_DELTAS[np.clip(action, 0, len(ACTION_DELTAS) - 1)], 0)
-        before = now - step
-        moved = (step != 0).any(axis=1) & (before >= 0).all(axis=1) & (before[:, 0] < H) & (before[:, 1] < W)
-        before = np.where(moved[:, None], before, now)
-        d_now, d_before = nearest(now), nearest(before)
-        present = blocks.any(axis=(2, 3))
-        out[:, j] = np.where(moved[:, None] & present, np.sign(d_before - d_now), 0)
-    return out.reshape(B, -1)
+        row, col = np.divmod(agent_cell[:, leader], W)
+        row0, col0 = row - step[:, 0], col - step[:, 1]
+        moved = (step != 0).any(axis=1) & (row0 >= 0) & (row0 < H) & (col0 >= 0) & (col0 < W)
+        cells = np.stack([np.where(moved, row0 * W + col0, agent_cell[:, leader]), agent_cell[:, leader]], axis=1)
+        d = manhattan_to_nearest(env, block_color, cells)  # [B, 2, C]: from the cell before, and now
+        out[:, j] = np.where(moved[:, None], np.sign(d[:, 0] - d[:, 1]), 0)
+    return out.reshape(len(agent_cell), -1)
 
 
 def step_tensors(inp: AgentInput, env: EnvConfig, agent_index: int, device,

@@ -126,9 +126,11 @@ class Mover:
 
 
 def manhattan_to_nearest(config: EnvConfig, block_color: np.ndarray, cells: np.ndarray) -> np.ndarray:
-    """``[B, K, C]``: Manhattan distance from each of ``cells [B, K]`` to the nearest block of each color.
+    """``[B, K, C]``: Manhattan distance from each of ``cells [B, K]`` to the nearest block of each color, ``H + W``
+    where an env has no block of that color.
 
-    Uses the fact that every env holds exactly ``blocks_per_color`` blocks of each color.
+    In play every env holds the same number of blocks of each color (``blocks_per_color``): the blocks are
+    then gathered as ``[B, n]``; a board built otherwise is measured cell by cell.
     """
     B, H, W = block_color.shape
     rows, cols = np.divmod(cells, W)  # [B, K]
@@ -136,8 +138,13 @@ def manhattan_to_nearest(config: EnvConfig, block_color: np.ndarray, cells: np.n
     out = np.empty(cells.shape + (config.num_colors,), dtype=np.float64)
     for k in range(config.num_colors):
         env_idx, block_cells = np.nonzero(flat == k)
-        if block_cells.size != B * config.blocks_per_color:
-            raise ValueError(f"expected {config.blocks_per_color} blocks of color {k} in every env")
-        br, bc = np.divmod(block_cells.reshape(B, 1, -1), W)  # [B, 1, n]
-        out[..., k] = (np.abs(br - rows[:, :, None]) + np.abs(bc - cols[:, :, None])).min(axis=2)
+        counts = np.bincount(env_idx, minlength=B)
+        if counts[0] > 0 and (counts == counts[0]).all():
+            br, bc = np.divmod(block_cells.reshape(B, 1, -1), W)  # [B, 1, n]
+            extra = 0
+        else:  # every cell, those without a block of this color pushed out of reach
+            br, bc = np.divmod(np.arange(H * W), W)
+            extra = np.where(flat == k, 0, H + W)[:, None, :]  # [B, 1, H * W]
+        dist = np.abs(br - rows[:, :, None]) + np.abs(bc - cols[:, :, None]) + extra
+        out[..., k] = np.minimum(dist.min(axis=2), H + W)
     return out

@@ -117,7 +117,9 @@ class Seeker(Policy):
         for j, mover, allowed in zip(self.claimants, self.claimant_movers, self.claimant_cells):
             me, other = agent_cell[:, j], agent_cell[:, others(self.config, j)]
             is_wanted, open_cells, clean = self.cells(wanted, block_color, other, allowed)
-            target = mover.destination(self.field(is_wanted, open_cells, clean, me, claimed=claimed), me, other)
+            unclaimed_only = claimed if claimed.any() else None  # nothing claimed yet: one search, not two
+            target = mover.destination(self.field(is_wanted, open_cells, clean, me, claimed=unclaimed_only), me,
+                                       other)
             going = target >= 0
             claimed.reshape(B, -1)[np.nonzero(going)[0], target[going]] = True
         return claimed
