@@ -135,13 +135,19 @@ def _unreadable_reason(path: Path, err: Exception) -> str:
 
 
 def build_model(entry: dict, env: EnvConfig, what: str) -> ActorCritic:
-    """Rebuild a network from a checkpoint entry, with a clear error when the weights do not fit."""
+    """Rebuild a network from a checkpoint entry, with a clear error when the weights do not fit.
+
+    Building it leaves torch's global random generator as it was: a run's fresh networks are then
+    initialised the same whether a partner's checkpoint was read from disk or found already loaded
+    (``ModelCache``), and whether or not a run loads any.
+    """
     try:
         net = from_dict(NetConfig, entry["net"], "net")
     except TrainConfigError as err:
         raise ValueError(f"{what}: {err}") from None
     agents = network_agents(entry)
-    model = ActorCritic(net, env, agents if len(agents) > 1 else agents[0])
+    with torch.random.fork_rng(devices=[]):  # the weights are overwritten: their random init must not move
+        model = ActorCritic(net, env, agents if len(agents) > 1 else agents[0])  # torch's generator (see below)
     load_weights(model, entry["state_dict"], what)
     model.temperature = check_temperature(entry.get("temperature", 1.0), what)  # how the file says to act
     return model

@@ -103,6 +103,11 @@ class AgentConfig:
     net: NetConfig = field(default_factory=NetConfig)
     aux_coef: float = 0.2
     """Weight kappa of the auxiliary goal-prediction cross-entropy (0 turns it off)."""
+    aux_target: str = "goal"
+    """What the auxiliary head learns to predict: ``goal`` (the true current goal) or a policy name whose
+    belief over the goal it is distilled from (``bayes``, ``bayes-people``, with parameters as
+    name:key=value,...): that policy watches every env beside the learner, from the learner's own inputs,
+    and its belief is the head's soft target. Acting never reads it."""
     lr: float | None = None
     """Learning rate for this agent; None uses ``ppo.lr``."""
     train_reward: str = "env"
@@ -141,6 +146,10 @@ class AgentConfig:
         if self.init is not None and "learn" not in (self.policies or (self.policy,)):
             fail(self, "init", "warm-starting only applies to policy='learn'")
         check_number(self, "aux_coef", "a number in [0, 100]", _between(0.0, 100.0))
+        if self.aux_target != "goal" and not (isinstance(self.aux_target, str) and self.learns
+                                              and _policy_spec(self.aux_target, names)):
+            fail(self, "aux_target", "'goal', or for policy='learn' the name of a policy with a belief over the goal "
+                                     f"(e.g. 'bayes-people') whose belief the auxiliary head is distilled from")
         check_choice(self, "train_reward", ("env", "own"), "'env' (the env's reward) or 'own' (own block reward)")
         check_number(self, "wrong_weight", "a number in [0, 100]", _between(0.0, 100.0))
         if self.wrong_weight != 1.0 and self.train_reward != "own":

@@ -41,7 +41,7 @@ class Learner:
     def start_rollout(self) -> None:
         self.initial_state = None if self.state is None else tuple(s.clone() for s in self.state)
         self.buffer = {k: [] for k in ("view", *_SIDE, "actions", "logp", "values", "rewards", "dones", "final_values",
-                                       "true_goal")}
+                                       "true_goal", "aux_target")}
 
     @torch.inference_mode()
     def act(self, x: dict[str, torch.Tensor]) -> tuple[np.ndarray, np.ndarray]:
@@ -66,20 +66,22 @@ class Learner:
         return value[0]
 
     def record(self, reward: np.ndarray, done: np.ndarray, true_goal: np.ndarray,
-               final_value: torch.Tensor | None) -> None:
+               final_value: torch.Tensor | None, aux_target: np.ndarray | None = None) -> None:
         """The outcome of the last action, per row (``[rows]``); ``final_value`` holds V(final observation)
-        where ``done``."""
+        where ``done``; ``aux_target [rows, C]`` the goal head's soft target (None: ``true_goal`` is its target)."""
         as_t = lambda a, dt: torch.as_tensor(np.asarray(a), dtype=dt, device=self.device)  # noqa: E731
         self.buffer["rewards"].append(as_t(reward, torch.float32))
         self.buffer["dones"].append(as_t(done, torch.bool))
         self.buffer["true_goal"].append(as_t(true_goal, torch.int64))
         fv = final_value if final_value is not None else torch.zeros(len(done), device=self.device)
         self.buffer["final_values"].append(fv)
+        if aux_target is not None:
+            self.buffer["aux_target"].append(as_t(aux_target, torch.float32))
 
     # ------------------------------------------------------------- update
     def stacked(self) -> dict:
         """The rollout as ``[T, B, ...]`` tensors (``view`` is a dict of them)."""
-        b = {k: torch.stack(v) for k, v in self.buffer.items() if k != "view"}
+        b = {k: torch.stack(v) for k, v in self.buffer.items() if k != "view" and v}
         views = self.buffer["view"]
         b["view"] = {k: torch.stack([v[k] for v in views]) for k in views[0]}
         return b
@@ -113,7 +115,8 @@ class Learner:
                     logits, v, gl, _ = self.model(view, *(pick(b[k])[None] for k in _SIDE), None)
                     logits, v, gl = logits[0], v[0], gl[0]
                 loss, s = ppo_loss(logits, v, gl, pick(b["actions"]), pick(b["logp"]), pick(values),
-                                   pick(advantages), pick(returns), pick(b["true_goal"]), self.weights)
+                                   pick(advantages), pick(returns), pick(b["true_goal"]), self.weights,
+                                   pick(b["aux_target"]) if "aux_target" in b else None)
                 self.optimizer.zero_grad(set_to_none=True)
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.ppo.max_grad_norm)

@@ -41,10 +41,13 @@ class LossWeights:
 
 def ppo_loss(logits: torch.Tensor, values: torch.Tensor, goal_logits: torch.Tensor, actions: torch.Tensor,
              old_logp: torch.Tensor, old_values: torch.Tensor, advantages: torch.Tensor, returns: torch.Tensor,
-             goal: torch.Tensor, w: LossWeights) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+             goal: torch.Tensor, w: LossWeights, goal_target: torch.Tensor | None = None
+             ) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
     """The PPO loss on flat samples: ``logits [N, A]``, ``values [N]``, ``goal_logits [N, C]``, the rest ``[N]``.
 
-    total = policy loss - ent_coef * entropy + vf_coef * value loss + aux_coef * goal cross-entropy.
+    total = policy loss - ent_coef * entropy + vf_coef * value loss + aux_coef * goal cross-entropy, the
+    cross-entropy against ``goal_target [N, C]`` (a teacher's belief) when given, else against the true ``goal``
+    (which ``goal_accuracy`` always scores).
     """
     logp_all = torch.log_softmax(logits, dim=-1)
     logp = logp_all.gather(1, actions[:, None])[:, 0]
@@ -60,7 +63,7 @@ def ppo_loss(logits: torch.Tensor, values: torch.Tensor, goal_logits: torch.Tens
         v_loss = 0.5 * torch.max((values - returns) ** 2, (clipped - returns) ** 2).mean()
     else:
         v_loss = 0.5 * ((values - returns) ** 2).mean()
-    aux_loss = F.cross_entropy(goal_logits, goal)
+    aux_loss = F.cross_entropy(goal_logits, goal if goal_target is None else goal_target)
     total = pg_loss - w.ent_coef * entropy + w.vf_coef * v_loss + w.aux_coef * aux_loss
     with torch.no_grad():
         stats = {

@@ -72,6 +72,11 @@ def update_learner(learner: Learner, inputs: dict, threads: int | None = None) -
     return learner.update(learner.value(inputs))
 
 
+def watcher_state(policy) -> dict:
+    """What a resumed run needs of a partner or teacher policy: what it is, and its state."""
+    return {"describe": describe_agent(policy.describe()), "state": policy.state_dict()}
+
+
 class Trainer:
     def __init__(self, config: TrainConfig, run_dir: str | Path, progress: bool = True, tensorboard: bool = True):
         self.config, self.run_dir, self.progress = config, Path(run_dir), progress
@@ -90,8 +95,10 @@ class Trainer:
             if i in networks:
                 self.learners[i] = self._make_learner(*networks[i])
             elif not agent.learns:
-                self.partners[i] = make_policy(agent.policy, role=self.names[i])
-                self.partners[i].reset(config.env, config.ppo.num_envs, i, seed=config.seed)
+                self.partners[i] = self._watcher(agent.policy, i)
+        # a learner's auxiliary target, when it is another policy's belief: that policy watches from the agent's seat
+        self.teachers = {a: self._watcher(config.agents[a].aux_target, a) for lr in self.learners.values()
+                         for a in lr.agents if config.agents[a].aux_target != "goal"}
         self.step, self.iteration = 0, 0
         self.wall_time = 0.0  # wall-clock seconds of training so far, across resumes
         self._tick = time.perf_counter()
@@ -123,6 +130,12 @@ class Trainer:
             model = trained
         return Learner(model, cfg.ppo, cfg.ppo.loss_weights(agent.aux_coef), agent.lr or cfg.ppo.lr,
                        cfg.seed * 2 + agents[0] + 1, self.device, name)
+
+    def _watcher(self, spec: str, i: int):
+        """Policy ``spec`` in agent ``i``'s seat over every training env (a partner that acts, or a teacher)."""
+        policy = make_policy(spec, role=self.names[i])
+        policy.reset(self.config.env, self.config.ppo.num_envs, i, seed=self.config.seed)
+        return policy
 
     def _begin_episodes(self) -> None:
         B, A = self.config.ppo.num_envs, self.config.env.num_agents
@@ -226,6 +239,7 @@ class Trainer:
         for _ in range(cfg.ppo.num_steps):
             true_goal = env.state.goal.copy()
             actions = np.zeros((B, A), dtype=np.int64)
+            targets = {i: self._aux_targets(lr, true_goal) for i, lr in self.learners.items()}
             for learner in self.learners.values():
                 chosen, probs = learner.act(self._learner_tensors(learner, true_goal))
                 for k, a in enumerate(learner.agents):  # rows are agent-major: agent k's envs are rows kB..(k+1)B
@@ -242,7 +256,7 @@ class Trainer:
             for i, learner in self.learners.items():
                 k = len(learner.agents)
                 learner.record(rewards[:, learner.agents].T.reshape(-1), np.tile(done, k), np.tile(true_goal, k),
-                               final.get(i))
+                               final.get(i), targets[i])
             if done.any():
                 fi = infos["final_info"]
                 totals = {"block_reward": fi["episode_block_reward"][done],
@@ -256,6 +270,20 @@ class Trainer:
         if done_eps:
             episodes["episodes"] = len(done_eps["team_reward"])
         return episodes, {a: h / cfg.ppo.num_steps for a, h in hits.items()}
+
+    def _aux_targets(self, learner: Learner, true_goal: np.ndarray) -> np.ndarray | None:
+        """The teachers' beliefs over the goal for ``learner``'s rows (agent-major), or None: the true goal."""
+        if learner.agents[0] not in self.teachers:
+            return None
+        beliefs = []
+        for a in learner.agents:
+            belief = self.teachers[a].act(self._inputs(a, true_goal)).goal_probs
+            if belief is None:
+                raise ValueError(f"{self.config.env.roles[a]}.aux_target={self.config.agents[a].aux_target!r} keeps "
+                                 f"no belief over the goal to distil; use a follower that does (bayes, "
+                                 f"bayes-people, a trained .pt)")
+            beliefs.append(belief)
+        return np.concatenate(beliefs)
 
     def _training_rewards(self, rewards: np.ndarray, infos: dict, shaping: bool) -> np.ndarray:
         """Each agent's learning signal: the env's reward or its own block reward; shaping only while on."""
@@ -332,8 +360,8 @@ class Trainer:
             "penalty_coef": self.env.penalty_coef, "last_step": self.last.state_dict(), "shaped_sum": self.shaped_sum,
             "learners": {lr.name: {"recurrent": None if lr.state is None else list(lr.state),
                                    "generator": lr.generator.get_state()} for lr in self.learners.values()},
-            "partners": {self.names[i]: {"describe": describe_agent(p.describe()), "state": p.state_dict()}
-                         for i, p in self.partners.items()},
+            "partners": {self.names[i]: watcher_state(p) for i, p in self.partners.items()},
+            "teachers": {self.names[i]: watcher_state(p) for i, p in self.teachers.items()},
             "torch_rng": torch.get_rng_state(),
         }
         return {"config": self.config.to_dict(), "env_config": self.config.env.to_dict(), "step": self.step,
@@ -370,12 +398,16 @@ class Trainer:
             saved = state["learners"][learner.name]
             learner.state = None if saved["recurrent"] is None else tuple(t.to(self.device) for t in saved["recurrent"])
             learner.generator.set_state(saved["generator"])
-        for i, partner in self.partners.items():
-            saved = state["partners"][self.names[i]]
-            if saved["describe"] != describe_agent(partner.describe()):
-                raise ValueError(f"{path}: the {self.names[i]} partner was {saved['describe']}, now it is "
-                                 f"{describe_agent(partner.describe())}; resume with the same partner")
-            partner.load_state_dict(saved["state"])
+        for kind, watchers in (("partner", self.partners), ("teacher", self.teachers)):
+            for i, policy in watchers.items():
+                saved = state.get(f"{kind}s", {}).get(self.names[i])
+                if saved is None:
+                    raise ValueError(f"{path} holds no {self.names[i]} {kind}, but this run has one; resume with "
+                                     f"the run's own settings")
+                if saved["describe"] != describe_agent(policy.describe()):
+                    raise ValueError(f"{path}: the {self.names[i]} {kind} was {saved['describe']}, now it is "
+                                     f"{describe_agent(policy.describe())}; resume with the same {kind}")
+                policy.load_state_dict(saved["state"])
         torch.set_rng_state(state["torch_rng"])
         self.step, self.iteration = int(ckpt["step"]), int(ckpt["iteration"])
         self.wall_time = float(ckpt.get("wall_time_s", 0.0))
