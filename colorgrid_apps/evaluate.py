@@ -40,15 +40,17 @@ def summarize(batch: EpisodeBatch) -> dict:
     return report
 
 
+def _pickups(batch: EpisodeBatch, agents) -> dict:
+    """Per-episode totals of the agents ``agents`` (an index, or a list summed over): rewards and pickups."""
+    axes = (0, 2) if isinstance(agents, list) else 0
+    goal = batch.goal_pickup[:, :, agents].sum(axis=axes)
+    wrong = batch.wrong_pickup[:, :, agents].sum(axis=axes)
+    return {"block_reward": mean_ci(batch.block_reward[:, :, agents].sum(axis=axes)), "goal_pickups": mean_ci(goal),
+            "wrong_pickups": mean_ci(wrong), "net_pickups": mean_ci(goal - wrong)}, goal - wrong
+
+
 def _agent_metrics(batch: EpisodeBatch, i: int) -> dict:
-    goal = batch.goal_pickup[:, :, i].sum(axis=0)
-    wrong = batch.wrong_pickup[:, :, i].sum(axis=0)
-    entry = {
-        "block_reward": mean_ci(batch.block_reward[:, :, i].sum(axis=0)),
-        "goal_pickups": mean_ci(goal),
-        "wrong_pickups": mean_ci(wrong),
-        "net_pickups": mean_ci(goal - wrong),
-    }
+    entry, _ = _pickups(batch, i)
     probs = batch.goal_probs[i]
     if probs is not None:
         truth = np.take_along_axis(probs, batch.goal[:, :, None], axis=2)[..., 0]  # [T, B]
@@ -64,16 +66,8 @@ def _role_metrics(batch: EpisodeBatch, agents: dict, role: str) -> dict:
     metrics of its agents that hold a belief."""
     config = batch.config
     members = [i for i, r in enumerate(config.roles) if r == role]
-    goal = batch.goal_pickup[:, :, members].sum(axis=(0, 2))
-    wrong = batch.wrong_pickup[:, :, members].sum(axis=(0, 2))
-    entry = {
-        "agents": len(members),
-        "block_reward": mean_ci(batch.block_reward[:, :, members].sum(axis=(0, 2))),
-        "goal_pickups": mean_ci(goal),
-        "wrong_pickups": mean_ci(wrong),
-        "net_pickups": mean_ci(goal - wrong),
-        "net_pickups_per_agent": mean_ci((goal - wrong) / len(members)),
-    }
+    totals, net = _pickups(batch, members)
+    entry = {"agents": len(members), **totals, "net_pickups_per_agent": mean_ci(net / len(members))}
     beliefs = [agents[config.agent_names[i]]["belief"] for i in members if "belief" in agents[config.agent_names[i]]]
     if beliefs:
         entry["belief"] = {"agents": len(beliefs),
@@ -180,37 +174,30 @@ def format_reports(reports: list[dict]) -> str:
 
     config = EnvConfig.from_dict(reports[0]["config"])
     head = [_team_label(r, config) for r in reports]
+    def pickup_rows(label, entries):
+        return [(f"{label} block reward", [ci(e["block_reward"]) for e in entries]),
+                (f"{label} goal pickups", [f"{e['goal_pickups']['mean']:.2f}" for e in entries]),
+                (f"{label} wrong pickups", [f"{e['wrong_pickups']['mean']:.2f}" for e in entries]),
+                (f"{label} net pickups", [ci(e["net_pickups"]) for e in entries])]
+
+    def belief_rows(label, entries):
+        return [(f"{label} belief accuracy", [belief(e, "accuracy", "{:.1%}".format) for e in entries]),
+                (f"{label} belief log-loss", [belief(e, "log_loss", "{:.3f}".format) for e in entries])]
+
     rows = [("team reward", [ci(r["team_reward"]) for r in reports])]
     for name in config.agent_names:
-        rows += [
-            (f"{name} block reward", [ci(r["agents"][name]["block_reward"]) for r in reports]),
-            (f"{name} goal pickups", [f"{r['agents'][name]['goal_pickups']['mean']:.2f}" for r in reports]),
-            (f"{name} wrong pickups", [f"{r['agents'][name]['wrong_pickups']['mean']:.2f}" for r in reports]),
-            (f"{name} net pickups", [ci(r["agents"][name]["net_pickups"]) for r in reports]),
-        ]
+        rows += pickup_rows(name, [r["agents"][name] for r in reports])
     for i in config.followers:
-        name = config.agent_names[i]
-        rows += [
-            (f"{name} belief accuracy", [belief(r["agents"][name], "accuracy", "{:.1%}".format) for r in reports]),
-            (f"{name} belief log-loss", [belief(r["agents"][name], "log_loss", "{:.3f}".format) for r in reports]),
-        ]
+        rows += belief_rows(config.agent_names[i], [r["agents"][config.agent_names[i]] for r in reports])
     rows += [("wall time", [f"{r['wall_seconds']:.2f} s" for r in reports])]
     role_rows = []
     if not config.one_to_one:
         for role in ROLES:
             label = f"{role}s ({reports[0]['roles'][role]['agents']})"
-            role_rows += [
-                (f"{label} block reward", [ci(r["roles"][role]["block_reward"]) for r in reports]),
-                (f"{label} goal pickups", [f"{r['roles'][role]['goal_pickups']['mean']:.2f}" for r in reports]),
-                (f"{label} wrong pickups", [f"{r['roles'][role]['wrong_pickups']['mean']:.2f}" for r in reports]),
-                (f"{label} net pickups", [ci(r["roles"][role]["net_pickups"]) for r in reports]),
-                (f"{label} net per agent", [ci(r["roles"][role]["net_pickups_per_agent"]) for r in reports]),
-            ]
+            role_rows += pickup_rows(label, [r["roles"][role] for r in reports]) + [
+                (f"{label} net per agent", [ci(r["roles"][role]["net_pickups_per_agent"]) for r in reports])]
         label = f"followers ({reports[0]['roles']['follower']['agents']})"
-        role_rows += [
-            (f"{label} belief accuracy", [belief(r["roles"]["follower"], "accuracy", "{:.1%}".format) for r in reports]),
-            (f"{label} belief log-loss", [belief(r["roles"]["follower"], "log_loss", "{:.3f}".format) for r in reports]),
-        ]
+        role_rows += belief_rows(label, [r["roles"]["follower"] for r in reports])
     labels = max(26, *(len(label) + 2 for label, _ in rows + role_rows))
     width = max(18, *(len(h) for h in head))
 
