@@ -133,15 +133,19 @@ function onRoom(msg) {
   else status(first ? "room open: send the link to the person you lead with" : "");
 }
 
+function backToSetup(clearLink = true) {  // out of a room (or a game that was not made), back to the choices
+  room = null;
+  if (clearLink) history.replaceState(null, "", "/");
+  $("countdown").hidden = true;
+  $("room").hidden = true;
+  $("setup").hidden = false;
+}
+
 function onMessage(msg) {
   if (msg.type === "room") {
     onRoom(msg);
   } else if (msg.type === "room_closed") {
-    room = null;
-    history.replaceState(null, "", "/");
-    $("room").hidden = true;
-    $("countdown").hidden = true;
-    $("setup").hidden = false;
+    backToSetup();
     status(plainRoomClosed(msg), "error", `room_closed: ${msg.reason}: ${msg.message}`);
   } else if (msg.type === "welcome") {
     game = { ...msg, over: false };
@@ -194,11 +198,7 @@ function onMessage(msg) {
     const roomWords = plainRoomError(msg);
     if (!game && (!room || roomWords)) {  // the game or room was not made (or could not be resumed): back to the setup
       sessionStorage.removeItem("colorgrid-game");
-      if (roomWords) history.replaceState(null, "", "/");
-      room = null;
-      $("countdown").hidden = true;
-      $("room").hidden = true;
-      $("setup").hidden = false;
+      backToSetup(Boolean(roomWords));
     }
     status(roomWords ?? plainError(msg, options.horizon.max), "error", detail);
   } else if (msg.type === "replaced") {
@@ -287,10 +287,7 @@ $("join").addEventListener("click", () => joinRoom($("join-code").value.trim()))
 $("ready").addEventListener("click", () => socket?.send(JSON.stringify({ type: "ready", ready: !room?.ready })));
 $("leave-room").addEventListener("click", () => {
   socket?.send(JSON.stringify({ type: "quit" }));
-  room = null;
-  history.replaceState(null, "", "/");
-  $("room").hidden = true;
-  $("setup").hidden = false;
+  backToSetup();
   status("");
 });
 $("copy-link").addEventListener("click", () => navigator.clipboard?.writeText($("room-link").href));
