@@ -180,6 +180,7 @@ def create_app(settings: ServerSettings | None = None, study=None) -> FastAPI:
                 "max_sessions": settings.max_sessions, "connections": len(sockets.open),
                 "follower_pools": len(hub.pools), "tick_hz": settings.tick_hz,
                 "inference_pid": hub.inference.pid, "inference_restarts": max(0, hub.inference.generation - 1),
+                "inference_failed_starts": hub.inference.failed_starts,
                 "tick_lateness_p50_ms": pct(0.5), "tick_lateness_p99_ms": pct(0.99), **hub.stats}
 
     @app.get("/api/options")

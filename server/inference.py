@@ -9,7 +9,9 @@ If the worker dies (killed, out of memory), the call that finds it dead fails an
 one at once; each pool's policy is rebuilt there when next used. Until the new process has
 loaded it (imports, and a network's weights: a second or more), that pool's calls miss their
 deadline and its games take the documented fallback move; then they go on, each follower's
-belief starting afresh.
+belief starting afresh. A process that dies before it has answered a call (it cannot start: a
+broken install, no memory) is started again only after a wait that doubles with each such death
+(``backoff`` seconds, then twice that, up to a minute); calls meanwhile fail at once.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ from __future__ import annotations
 import logging
 import multiprocessing
 import threading
+import time
 from itertools import count
 
 import numpy as np
@@ -39,12 +42,19 @@ class InferenceWorker:
     """The worker process and the pipe to it. ``call`` is made from one thread at a time (the hub's inference
     thread); a lock keeps requests and replies paired even if two threads call."""
 
-    def __init__(self):
+    MAX_BACKOFF = 60.0
+
+    def __init__(self, target=None, backoff: float = 0.5):
+        self._target = target or serve  # what the process runs (a module-level function of its pipe's end)
         self._lock = threading.Lock()
         self._process = None
         self._conn = None
         self.generation = 0  # counts the processes started: a policy built in an older one must be rebuilt
         self.closed = False
+        self.backoff = backoff
+        self.failed_starts = 0  # processes in a row that died before answering a call
+        self._answered = False
+        self._retry_at = 0.0
 
     def _ensure(self, op: str) -> None:
         """A running process for ``op``; if it had died, a new one, and ``InferenceLost`` unless ``op`` builds."""
@@ -57,14 +67,23 @@ class InferenceWorker:
 
     def _start(self) -> None:
         if self._process is not None:
-            log.error("the inference process ended (exit code %s); starting a new one", self._process.exitcode)
             self._conn.close()
+            self.failed_starts = 0 if self._answered else self.failed_starts + 1
+            wait = min(self.MAX_BACKOFF, self.backoff * 2 ** (self.failed_starts - 1)) if self.failed_starts else 0.0
+            self._retry_at = time.monotonic() + wait
+            log.error("the inference process ended (exit code %s); %s", self._process.exitcode,
+                      f"it had not started: trying again in {wait:.1f} s" if wait else "starting a new one")
+            self._process = self._conn = None
+        if time.monotonic() < self._retry_at:
+            raise InferenceLost(f"the inference process failed to start {self.failed_starts} time(s) in a row; next "
+                                f"try in {self._retry_at - time.monotonic():.1f} s")
         ctx = multiprocessing.get_context("spawn")  # the server has threads: forking it would copy held locks
         parent, child = ctx.Pipe()
-        self._process = ctx.Process(target=serve, args=(child,), name="colorgrid-inference", daemon=True)
+        self._process = ctx.Process(target=self._target, args=(child,), name="colorgrid-inference", daemon=True)
         self._process.start()
         child.close()
         self._conn = parent
+        self._answered = False
         self.generation += 1
 
     def call(self, op: str, *args):
@@ -80,8 +99,13 @@ class InferenceWorker:
             except (EOFError, OSError) as err:
                 self._process.join(1.0)
                 if not self._process.is_alive():
-                    self._start()  # a new process loads while the games take the fallback move
+                    try:
+                        self._start()  # a new process loads while the games take the fallback move
+                    except InferenceLost:  # or, if this one never started, after a wait
+                        pass
                 raise InferenceLost(f"the inference process ended during {op!r} ({type(err).__name__})") from None
+            self._answered = True
+            self.failed_starts = 0
         if status == "error":
             kind, message = value
             raise (ValueError if kind == "ValueError" else InferenceError)(message)

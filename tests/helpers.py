@@ -57,3 +57,8 @@ class Inbox:
 
     def last(self, kind: str) -> dict:
         return [m for m in self.messages if m["type"] == kind][-1]
+
+
+def dies_at_start(conn) -> None:
+    """An inference process that cannot start (as with a broken install): it exits before answering."""
+    raise SystemExit(3)

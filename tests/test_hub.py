@@ -161,6 +161,33 @@ def test_inference_runs_in_its_own_process_and_a_killed_one_costs_one_step_not_t
     assert replay.meta["deadline_misses"] == [4]
 
 
+def test_an_inference_process_that_cannot_start_is_tried_again_after_a_growing_wait():
+    """Not spawned again on every call (each spawn costs a second of CPU): calls fail at once while it waits."""
+    from server.inference import InferenceLost, InferenceWorker
+    from tests.helpers import dies_at_start
+
+    patient = InferenceWorker(target=dies_at_start, backoff=60.0)
+    with pytest.raises(InferenceLost, match="ended during 'ping'"):
+        patient.call("ping")
+    for _ in range(5):
+        with pytest.raises(InferenceLost, match=r"failed to start 1 time\(s\) in a row; next try in"):
+            patient.call("ping")
+    assert patient.generation == 1 and patient.pid is None  # one process, and none since
+    patient.stop()
+
+    eager = InferenceWorker(target=dies_at_start, backoff=0.05)
+    for tries in (1, 2):
+        with pytest.raises(InferenceLost, match="ended during 'ping'"):
+            eager.call("ping")
+        assert eager.generation == tries and eager.failed_starts == tries
+        time.sleep(0.5)  # longer than the waits of 0.05 s and 0.1 s
+    eager.stop()
+
+    healthy = InferenceWorker(backoff=60.0)  # the real process answers: nothing to wait for
+    assert healthy.call("ping") is None and healthy.failed_starts == 0
+    healthy.stop()
+
+
 def test_a_follower_that_cannot_be_built_is_refused_with_its_reason_and_the_process_serves_on(tmp_path):
     async def scenario():
         hub = make_hub(tmp_path)
