@@ -83,7 +83,7 @@ def test_the_temperature_is_recorded_in_the_policy_description():
     ("ippo:temperature=0.001", ["temperature=0.001 is invalid"]),  # logits / 0.001 would overflow float32
     ("ippo:temperature=true", ["temperature=True is invalid"]),
     ("ippo:temperature=hot", ["temperature='hot' is invalid"]),
-    ("ippo:heat=1", ["unknown parameter(s) ['heat']", "allowed: ['temperature']"]),
+    ("ippo:heat=1", ["unknown parameter(s) ['heat']", "allowed: ['temperature', 'min_belief']"]),
     (f"{CHECKPOINT}:heat=1", ["unknown parameter(s) ['heat']", "a checkpoint path ending in .pt"]),
     ("ippo:temperature", ["expected NAME:KEY=VALUE"]),
 ])
@@ -118,3 +118,61 @@ def test_an_exported_checkpoint_carries_how_it_acts_and_a_name_can_override_it(t
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "temperature=-2.0 is invalid" in bad.stderr and len(bad.stderr.splitlines()) == 1
     assert not (tmp_path / "bad.pt").exists()
+
+
+# ------------------------------------------------------------------ min_belief
+def test_unsure_moves_are_the_moves_onto_blocks_the_belief_doubts():
+    """A hand-built board: the follower at (2, 2) with a block of color 0 above, color 1 below, color 2 to the
+    left, nothing to the right (actions: up, down, left, right)."""
+    from train.policy import unsure_moves
+    from colorgrid.env import move_table
+
+    config = EnvConfig(height=5, width=5, block_density=0.2)
+    obs = np.zeros((2, config.num_colors + config.num_agents, 5, 5), dtype=np.uint8)
+    obs[:, 0, 1, 2] = obs[:, 1, 3, 2] = obs[:, 2, 2, 1] = 1
+    obs[:, config.num_colors + 0, 0, 0] = 1  # the leader, far away
+    obs[:, config.num_colors + FOLLOWER, 2, 2] = 1
+    belief = np.array([[0.8, 0.15, 0.05], [0.5, 0.45, 0.05]], dtype=np.float32)
+    moves = move_table(config)[FOLLOWER]
+    unsure = unsure_moves(obs, belief, moves, config, FOLLOWER, 0.6)
+    assert unsure[:, :4].tolist() == [[False, True, True, False], [True, True, True, False]]
+    obs[:, 0, 2, 3] = 1  # boxed in by blocks: every move would be unsure, so none is taken out
+    assert not unsure_moves(obs, belief[1:], moves, config, FOLLOWER, 0.6).any()
+
+
+def test_min_belief_keeps_the_follower_off_blocks_it_is_unsure_of():
+    """min_belief=1 (no belief is ever quite 1): it collects only where every move is onto a block; 0 leaves it."""
+    free, strict = play("ippo"), play("ippo:min_belief=1")
+    collected = lambda batch: int((batch.picked_color[:, :, FOLLOWER] >= 0).sum())  # noqa: E731
+    assert collected(free) > 20 and collected(strict) <= 2
+    assert (play("ippo:min_belief=0").actions == free.actions).all()
+    assert make_policy("ippo-cautious:min_belief=0.7", "follower").describe()["min_belief"] == 0.7
+    assert "min_belief" not in make_policy("ippo", "follower").describe()
+
+
+@pytest.mark.parametrize("value", ["-0.1", "1.5", "true", "high"])
+def test_a_bad_min_belief_is_refused_in_one_line(value):
+    with pytest.raises(ValueError) as err:
+        make_policy(f"ippo:min_belief={value}", "follower")
+    assert "min_belief=" in str(err.value) and "a number in [0, 1]" in str(err.value) and "\n" not in str(err.value)
+
+
+def test_an_exported_checkpoint_carries_its_min_belief(tmp_path):
+    import json
+    import subprocess
+    import sys
+
+    careful = tmp_path / "careful.pt"
+    root = Path(__file__).resolve().parents[1]
+    export = [sys.executable, "-m", "colorgrid_apps", "checkpoint", "export", CHECKPOINT, "--agent", "follower"]
+    done = subprocess.run(export + ["--min-belief", "0.8", "--out", str(careful)], cwd=root, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert (play(str(careful)).actions == play("ippo:min_belief=0.8").actions).all()
+    assert (play(f"{careful}:min_belief=0").actions == play("ippo").actions).all()
+    info = subprocess.run([sys.executable, "-m", "colorgrid_apps", "checkpoint", "info", str(careful)], cwd=root,
+                          capture_output=True, text=True, timeout=120)
+    assert json.loads(info.stdout)["min_belief"] == {"follower": 0.8}
+    bad = subprocess.run(export + ["--min-belief", "2", "--out", str(tmp_path / "bad.pt")], cwd=root,
+                         capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and "--min-belief: min_belief=2.0 is invalid" in bad.stderr, bad.stderr

@@ -32,7 +32,7 @@ import torch
 from colorgrid.config import ROLES, EnvConfig
 from colorgrid.files import atomic_path
 from colorgrid.configkit import from_dict
-from train.acting import check_temperature
+from train.acting import ACTING
 from train.config import NetConfig, TrainConfigError
 from train.nets import ActorCritic
 
@@ -149,7 +149,7 @@ def build_model(entry: dict, env: EnvConfig, what: str) -> ActorCritic:
     with torch.random.fork_rng(devices=[]):  # the weights are overwritten: their random init must not move
         model = ActorCritic(net, env, agents if len(agents) > 1 else agents[0])  # torch's generator (see below)
     load_weights(model, entry["state_dict"], what)
-    model.temperature = check_temperature(entry.get("temperature", 1.0), what)  # how the file says to act
+    model.acting = {k: check(entry[k], what) for k, (check, _) in ACTING.items() if k in entry}  # how it says to act
     return model
 
 
@@ -166,17 +166,20 @@ def load_weights(model: ActorCritic, state_dict: dict, what: str) -> None:
     model.load_state_dict(state_dict)
 
 
-def export_agent(src: str | Path, role: str, dst: str | Path, temperature: float | None = None) -> Path:
+def export_agent(src: str | Path, role: str, dst: str | Path, temperature: float | None = None,
+                 min_belief: float | None = None) -> Path:
     """Keep only one network's weights and configs (no optimizer, no trainer state): a small file to ship.
-    ``role`` names it as ``find_network`` takes it (an agent's name, or a role). ``temperature`` is stored
-    as how the network acts wherever the file (or a shipped name for it) is loaded without one; None keeps
-    the source's (1, sampling as trained, unless it was exported with another)."""
+    ``role`` names it as ``find_network`` takes it (an agent's name, or a role). ``temperature`` and
+    ``min_belief`` (``train.policy.NetPolicy``) are stored as how the network acts wherever the file (or a
+    shipped name for it) is loaded without them; None keeps the source's (by default sampling as trained,
+    every move allowed)."""
     ckpt = load_checkpoint(src)
     key, entry = find_network(ckpt, EnvConfig.from_dict(ckpt["env_config"]), role, str(src))
     agents = {name: None for name in ckpt["agents"]}
     agents[key] = {**entry, "optimizer": None}
-    if temperature is not None:
-        agents[key]["temperature"] = check_temperature(temperature, "--temperature")
+    for name, value in (("temperature", temperature), ("min_belief", min_belief)):
+        if value is not None:
+            agents[key][name] = ACTING[name][0](value, f"--{name.replace('_', '-')}")
     return save_checkpoint(dst, {"config": ckpt["config"], "env_config": ckpt["env_config"], "step": ckpt["step"],
                                  "iteration": ckpt.get("iteration"), "wall_time_s": ckpt.get("wall_time_s"),
                                  "device": ckpt.get("device"), "agents": agents, "trainer_state": None})

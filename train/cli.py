@@ -37,6 +37,9 @@ def add_train_commands(sub) -> None:
     ck.add_argument("--temperature", type=float,
                     help="export: how the network acts wherever the file is loaded without a temperature of its "
                          "own (1 samples as trained, 0 is greedy; default: the source's)")
+    ck.add_argument("--min-belief", type=float,
+                    help="export: the least belief in a block's color at which the network may step onto it, "
+                         "wherever the file is loaded without one of its own (0: every move; default: the source's)")
     ck.add_argument("--command", dest="train_command", default="",  # not "command": that names the sub-command
                     help="card: the command that trained it")
     ck.set_defaults(func=cmd_checkpoint)
@@ -111,14 +114,15 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def cmd_checkpoint(args: argparse.Namespace) -> int:
+    from train.acting import ACTING
     from train.checkpoint import export_agent, load_checkpoint
 
     if args.action == "info":
         ckpt = load_checkpoint(args.path)
         agents = {k: (v["net"] if v else None) for k, v in ckpt["agents"].items()}
-        acting = {k: v.get("temperature", 1.0) for k, v in ckpt["agents"].items() if v}
-        print(json.dumps({"step": ckpt["step"], "iteration": ckpt.get("iteration"), "agents": agents,
-                          "temperature": acting,
+        acting = {name: {k: v.get(name, default) for k, v in ckpt["agents"].items() if v}
+                  for name, (_, default) in ACTING.items()}
+        print(json.dumps({"step": ckpt["step"], "iteration": ckpt.get("iteration"), "agents": agents, **acting,
                           "env_config": ckpt["env_config"], "resumable": ckpt.get("trainer_state") is not None},
                          indent=2))
         return 0
@@ -129,7 +133,7 @@ def cmd_checkpoint(args: argparse.Namespace) -> int:
 
         print(f"wrote {write_card(args.path, args.agent, args.run, args.train_command, args.out)}")
         return 0
-    path = export_agent(args.path, args.agent, args.out, args.temperature)
+    path = export_agent(args.path, args.agent, args.out, args.temperature, args.min_belief)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
     return 0
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from train.acting import ACTING
 from train.model_cache import ModelCache
 
 CHECKPOINTS_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
@@ -18,22 +19,22 @@ trained further beside a population of person-like leaders, that one trained fur
 and the IPPO leader (see their model cards)."""
 
 
-def shipped_policy(name: str, role: str | None, cache: ModelCache | None = None, temperature: float | None = None):
+def shipped_policy(name: str, role: str | None, cache: ModelCache | None = None, **acting):
     path = CHECKPOINTS_DIR / SHIPPED[name]
     if not path.is_file():
         raise ValueError(f"the shipped checkpoint for {name!r} is missing: {path} (it is part of the repository)")
     from train.policy import load_policy
 
-    policy = load_policy(path, role=role, temperature=temperature, cache=cache)
+    policy = load_policy(path, role=role, cache=cache, **acting)
     policy.name = name
     return policy
 
 
-def checkpoint_policy(path: str, role: str | None, cache: ModelCache | None = None,
-                      temperature: float | None = None):
+def checkpoint_policy(path: str, role: str | None, cache: ModelCache | None = None, **acting):
+    """``acting``: settings from the name (``x.pt:min_belief=0.7``), see ``train.policy.NetPolicy``."""
     from train.policy import load_policy
 
-    return load_policy(path, role=role, temperature=temperature, cache=cache)
+    return load_policy(path, role=role, cache=cache, **acting)
 
 
 def register_policies() -> None:
@@ -43,6 +44,6 @@ def register_policies() -> None:
     cache = ModelCache()
     for name in SHIPPED:
         register_policy(name, lambda role, name=name, **params: shipped_policy(name, role, cache, **params),
-                        params=("temperature",))
+                        params=tuple(ACTING))
     register_loader(".pt", lambda path, role, **params: checkpoint_policy(path, role, cache, **params),
-                    "a checkpoint path ending in .pt", params=("temperature",))
+                    "a checkpoint path ending in .pt", params=tuple(ACTING))

@@ -8,8 +8,10 @@ import numpy as np
 import torch
 
 from colorgrid.config import EnvConfig
+from colorgrid.env import move_table
 from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
-from train.acting import check_temperature
+from colorgrid.policies.grid import decode
+from train.acting import ACTING, check_min_belief, check_temperature
 from train.inputs import step_tensors
 from train.nets import ActorCritic
 
@@ -19,14 +21,18 @@ class NetPolicy(Policy):
 
     ``temperature`` is the acting temperature: actions are sampled from ``softmax(logits / temperature)``;
     1 (the default) samples as the network was trained, 0 takes the most likely action (greedy), values
-    between sharpen the sampling. Keeps one recurrent state per env row, cleared at episode starts. A
-    network shared by several agents plays any one of them (the one ``reset`` names).
+    between sharpen the sampling. ``min_belief`` (0: off) keeps the agent off any block whose color its own
+    belief (the goal head) gives less than that: such moves are taken out before sampling, unless every
+    move is one. Keeps one recurrent state per env row, cleared at episode starts. A network shared by
+    several agents plays any one of them (the one ``reset`` names).
     """
 
-    def __init__(self, model: ActorCritic, name: str = "net", temperature: float = 1.0, source: str | None = None):
+    def __init__(self, model: ActorCritic, name: str = "net", temperature: float = 1.0, source: str | None = None,
+                 min_belief: float = 0.0):
         self.model = model
         self.name = name
         self.temperature = check_temperature(temperature, source or name)
+        self.min_belief = check_min_belief(min_belief, source or name)
         self.source = source
         self.device = next(model.parameters()).device
 
@@ -39,6 +45,7 @@ class NetPolicy(Policy):
                              f"{config.agent_names[agent_index]}")
         self.state = self.model.initial_state(num_envs, self.device)
         self.generator = torch.Generator().manual_seed(int(seed) * 2 + agent_index)
+        self.moves = move_table(config)[agent_index] if self.min_belief else None  # [H*W, actions]: where each leads
 
     def state_dict(self) -> dict:
         """The recurrent state and the sampling generator (the weights come from the checkpoint)."""
@@ -64,21 +71,38 @@ class NetPolicy(Policy):
         if self.state is not None:
             self.state[0][:, rows_idx], self.state[1][:, rows_idx] = new_state
         logits = logits[0].cpu()
+        probs = torch.softmax(goal_logits[0], dim=1).cpu().numpy().astype(np.float32)
+        if self.min_belief:
+            risky = unsure_moves(inp.observation, probs, self.moves, self.config, self.agent_index, self.min_belief)
+            logits = logits.masked_fill(torch.from_numpy(risky[:, :logits.shape[1]]), -torch.inf)
         if self.temperature == 0:
             actions = logits.argmax(dim=1)
         else:
-            probs = torch.softmax(logits if self.temperature == 1 else logits / self.temperature, dim=1)
-            actions = torch.multinomial(probs, 1, generator=self.generator)[:, 0]
-        probs = torch.softmax(goal_logits[0], dim=1).cpu().numpy().astype(np.float32)
+            chances = torch.softmax(logits if self.temperature == 1 else logits / self.temperature, dim=1)
+            actions = torch.multinomial(chances, 1, generator=self.generator)[:, 0]
         return PolicyOutput(actions.numpy().astype(np.int64), probs)
 
     def describe(self) -> dict:
         d = {"policy": self.name, "arch": self.model.net.arch, "lstm": self.model.net.lstm}
         if self.temperature != 1:  # as trained is the default, and what replays without the field played
             d["temperature"] = self.temperature
+        if self.min_belief:
+            d["min_belief"] = self.min_belief
         if self.source:
             d["checkpoint"] = self.source
         return d
+
+
+def unsure_moves(observation: np.ndarray, belief: np.ndarray, moves: np.ndarray, config: EnvConfig, agent: int,
+                 min_belief: float) -> np.ndarray:
+    """``[B, actions]`` bool: the moves of ``agent`` onto a block whose color ``belief [B, C]`` gives less than
+    ``min_belief``; none in a row where every move is one (the agent must go somewhere)."""
+    block_color, cells = decode(observation, config)
+    B = len(block_color)
+    ahead = block_color.reshape(B, -1)[np.arange(B)[:, None], moves[cells[:, agent]]]  # [B, actions]
+    unsure = (ahead >= 0) & (np.take_along_axis(belief, np.maximum(ahead, 0), axis=1) < min_belief)
+    unsure[unsure.all(axis=1)] = False
+    return unsure
 
 
 def check_compatible(trained: EnvConfig, wanted: EnvConfig, what: str) -> None:
@@ -100,17 +124,19 @@ def check_compatible(trained: EnvConfig, wanted: EnvConfig, what: str) -> None:
 
 
 def load_policy(path: str | Path, role: str | None = None, temperature: float | None = None,
-                cache: "ModelCache | None" = None) -> NetPolicy:
+                cache: "ModelCache | None" = None, min_belief: float | None = None) -> NetPolicy:
     """A ``NetPolicy`` from a checkpoint: the network of ``role`` (see ``find_network``; default: the only
-    trained one), acting at ``temperature`` (see ``NetPolicy``; None: the one the file stores, else 1).
+    trained one), acting at ``temperature`` and ``min_belief`` (see ``NetPolicy``; None: what the file
+    stores, else the default: sampling as trained, every move allowed).
 
     With a ``cache`` the network comes from it (shared with other policies of the same file);
     each policy keeps its own recurrent state and random generator.
     """
     model = cache.get(path, role) if cache is not None else load_model(path, role)
-    if temperature is None:
-        temperature = getattr(model, "temperature", 1.0)
-    return NetPolicy(model, name=f"{Path(path).stem}", temperature=temperature, source=str(path))
+    given = {"temperature": temperature, "min_belief": min_belief}
+    acting = {k: getattr(model, "acting", {}).get(k, default) if given[k] is None else given[k]
+              for k, (_, default) in ACTING.items()}
+    return NetPolicy(model, name=f"{Path(path).stem}", source=str(path), **acting)
 
 
 def load_model(path: str | Path, role: str | None) -> ActorCritic:
