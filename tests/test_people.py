@@ -55,6 +55,34 @@ def test_a_late_leader_pursues_the_old_goal_for_exactly_k_steps_after_a_switch(d
     assert len(lags) > 20 and set(lags) == {delay}, lags
 
 
+def test_a_leader_with_a_delay_range_notices_each_switch_after_a_delay_drawn_from_it():
+    config = EnvConfig(switch_prob=0.05, horizon=200)
+    leader = PersonLeader(PersonStyle(notice_delay=1, notice_delay_max=4))
+    goals, pursued = [], []
+    for inp, _, _, _ in drive(leader, config):
+        goals.append(inp.goal_info.argmax(axis=1))
+        pursued.append(leader.target.copy())
+    goals, pursued = np.array(goals), np.array(pursued)
+    lags = []
+    for e in range(goals.shape[1]):
+        for t in np.nonzero(goals[1:, e] != goals[:-1, e])[0] + 1:
+            stable = goals[t:t + 5, e]
+            if pursued[t - 1, e] == goals[t - 1, e] and len(stable) == 5 and (stable == goals[t, e]).all():
+                lags.append(int(np.argmax(pursued[t:, e] == goals[t, e])))
+    counts = np.bincount(lags, minlength=5)
+    assert counts[0] == 0 and counts[1:].min() >= 5 and len(lags) > 40, counts  # every delay 1..4, none other
+
+
+def test_the_varied_population_adds_one_training_member_and_keeps_the_held_out_part():
+    from colorgrid.policies.population import load_population
+
+    base, varied = load_population("people#training"), load_population("people_varied#training")
+    assert varied == {**base, "late_0to4": "person:notice_delay=0,notice_delay_max=4"}
+    assert load_population("people_varied#held_out") == load_population("people#held_out")
+    with pytest.raises(ValueError, match="notice_delay_max must be"):
+        PersonStyle(notice_delay=3, notice_delay_max=2)
+
+
 def test_slips_happen_at_their_rate_within_a_binomial_bound():
     """A slip is a uniform move, so it differs from the A* leader's move on the same input 3/4 of the time."""
     slip, config = 0.2, EnvConfig(horizon=128)

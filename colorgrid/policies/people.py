@@ -33,6 +33,9 @@ class PersonStyle:
     """Probability, each step, of a uniformly random move instead of the intended one."""
     notice_delay: int = 0
     """Steps the leader keeps pursuing the old goal after a switch (exactly this many)."""
+    notice_delay_max: int | None = None
+    """With a value, each switch's delay is drawn anew, uniformly from ``notice_delay`` to this (a person
+    notices some switches sooner than others). None: always ``notice_delay``."""
     rationality: float | None = None
     """Boltzmann rationality beta: moves are drawn with probability proportional to
     exp(-beta * distance to the target after the move). None: always a shortest step."""
@@ -49,6 +52,8 @@ class PersonStyle:
         for name in ("slip", "wrong_pickup", "hesitate", "detour"):
             check_number(self, name, "a probability in [0, 1]", lambda v: 0.0 <= v <= 1.0)
         check_int(self, "notice_delay", 0, 10_000)
+        if self.notice_delay_max is not None:
+            check_int(self, "notice_delay_max", self.notice_delay, 10_000)
         check_int(self, "detour_len", 1, 1000)
         if self.rationality is not None:
             check_number(self, "rationality", "a number > 0, or null for shortest steps", lambda v: v > 0)
@@ -66,7 +71,7 @@ class PersonLeader(Seeker):
 
     name = "person"
     Params = PersonStyle
-    state_fields = ("target", "pending", "distracted", "last_action", "detour_left", "detour_dir")
+    state_fields = ("target", "pending", "delay", "distracted", "last_action", "detour_left", "detour_dir")
 
     def __init__(self, style: PersonStyle | None = None):
         self.style = style or PersonStyle()
@@ -78,6 +83,7 @@ class PersonLeader(Seeker):
         super().reset(config, num_envs, agent_index, seed)
         self.target = np.full(num_envs, -1, dtype=np.int64)  # the goal it pursues (lags the true one when late)
         self.pending = np.zeros(num_envs, dtype=np.int64)  # steps since it could have seen a new goal
+        self.delay = np.full(num_envs, self.style.notice_delay, dtype=np.int64)  # the pending switch's delay
         self.distracted = np.full(num_envs, -1, dtype=np.int64)  # a wrong color it is after, -1 if none
         self.last_action = np.full(num_envs, -1, dtype=np.int64)
         self.detour_left = np.zeros(num_envs, dtype=np.int64)
@@ -97,10 +103,14 @@ class PersonLeader(Seeker):
         target[start], pending[start], distracted[start], last[start], detour_left[start] = goal[start], 0, -1, -1, 0
         u = self.rng.random((n, 6))  # one draw per departure, per env and step
 
-        # late noticing: a new goal is pursued only after notice_delay steps
+        # late noticing: a new goal is pursued only after notice_delay steps (or a delay drawn for this switch)
         differs = goal != target
+        delay = self.delay[rows]
+        if style.notice_delay_max is not None:
+            fresh = differs & (pending == 0)
+            delay[fresh] = self.rng.integers(style.notice_delay, style.notice_delay_max + 1, int(fresh.sum()))
         pending = np.where(differs, pending + 1, 0)
-        noticed = differs & (pending > style.notice_delay)
+        noticed = differs & (pending > delay)
         target[noticed], pending[noticed] = goal[noticed], 0
 
         # wrong pickups: now and then it sets off after a wrong color, until it collects a block
@@ -136,7 +146,7 @@ class PersonLeader(Seeker):
         slips = (u[:, 3] >= 1.0 - style.slip)
         actions[slips] = (u[slips, 4] * 4).astype(np.int64)
 
-        self.target[rows], self.pending[rows], self.distracted[rows] = target, pending, distracted
+        self.target[rows], self.pending[rows], self.delay[rows], self.distracted[rows] = target, pending, delay, distracted
         self.last_action[rows], self.detour_left[rows], self.detour_dir[rows] = actions, detour_left, detour_dir
         return PolicyOutput(actions)
 
