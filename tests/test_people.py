@@ -39,7 +39,13 @@ def drive(leader, config, num_envs=16, steps=None, seed=3, shadow=None):
 @pytest.mark.parametrize("delay", [0, 1, 4])
 def test_a_late_leader_pursues_the_old_goal_for_exactly_k_steps_after_a_switch(delay):
     config = EnvConfig(switch_prob=0.05, horizon=200)
-    leader = PersonLeader(PersonStyle(notice_delay=delay))
+    lags = notice_lags(PersonLeader(PersonStyle(notice_delay=delay)), config, longest=delay)
+    assert len(lags) > 20 and set(lags) == {delay}, lags
+
+
+def notice_lags(leader: PersonLeader, config: EnvConfig, longest: int) -> list[int]:
+    """Steps from each switch until the leader pursues the new goal, over switches it had settled before and
+    whose goal then held for ``longest + 1`` steps."""
     goals, pursued = [], []
     for inp, _, _, _ in drive(leader, config):
         goals.append(inp.goal_info.argmax(axis=1))
@@ -48,27 +54,16 @@ def test_a_late_leader_pursues_the_old_goal_for_exactly_k_steps_after_a_switch(d
     lags = []
     for e in range(goals.shape[1]):
         for t in np.nonzero(goals[1:, e] != goals[:-1, e])[0] + 1:
-            stable = goals[t:t + delay + 1, e]
+            stable = goals[t:t + longest + 1, e]
             settled = pursued[t - 1, e] == goals[t - 1, e]  # it had noticed the goal before this switch
-            if settled and len(stable) == delay + 1 and (stable == goals[t, e]).all():
+            if settled and len(stable) == longest + 1 and (stable == goals[t, e]).all():
                 lags.append(int(np.argmax(pursued[t:, e] == goals[t, e])))
-    assert len(lags) > 20 and set(lags) == {delay}, lags
+    return lags
 
 
 def test_a_leader_with_a_delay_range_notices_each_switch_after_a_delay_drawn_from_it():
     config = EnvConfig(switch_prob=0.05, horizon=200)
-    leader = PersonLeader(PersonStyle(notice_delay=1, notice_delay_max=4))
-    goals, pursued = [], []
-    for inp, _, _, _ in drive(leader, config):
-        goals.append(inp.goal_info.argmax(axis=1))
-        pursued.append(leader.target.copy())
-    goals, pursued = np.array(goals), np.array(pursued)
-    lags = []
-    for e in range(goals.shape[1]):
-        for t in np.nonzero(goals[1:, e] != goals[:-1, e])[0] + 1:
-            stable = goals[t:t + 5, e]
-            if pursued[t - 1, e] == goals[t - 1, e] and len(stable) == 5 and (stable == goals[t, e]).all():
-                lags.append(int(np.argmax(pursued[t:, e] == goals[t, e])))
+    lags = notice_lags(PersonLeader(PersonStyle(notice_delay=1, notice_delay_max=4)), config, longest=4)
     counts = np.bincount(lags, minlength=5)
     assert counts[0] == 0 and counts[1:].min() >= 5 and len(lags) > 40, counts  # every delay 1..4, none other
 
