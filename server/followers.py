@@ -14,10 +14,15 @@ from colorgrid.step_inputs import StepInputs
 from server.inference import InferenceWorker, RemotePolicy
 
 
-def plays_in_teams(name: str) -> bool:
-    """Whether a follower can play in a team other than 1:1: the scripted ones play at any agent index of any
-    team; trained networks (and checkpoints) read the 1:1 team's observation."""
+def is_scripted(name: str) -> bool:
+    """A scripted follower (cheap to build, plays at any agent index of any team), not a trained network or
+    checkpoint (which reads the 1:1 team's observation and takes a while to load)."""
     return name.partition(":")[0] in SCRIPTED
+
+
+def plays_in_teams(name: str) -> bool:
+    """Whether a follower can play in a team other than 1:1: only the scripted ones."""
+    return is_scripted(name)
 
 
 class FollowerPool:

@@ -12,12 +12,11 @@ from pathlib import Path
 from typing import Protocol
 
 from colorgrid.config import FOLLOWER, EnvConfig
-from colorgrid.policies import SCRIPTED
 from colorgrid.presets import env_config
 from colorgrid.replay import save
 from colorgrid.replay.format import describe_agent
 from colorgrid.roles import scores
-from server.followers import FollowerPool, plays_in_teams
+from server.followers import FollowerPool, is_scripted, plays_in_teams
 from server.inference import InferenceLost, InferenceWorker
 from server.game import STAND_IN, Game, Seat
 from server.protocol import ROOM_COUNTDOWN_S, Mode, Team
@@ -71,8 +70,7 @@ class GameHub:
         self._seed_counter = int(time.time())
         self.stopped = False
         # pools never freed: the default's, and the trained followers' (building one would stall the inference thread)
-        self.keep_warm = {settings.follower, *(f for f in settings.follower_choices
-                                               if f.partition(":")[0] not in SCRIPTED)}
+        self.keep_warm = {settings.follower, *(f for f in settings.follower_choices if not is_scripted(f))}
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
