@@ -56,7 +56,8 @@ FOLLOWER_INFO = {
                                                              "and make mistakes", True),
     "ippo-cautious": ("Cautious trained assistant for people (IPPO)", "the trained assistant for people, trained "
                                                                      "further to take fewer wrong blocks and to read "
-                                                                     "where your moves lead", True),
+                                                                     "where your moves lead; it leaves a block it "
+                                                                     "is unsure of", True),
     "ippo-leader": ("Trained leader (IPPO)", "the trained leader playing the follower's part: for researchers", True),
     "bayes": ("Bayesian assistant", "works out the goal from your moves and pickups, and collects once it is sure",
               True),

@@ -27,7 +27,7 @@ def make_policy(name: str, role: str | None = None) -> Policy:
     """A policy by name: scripted (``SCRIPTED``, with parameters as ``name:key=value,...``), a population
     (``FILE.json[#PART]`` or ``population:NAME[#PART]``), or registered by an installed application (the
     trainer's shipped agents ``ippo``, ``ippo-cautious``, ... and checkpoint files ``*.pt``, which take their
-    acting temperature the same way: ``ippo-cautious:temperature=1``).
+    acting settings the same way: ``ippo-cautious:temperature=1``, ``x.pt:min_belief=0.5``).
 
     For a checkpoint holding both agents, ``role`` (``"leader"``/``"follower"``) says which to load.
     """
