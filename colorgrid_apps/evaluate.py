@@ -40,17 +40,16 @@ def summarize(batch: EpisodeBatch) -> dict:
     return report
 
 
-def _pickups(batch: EpisodeBatch, agents) -> dict:
-    """Per-episode totals of the agents ``agents`` (an index, or a list summed over): rewards and pickups."""
-    axes = (0, 2) if isinstance(agents, list) else 0
-    goal = batch.goal_pickup[:, :, agents].sum(axis=axes)
-    wrong = batch.wrong_pickup[:, :, agents].sum(axis=axes)
-    return {"block_reward": mean_ci(batch.block_reward[:, :, agents].sum(axis=axes)), "goal_pickups": mean_ci(goal),
+def _pickups(batch: EpisodeBatch, agents: list[int]) -> tuple[dict, np.ndarray]:
+    """Per-episode totals of ``agents`` together: their rewards and pickups, and their net pickups ``[B]``."""
+    goal = batch.goal_pickup[:, :, agents].sum(axis=(0, 2))
+    wrong = batch.wrong_pickup[:, :, agents].sum(axis=(0, 2))
+    return {"block_reward": mean_ci(batch.block_reward[:, :, agents].sum(axis=(0, 2))), "goal_pickups": mean_ci(goal),
             "wrong_pickups": mean_ci(wrong), "net_pickups": mean_ci(goal - wrong)}, goal - wrong
 
 
 def _agent_metrics(batch: EpisodeBatch, i: int) -> dict:
-    entry, _ = _pickups(batch, i)
+    entry, _ = _pickups(batch, [i])
     probs = batch.goal_probs[i]
     if probs is not None:
         truth = np.take_along_axis(probs, batch.goal[:, :, None], axis=2)[..., 0]  # [T, B]

@@ -15,14 +15,10 @@ from server.inference import InferenceWorker, RemotePolicy
 
 
 def is_scripted(name: str) -> bool:
-    """A scripted follower (cheap to build, plays at any agent index of any team), not a trained network or
-    checkpoint (which reads the 1:1 team's observation and takes a while to load)."""
+    """A scripted follower: cheap to build, and it plays at any agent index of any team, so it is the only kind
+    offered beyond 1:1; not a trained network or checkpoint (which reads the 1:1 team's observation and takes
+    a while to load)."""
     return name.partition(":")[0] in SCRIPTED
-
-
-def plays_in_teams(name: str) -> bool:
-    """Whether a follower can play in a team other than 1:1: only the scripted ones."""
-    return is_scripted(name)
 
 
 class FollowerPool:

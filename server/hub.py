@@ -16,7 +16,7 @@ from colorgrid.presets import env_config
 from colorgrid.replay import save
 from colorgrid.replay.format import describe_agent
 from colorgrid.roles import scores
-from server.followers import FollowerPool, is_scripted, plays_in_teams
+from server.followers import FollowerPool, is_scripted
 from server.inference import InferenceLost, InferenceWorker
 from server.game import STAND_IN, Game, Seat
 from server.protocol import ROOM_COUNTDOWN_S, Mode, Team
@@ -158,7 +158,7 @@ class GameHub:
 
     def team_followers(self) -> list[str]:
         """The offered followers that play in teams other than 1:1 (the default first, if it does)."""
-        return [f for f in self.settings.follower_choices if plays_in_teams(f)]
+        return [f for f in self.settings.follower_choices if is_scripted(f)]
 
     def choose(self, team: Team, follower: str | None, preset: str | None, mode: Mode,
                horizon: int | None) -> tuple[str, str, EnvConfig]:
@@ -169,7 +169,7 @@ class GameHub:
             follower = follower or next(iter(self.team_followers()), self.settings.follower)
         if follower not in self.settings.follower_choices:
             raise ValueError(f"unknown follower {follower!r}; choose one of {list(self.settings.follower_choices)}")
-        if team != Team.ONE_TO_ONE and not plays_in_teams(follower):
+        if team != Team.ONE_TO_ONE and not is_scripted(follower):
             raise ValueError(f"follower {follower!r} plays only in 1:1 teams (a trained network reads the 1:1 "
                              f"board); for team {team.value} choose one of {self.team_followers()}")
         preset = preset or self.settings.preset

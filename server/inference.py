@@ -69,7 +69,8 @@ class InferenceWorker:
         if self._process is not None:
             self._conn.close()
             self.failed_starts = 0 if self._answered else self.failed_starts + 1
-            wait = min(self.MAX_BACKOFF, self.backoff * 2 ** (self.failed_starts - 1)) if self.failed_starts else 0.0
+            doublings = min(self.failed_starts - 1, 30)  # past the cap anyway; a larger power would overflow
+            wait = min(self.MAX_BACKOFF, self.backoff * 2 ** doublings) if self.failed_starts else 0.0
             self._retry_at = time.monotonic() + wait
             log.error("the inference process ended (exit code %s); %s", self._process.exitcode,
                       f"it had not started: trying again in {wait:.1f} s" if wait else "starting a new one")

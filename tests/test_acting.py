@@ -137,7 +137,10 @@ def test_unsure_moves_are_the_moves_onto_blocks_the_belief_doubts():
     unsure = unsure_moves(obs, belief, moves, config, FOLLOWER, 0.6)
     assert unsure[:, :4].tolist() == [[False, True, True, False], [True, True, True, False]]
     obs[:, 0, 2, 3] = 1  # boxed in by blocks: every move would be unsure, so none is taken out
-    assert not unsure_moves(obs, belief[1:], moves, config, FOLLOWER, 0.6).any()
+    assert not unsure_moves(obs, belief, moves, config, FOLLOWER, 0.9).any()
+    staying = EnvConfig(height=5, width=5, block_density=0.2, allow_stay=True)  # a network without stay, boxed in:
+    four = move_table(staying)[FOLLOWER][:, :4]  # only its four moves count, or it could be left none
+    assert not unsure_moves(obs, belief, four, staying, FOLLOWER, 0.9).any()
 
 
 def test_min_belief_keeps_the_follower_off_blocks_it_is_unsure_of():
@@ -146,6 +149,9 @@ def test_min_belief_keeps_the_follower_off_blocks_it_is_unsure_of():
     collected = lambda batch: int((batch.picked_color[:, :, FOLLOWER] >= 0).sum())  # noqa: E731
     assert collected(free) > 20 and collected(strict) <= 2
     assert (play("ippo:min_belief=0").actions == free.actions).all()
+    staying = EnvConfig(horizon=24, allow_stay=True)  # the server's real-time mode: the env has stay, the net not
+    batch = run_episodes(staying, make_policy("astar", "leader"), make_policy("ippo:min_belief=1", "follower"), 8, 0)
+    assert int((batch.picked_color[:, :, FOLLOWER] >= 0).sum()) <= 2
     assert make_policy("ippo-cautious:min_belief=0.7", "follower").describe()["min_belief"] == 0.7
     assert "min_belief" not in make_policy("ippo", "follower").describe()
 

@@ -130,7 +130,7 @@ def test_inference_runs_in_its_own_process_and_a_killed_one_costs_one_step_not_t
     import signal
 
     async def scenario():
-        hub = make_hub(tmp_path)
+        hub = make_hub(tmp_path, inference_deadline_ms=30_000)  # only the dead process may cost a move, not load
         game, client = await start(hub, "bayes", horizon=12)
         first = hub.inference.pid
         assert first is not None and first != os.getpid()
@@ -182,6 +182,14 @@ def test_an_inference_process_that_cannot_start_is_tried_again_after_a_growing_w
         assert eager.generation == tries and eager.failed_starts == tries
         time.sleep(0.5)  # longer than the waits of 0.05 s and 0.1 s
     eager.stop()
+
+    capped = InferenceWorker(target=dies_at_start, backoff=0.5)
+    capped.failed_starts = 5000  # hours of failed starts: the wait stays at its cap, and the doubling never overflows
+    with pytest.raises(InferenceLost, match="ended during 'ping'"):
+        capped.call("ping")
+    with pytest.raises(InferenceLost, match=r"5001 time\(s\) in a row; next try in (59|60)\.\d s"):
+        capped.call("ping")
+    capped.stop()
 
     healthy = InferenceWorker(backoff=60.0)  # the real process answers: nothing to wait for
     assert healthy.call("ping") is None and healthy.failed_starts == 0

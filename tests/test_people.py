@@ -68,6 +68,17 @@ def test_a_leader_with_a_delay_range_notices_each_switch_after_a_delay_drawn_fro
     assert counts[0] == 0 and counts[1:].min() >= 5 and len(lags) > 40, counts  # every delay 1..4, none other
 
 
+def test_a_fixed_delay_is_described_and_resumed_as_before_delays_could_vary():
+    config = EnvConfig()
+    assert "notice_delay_max" not in PersonLeader(PersonStyle(notice_delay=3)).describe()["params"]
+    leader = PersonLeader(PersonStyle(notice_delay=3))
+    leader.reset(config, 4, LEADER, seed=1)
+    old = {k: v for k, v in leader.state_dict().items() if k != "delay"}  # a state saved before the field
+    leader.delay[:] = 0
+    leader.load_state_dict(old)
+    assert (leader.delay == 3).all()
+
+
 def test_the_varied_population_adds_one_training_member_and_keeps_the_held_out_part():
     from colorgrid.policies.population import load_population
 

@@ -306,16 +306,25 @@ def test_distilling_the_oracles_belief_trains_exactly_like_the_true_goal(tmp_pat
     """The oracle's belief is the one-hot true goal: as a soft target it must give the same updates, so the
     teacher's belief reaches the loss in the rows and steps of the learner's own samples."""
     runs = {}
-    for target in ("goal", "oracle"):
+    for target in ("goal", "oracle", "bayes-people"):
         trainer = Trainer(tiny(leader={"policy": "astar"}, follower={**BELIEF_CORE, "aux_target": target},
                                total_steps=2 * 64), tmp_path / target, progress=False, tensorboard=False)
         runs[target] = (trainer, trainer.train())
     (goal, goal_row), (oracle, oracle_row) = runs["goal"], runs["oracle"]
     assert 1 in oracle.teachers and not goal.teachers
     assert oracle_row["follower/aux_loss"] == pytest.approx(goal_row["follower/aux_loss"], rel=1e-5)
+    taught = runs["bayes-people"][0].learners[1].model.state_dict()  # another target: another goal head
+    gap = max(float((taught[k] - v).abs().max()) for k, v in weights(goal.learners[1].model).items() if "aux" in k)
+    assert gap > 1e-5, gap
     after = oracle.learners[1].model.state_dict()
     for key, value in weights(goal.learners[1].model).items():
         torch.testing.assert_close(after[key], value, rtol=1e-5, atol=1e-6, msg=key)
+
+
+def test_a_role_of_learners_and_scripted_agents_distils_only_for_its_learners():
+    config = from_dict({"env": {"num_followers": 2}, "follower": {"policies": ["learn", "bayes"],
+                                                                  "aux_target": "bayes-people"}})
+    assert [a.aux_target for a in config.agents] == ["goal", "bayes-people", "goal"]
 
 
 def test_a_bayesian_teachers_belief_is_the_soft_target(tmp_path):

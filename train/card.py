@@ -15,6 +15,7 @@ from pathlib import Path
 from colorgrid.config import AGENTS, FOLLOWER, LEADER, EnvConfig
 from colorgrid_apps.evaluate import evaluate
 from colorgrid_apps.machine import cpu_name
+from train.acting import ACTING
 from train.checkpoint import load_checkpoint
 
 
@@ -64,7 +65,11 @@ def model_card(checkpoint: str, agent: str, run_dir: str | None, command: str, e
         f"- **Network**: {json.dumps(net)}",
         "- **Partner during training**: " + ", ".join(f"{name} `{train_cfg[name]['policy']}`" for name in AGENTS),
         f"- **Training settings**: PPO {json.dumps(train_cfg['ppo'])}; schedule {json.dumps(train_cfg['schedule'])}; "
-        f"aux_coef {train_cfg[agent]['aux_coef']}; train_reward `{train_cfg[agent].get('train_reward', 'env')}`",
+        f"aux_coef {train_cfg[agent]['aux_coef']} (target `{train_cfg[agent].get('aux_target', 'goal')}`); "
+        f"train_reward `{train_cfg[agent].get('train_reward', 'env')}`; "
+        f"wrong_weight {train_cfg[agent].get('wrong_weight', 1.0)}",
+        "- **Acting**: " + ", ".join(f"{name} {ckpt['agents'][agent].get(name, default)}"
+                                     for name, (_, default) in ACTING.items()) + " (docs/EVALUATION.md)",
         f"- **Environment**: {json.dumps(ckpt['env_config'])}",
         "",
         f"## Evaluation ({episodes} episodes, seeds {seed}..{seed + episodes - 1}, the same for every row)",

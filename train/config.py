@@ -146,7 +146,8 @@ class AgentConfig:
         if self.init is not None and "learn" not in (self.policies or (self.policy,)):
             fail(self, "init", "warm-starting only applies to policy='learn'")
         check_number(self, "aux_coef", "a number in [0, 100]", _between(0.0, 100.0))
-        if self.aux_target != "goal" and not (isinstance(self.aux_target, str) and self.learns
+        learns = "learn" in (self.policies or (self.policy,))
+        if self.aux_target != "goal" and not (isinstance(self.aux_target, str) and learns
                                               and _policy_spec(self.aux_target, names)):
             fail(self, "aux_target", "'goal', or for policy='learn' the name of a policy with a belief over the goal "
                                      f"(e.g. 'bayes-people') whose belief the auxiliary head is distilled from")
@@ -317,8 +318,10 @@ class TrainConfig:
                 if policy == section.policy and not section.policies:
                     out.append(section)
                 else:
+                    learns = policy == "learn"
                     out.append(dataclasses.replace(section, policy=policy, policies=(),
-                                                   init=section.init if policy == "learn" else None))
+                                                   init=section.init if learns else None,
+                                                   aux_target=section.aux_target if learns else "goal"))
         return tuple(out)
 
     @cached_property

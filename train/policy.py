@@ -73,8 +73,9 @@ class NetPolicy(Policy):
         logits = logits[0].cpu()
         probs = torch.softmax(goal_logits[0], dim=1).cpu().numpy().astype(np.float32)
         if self.min_belief:
-            risky = unsure_moves(inp.observation, probs, self.moves, self.config, self.agent_index, self.min_belief)
-            logits = logits.masked_fill(torch.from_numpy(risky[:, :logits.shape[1]]), -torch.inf)
+            moves = self.moves[:, :logits.shape[1]]  # a network trained without ``stay`` never chooses it
+            risky = unsure_moves(inp.observation, probs, moves, self.config, self.agent_index, self.min_belief)
+            logits = logits.masked_fill(torch.from_numpy(risky), -torch.inf)
         if self.temperature == 0:
             actions = logits.argmax(dim=1)
         else:
@@ -95,8 +96,9 @@ class NetPolicy(Policy):
 
 def unsure_moves(observation: np.ndarray, belief: np.ndarray, moves: np.ndarray, config: EnvConfig, agent: int,
                  min_belief: float) -> np.ndarray:
-    """``[B, actions]`` bool: the moves of ``agent`` onto a block whose color ``belief [B, C]`` gives less than
-    ``min_belief``; none in a row where every move is one (the agent must go somewhere)."""
+    """``[B, actions]`` bool: the moves of ``agent`` (``moves [H*W, actions]``: the cell each leads to, for the
+    actions it can choose) onto a block whose color ``belief [B, C]`` gives less than ``min_belief``; none in a
+    row where every move is one (the agent must go somewhere)."""
     block_color, cells = decode(observation, config)
     B = len(block_color)
     ahead = block_color.reshape(B, -1)[np.arange(B)[:, None], moves[cells[:, agent]]]  # [B, actions]
@@ -123,20 +125,23 @@ def check_compatible(trained: EnvConfig, wanted: EnvConfig, what: str) -> None:
                          f"shapes depend on these fields")
 
 
-def load_policy(path: str | Path, role: str | None = None, temperature: float | None = None,
-                cache: "ModelCache | None" = None, min_belief: float | None = None) -> NetPolicy:
+def load_policy(path: str | Path, role: str | None = None, cache: "ModelCache | None" = None,
+                **acting: float | None) -> NetPolicy:
     """A ``NetPolicy`` from a checkpoint: the network of ``role`` (see ``find_network``; default: the only
-    trained one), acting at ``temperature`` and ``min_belief`` (see ``NetPolicy``; None: what the file
-    stores, else the default: sampling as trained, every move allowed).
+    trained one), acting with the settings ``acting`` (``train.acting.ACTING``: ``temperature``, ``min_belief``,
+    see ``NetPolicy``); one not given, or None, is what the file stores, else its default (sampling as
+    trained, every move allowed).
 
     With a ``cache`` the network comes from it (shared with other policies of the same file);
     each policy keeps its own recurrent state and random generator.
     """
     model = cache.get(path, role) if cache is not None else load_model(path, role)
-    given = {"temperature": temperature, "min_belief": min_belief}
-    acting = {k: getattr(model, "acting", {}).get(k, default) if given[k] is None else given[k]
-              for k, (_, default) in ACTING.items()}
-    return NetPolicy(model, name=f"{Path(path).stem}", source=str(path), **acting)
+    unknown = sorted(set(acting) - set(ACTING))
+    if unknown:
+        raise ValueError(f"{path}: unknown acting setting(s) {unknown}; allowed: {list(ACTING)}")
+    stored = getattr(model, "acting", {})
+    settings = {k: stored.get(k, default) if acting.get(k) is None else acting[k] for k, (_, default) in ACTING.items()}
+    return NetPolicy(model, name=f"{Path(path).stem}", source=str(path), **settings)
 
 
 def load_model(path: str | Path, role: str | None) -> ActorCritic:

@@ -77,7 +77,10 @@ class PersonLeader(Seeker):
         self.style = style or PersonStyle()
 
     def describe(self) -> dict:
-        return {"policy": self.name, "params": asdict(self.style)}
+        params = asdict(self.style)
+        if params["notice_delay_max"] is None:  # as described before the field existed
+            del params["notice_delay_max"]
+        return {"policy": self.name, "params": params}
 
     def reset(self, config: EnvConfig, num_envs: int, agent_index: int, seed: int = 0) -> None:
         super().reset(config, num_envs, agent_index, seed)
@@ -88,6 +91,11 @@ class PersonLeader(Seeker):
         self.last_action = np.full(num_envs, -1, dtype=np.int64)
         self.detour_left = np.zeros(num_envs, dtype=np.int64)
         self.detour_dir = np.zeros(num_envs, dtype=np.int64)
+
+    def load_state_dict(self, state: dict) -> None:
+        if "delay" not in state:  # saved before delays could vary: every switch's delay was notice_delay
+            state = {**state, "delay": np.full(self.num_envs, self.style.notice_delay, dtype=np.int64)}
+        super().load_state_dict(state)
 
     def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
         style, C = self.style, self.config.num_colors
