@@ -106,7 +106,8 @@ class EnvConfig:
 
     @property
     def team(self) -> str:
-        """The team's shape as ``"L:F"`` (``"1:1"``, ``"2:1"``, ...), as the CLI, the server and replay lists write it."""
+        """The team's shape as ``"L:F"`` (``"1:1"``, ``"2:1"``, ...), as the CLI, the server and replay lists
+        write it."""
         return f"{self.num_leaders}:{self.num_followers}"
 
     @property

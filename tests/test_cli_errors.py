@@ -130,7 +130,8 @@ CLI_CASES = {  # id: (arguments, {name} for a file of `bad`; the command as name
     "eval-temperature-negative": (["eval", "--follower", "ippo:temperature=-1", "--episodes", "1"], "eval",
                                   ["temperature=-1 is invalid", "0 (greedy) or a finite number >= 0.01"]),
     "eval-unknown-parameter": (["eval", "--follower", "ippo:temp=0", "--episodes", "1"], "eval",
-                               ["'ippo:temp=0'", "unknown parameter(s) ['temp']", "allowed: ['temperature', 'min_belief']"]),
+                               ["'ippo:temp=0'", "unknown parameter(s) ['temp']",
+                                "allowed: ['temperature', 'min_belief']"]),
 }
 
 

@@ -23,9 +23,7 @@ def shipped_policy(name: str, role: str | None, cache: ModelCache | None = None,
     path = CHECKPOINTS_DIR / SHIPPED[name]
     if not path.is_file():
         raise ValueError(f"the shipped checkpoint for {name!r} is missing: {path} (it is part of the repository)")
-    from train.policy import load_policy
-
-    policy = load_policy(path, role=role, cache=cache, **acting)
+    policy = checkpoint_policy(str(path), role, cache, **acting)
     policy.name = name
     return policy
 

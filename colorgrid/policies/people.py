@@ -154,7 +154,8 @@ class PersonLeader(Seeker):
         slips = (u[:, 3] >= 1.0 - style.slip)
         actions[slips] = (u[slips, 4] * 4).astype(np.int64)
 
-        self.target[rows], self.pending[rows], self.delay[rows], self.distracted[rows] = target, pending, delay, distracted
+        self.target[rows], self.pending[rows], self.delay[rows] = target, pending, delay
+        self.distracted[rows] = distracted
         self.last_action[rows], self.detour_left[rows], self.detour_dir[rows] = actions, detour_left, detour_dir
         return PolicyOutput(actions)
 
