@@ -17,6 +17,7 @@ import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 import torch
@@ -78,8 +79,11 @@ def watcher_state(policy) -> dict:
 
 
 class Trainer:
-    def __init__(self, config: TrainConfig, run_dir: str | Path, progress: bool = True, tensorboard: bool = True):
-        self.config, self.run_dir, self.progress = config, Path(run_dir), progress
+    def __init__(self, config: TrainConfig, run_dir: str | Path, progress: bool = True, tensorboard: bool = True,
+                 keep_steps: bool = True):
+        """``keep_steps``: keep every saved checkpoint (``step_*.pt``) beside ``latest.pt``; false keeps only the
+        latest (a sweep's trials: Ray Tune keeps its own copies)."""
+        self.config, self.run_dir, self.progress, self.keep_steps = config, Path(run_dir), progress, keep_steps
         if config.threads:
             torch.set_num_threads(config.threads)
         torch.manual_seed(config.seed)
@@ -144,7 +148,9 @@ class Trainer:
         self.shaped_sum = np.zeros((B, A))  # each env's training reward so far this episode
 
     # ------------------------------------------------------------------ loop
-    def train(self) -> dict:
+    def train(self, on_iteration: Callable[[dict, Path | None], None] | None = None) -> dict:
+        """Train to ``total_steps``; ``on_iteration(row, saved)`` is called after each iteration with its log row
+        (and evaluation) and the checkpoint it saved (``latest.pt``), or None."""
         cfg = self.config
         self.run_dir.mkdir(parents=True, exist_ok=True)
         (self.run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2))
@@ -163,8 +169,11 @@ class Trainer:
                     bar.set_postfix(sps=f"{last['sps']:.0f}", team=f"{last.get('team_reward', float('nan')):.2f}")
                 if cfg.eval_every and self.iteration % cfg.eval_every == 0:
                     last.update(self.evaluate())
+                saved = None
                 if self.iteration % cfg.save_every == 0 or self.iteration == cfg.num_iterations:
-                    self.save()
+                    saved = self.save()
+                if on_iteration is not None:
+                    on_iteration(last, saved)
         finally:
             if bar is not None:
                 bar.close()
@@ -369,11 +378,12 @@ class Trainer:
                 "agents": agents, "trainer_state": to_tensors(state)}
 
     def save(self) -> Path:
+        """Write the resumable checkpoint ``checkpoints/latest.pt`` (and ``step_*.pt`` with ``keep_steps``)."""
         payload = self.checkpoint_payload()
         folder = self.run_dir / "checkpoints"
-        path = save_checkpoint(folder / f"step_{self.step:09d}.pt", payload)
-        save_checkpoint(folder / "latest.pt", payload)
-        return path
+        if self.keep_steps:
+            save_checkpoint(folder / f"step_{self.step:09d}.pt", payload)
+        return save_checkpoint(folder / "latest.pt", payload)
 
     def restore(self, path: str | Path) -> None:
         """Continue from a checkpoint of this run: weights, optimizers, env, recurrent states, RNGs."""

@@ -1,0 +1,60 @@
+"""``colorgrid sweep run | resume | report``: sweeps of training runs on Ray Tune (docs/SWEEPS.md)."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def add_sweep_commands(sub) -> None:
+    sweep = sub.add_parser("sweep", help="run a sweep of training runs (configurations x seeds) on Ray Tune",
+                           description="Sweeps on Ray Tune. A sweep file (sweeps/*.toml) names a preset, what varies "
+                                       "and the seeds; each trial is an ordinary training run. Example: colorgrid "
+                                       "sweep run sweeps/paper_table1_small.toml, then colorgrid sweep report "
+                                       "runs/sweeps/paper_table1_small")
+    sweep.add_argument("action", choices=["run", "resume", "report", "check"],
+                       help="run FILE | resume DIR | report DIR | check FILE (validate and list the trials)")
+    sweep.add_argument("path", help="run, check: a sweep file (.toml); resume, report: a sweep's folder")
+    sweep.add_argument("--out", help="run: the sweep's folder (default: the file's 'out', runs/sweeps/<name>)")
+    sweep.add_argument("--address", help="run, resume: join the Ray cluster at this address (e.g. 10.0.0.5:6379, "
+                                          "or 'auto'); default: start a local Ray instance")
+    sweep.add_argument("--num-cpus", type=int, help="run, resume: CPUs of the local Ray instance (default: all)")
+    sweep.set_defaults(func=cmd_sweep)
+
+
+def cmd_sweep(args: argparse.Namespace) -> int:
+    from train.sweep.spec import load_sweep
+
+    if args.num_cpus is not None and args.num_cpus < 1:
+        raise ValueError(f"--num-cpus must be >= 1, got {args.num_cpus}")
+    if args.action == "check":
+        spec = load_sweep(args.path, args.out)
+        print(f"{spec.path}: {spec.num_trials()} trials ({spec.grid_size() * spec.num_samples} configurations x "
+              f"{len(spec.seeds)} seeds), metric {spec.metric} ({spec.mode}), into {spec.out}")
+        return 0
+    if args.action == "report":
+        from train.sweep.report import write_report
+
+        text, pictures = write_report(_sweep_folder(args.path))
+        print(text)
+        return 0
+    try:
+        import ray  # noqa: F401
+        from ray import tune  # noqa: F401
+    except ImportError:
+        raise ValueError("sweeps need Ray Tune: pip install 'colorgrid[sweep]'") from None
+    from train.sweep.runner import resume_sweep, run_sweep
+
+    if args.action == "run":
+        return run_sweep(load_sweep(args.path, args.out), args.address, args.num_cpus)
+    return resume_sweep(_sweep_folder(args.path), args.address, args.num_cpus)
+
+
+def _sweep_folder(path: str):
+    from pathlib import Path
+
+    from train.sweep.spec import SPEC_FILE
+
+    folder = Path(path)
+    if not (folder / SPEC_FILE).is_file():
+        raise ValueError(f"{folder}: not a sweep folder (no {SPEC_FILE}); colorgrid sweep run FILE makes one")
+    return folder

@@ -1,0 +1,140 @@
+"""A sweep's report: per configuration, the mean and 95% interval across seeds of each final metric, the
+paper's figure where the sweep file gives one, and learning curves (mean with a 95% band across seeds).
+
+It reads the tables of ``results`` (collected afresh, so the report of a running sweep shows the
+trials that have reported so far) and writes ``report.md`` and ``curves_<metric>.png`` beside them.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from train.sweep.results import collect, load_spec
+from train.sweep.spec import SweepSpec
+
+T_975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131,
+         2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042)
+"""Student's t 97.5% quantiles for 1..30 degrees of freedom (a two-sided 95% interval)."""
+
+
+def t_quantile(df: int) -> float:
+    return T_975[df - 1] if df <= len(T_975) else 1.96
+
+
+def mean_interval(values) -> tuple[float, float, int]:
+    """Mean, the half-width of its 95% Student-t interval (NaN for one value), and the count."""
+    values = np.asarray([v for v in values if v is not None and math.isfinite(v)], dtype=float)
+    n = len(values)
+    if n == 0:
+        return math.nan, math.nan, 0
+    half = t_quantile(n - 1) * values.std(ddof=1) / math.sqrt(n) if n > 1 else math.nan
+    return float(values.mean()), float(half), n
+
+
+def paper_value(spec: SweepSpec, row: pd.Series) -> str:
+    for figure in spec.paper:
+        if all(str(row.get(name)) == str(value) for name, value in figure.where.items()):
+            return f"{figure.value:+.1f}" + (f" ({figure.note})" if figure.note else "")
+    return ""
+
+
+def summary(spec: SweepSpec, trials: pd.DataFrame) -> pd.DataFrame:
+    """A row per configuration: seeds, finished trials, and mean / 95% half-width of each final column."""
+    finals = [c for c in trials.columns if c.startswith("final_")]
+    rows = []
+    for label, group in trials.groupby("configuration", sort=False):
+        row = {"configuration": label, **{p.name: group[p.name].iloc[0] for p in spec.params},
+               "seeds": len(group), "finished": int(group["finished"].sum()),
+               "steps": int(group["steps"].min()), "wall_time_s": float(group["wall_time_s"].mean())}
+        for column in finals:
+            mean, half, _ = mean_interval(group[column])
+            row[f"{column}_mean"], row[f"{column}_ci95"] = mean, half
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def format_summary(spec: SweepSpec, table: pd.DataFrame) -> str:
+    """The summary as a Markdown table: the metric and the other team figures, with the paper's number."""
+    metric = f"final_{spec.metric}"
+    extra = [c[len("final_"):-len("_mean")] for c in table.columns
+             if c.startswith("final_") and c.endswith("_mean") and c != f"{metric}_mean"]
+    head = ["configuration", "seeds (finished)", "steps", f"{spec.metric} (final, 95% CI)"]
+    head += (["paper"] if spec.paper else []) + [f"{c}" for c in extra]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for _, row in table.iterrows():
+        cells = [row["configuration"], f"{row['seeds']} ({row['finished']})", f"{row['steps']:,}",
+                 interval(row[f"{metric}_mean"], row[f"{metric}_ci95"])]
+        if spec.paper:
+            cells.append(paper_value(spec, row))
+        cells += [interval(row[f"final_{c}_mean"], row[f"final_{c}_ci95"]) for c in extra]
+        lines.append("| " + " | ".join(str(c) for c in cells) + " |")
+    return "\n".join(lines)
+
+
+def interval(mean: float, half: float) -> str:
+    if not math.isfinite(mean):
+        return "-"
+    return f"{mean:+.2f}" + (f" ± {half:.2f}" if math.isfinite(half) else "")
+
+
+def plot_curves(spec: SweepSpec, curves: pd.DataFrame, column: str, out: Path) -> Path | None:
+    """Each configuration's ``column`` against env steps: the mean across its seeds, with a 95% band."""
+    if column not in curves.columns:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib import pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(8, 4.5), dpi=110)
+    smooth = max(1, spec.final_window)
+    for label, group in curves.groupby("configuration", sort=False):
+        per_seed = group.pivot_table(index="step", columns="trial", values=column)
+        per_seed = per_seed.rolling(smooth, min_periods=1).mean()  # each seed's running mean, as the final value
+        stats = [mean_interval(values) for values in per_seed.to_numpy()]
+        mean = np.array([s[0] for s in stats])
+        half = np.nan_to_num(np.array([s[1] for s in stats]))
+        steps = per_seed.index.to_numpy()
+        line, = ax.plot(steps, mean, label=f"{label} ({per_seed.shape[1]} seeds)")
+        ax.fill_between(steps, mean - half, mean + half, color=line.get_color(), alpha=0.2, linewidth=0)
+    for figure in spec.paper:
+        ax.axhline(figure.value, color="gray", linestyle=":", linewidth=1)
+    ax.set_xlabel("env steps")
+    ax.set_ylabel(f"{column} (running mean of {smooth} reports)")
+    ax.set_title(f"{spec.name}: mean across seeds, 95% band" + (" (dotted: the paper's figures)" if spec.paper
+                                                                 else ""))
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    out.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(out)
+    plt.close(fig)
+    return out
+
+
+def write_report(folder: str | Path) -> tuple[str, list[Path]]:
+    """Collect the tables, then write ``report.md`` and the curve pictures; returns the text and the pictures."""
+    folder = Path(folder)
+    spec = load_spec(folder)
+    trials, curves = collect(folder)
+    if trials.empty:
+        return f"sweep {folder.name}: no trial has reported yet", []
+    table = summary(spec, trials)
+    pictures = [p for c in dict.fromkeys([spec.metric, "team_reward"])
+                if (p := plot_curves(spec, curves, c, folder / f"curves_{c.replace('/', '_')}.png"))]
+    done = int(trials["finished"].sum())
+    text = "\n".join([
+        f"# Sweep {folder.name}", "",
+        spec.description, "",
+        f"{len(trials)} of {spec.num_trials()} trials have reported; {done} ran to the end. Final values are the "
+        f"mean of each trial's last {spec.final_window} reports; ± is the half-width of a 95% Student-t interval "
+        f"across seeds.", "",
+        format_summary(spec, table), "",
+        *[f"![{p.stem}]({p.name})" for p in pictures], ""])
+    (folder / "report.md").write_text(text)
+    table.to_csv(folder / "summary.csv", index=False)
+    return text, pictures

@@ -1,0 +1,189 @@
+"""Run a sweep on Ray Tune: a local Ray instance by default, or a cluster (``address``); resume one.
+
+The sweep's folder holds the sweep file as read (``sweep.toml``), Tune's experiment state and
+one folder per trial (Tune's ``result.json`` and ``params.json``, its checkpoints, and the
+training run under ``run/``). A trial that crashes or loses its node is restarted from its last
+checkpoint (``FailureConfig``); a sweep stopped by Ctrl+C or a lost driver is finished by
+``resume_sweep`` (``Tuner.restore``).
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+
+from train.sweep.spec import SPEC_FILE, SweepError, SweepSpec, load_sweep
+from train.sweep.trial import run_trial
+
+MAX_FAILURES = 3
+"""Restarts of a trial from its last checkpoint before it counts as failed."""
+
+
+def connect(address: str | None, num_cpus: int | None = None) -> None:
+    """Join the cluster at ``address``, or start a local Ray instance (no dashboard, every CPU); a Ray already
+    started in this process is used as it is."""
+    import ray
+
+    if ray.is_initialized():
+        return
+    if address:
+        ray.init(address=address, logging_level="WARNING", log_to_driver=False)
+    else:
+        ray.init(num_cpus=num_cpus or os.cpu_count(), include_dashboard=False, logging_level="WARNING",
+                 log_to_driver=False)
+
+
+def param_space(spec: SweepSpec) -> dict:
+    """Every seed, listed value and option is a grid axis; the random parameters' draws are one more axis
+    (``sample``), drawn once, so that the seeds of a configuration share its draw."""
+    from ray import tune
+
+    space = {"seed": tune.grid_search(list(spec.seeds))}
+    for param in spec.params:
+        if not param.random:
+            space[param.name] = tune.grid_search(list(param.values))
+    if any(p.random for p in spec.params):
+        space["sample"] = tune.grid_search(spec.samples())
+    return space
+
+
+def scheduler(spec: SweepSpec):
+    if spec.scheduler.kind == "none":
+        return None
+    from ray.tune.schedulers import ASHAScheduler
+
+    total = spec.config({p.name: p.values[0] for p in spec.params}, spec.seeds[0]).total_steps
+    grace = spec.scheduler.grace_period or max(1, total // 10)
+    return ASHAScheduler(time_attr="step", max_t=total, grace_period=grace,
+                         reduction_factor=spec.scheduler.reduction_factor)
+
+
+def trainable(spec: SweepSpec, workdir: str | None = None):
+    from ray import tune
+
+    resources = {"cpu": spec.resources.cpus_per_trial, "gpu": spec.resources.gpus_per_trial}
+    return tune.with_resources(tune.with_parameters(run_trial, spec=spec, workdir=workdir or os.getcwd()),
+                               resources)
+
+
+def trial_label(spec: SweepSpec, params: dict) -> str:
+    parts = [f"{p.name}={params.get(p.name)}" for p in spec.params if not p.random]
+    parts += [f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in (params.get("sample") or {}).items()]
+    return ", ".join(parts + [f"seed={params.get('seed')}"])
+
+
+def run_config(spec: SweepSpec, folder: Path):
+    from ray import tune
+
+    return tune.RunConfig(
+        name=folder.name, storage_path=str(folder.parent), verbose=0, callbacks=[ProgressLines(spec)],
+        failure_config=tune.FailureConfig(max_failures=MAX_FAILURES),
+        checkpoint_config=tune.CheckpointConfig(num_to_keep=2))
+
+
+def run_sweep(spec: SweepSpec, address: str | None = None, num_cpus: int | None = None) -> int:
+    """Run every trial of ``spec`` into ``spec.out``; returns the exit status (0: every trial finished)."""
+    from ray import tune
+
+    folder = spec.out.resolve()
+    if (folder / SPEC_FILE).exists():
+        raise SweepError(f"{folder} already holds a sweep; finish it with colorgrid sweep resume {spec.out}, or "
+                         f"choose another --out")
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / SPEC_FILE).write_text(spec.text)
+    connect(address, num_cpus)
+    concurrent = spec.resources.max_concurrent or None
+    print(f"sweep {spec.name}: {spec.num_trials()} trials ({spec.grid_size() * spec.num_samples} configurations x "
+          f"{len(spec.seeds)} seeds) into {folder}", flush=True)
+    tuner = tune.Tuner(
+        trainable(spec), param_space=param_space(spec),
+        tune_config=tune.TuneConfig(metric=spec.metric, mode=spec.mode, scheduler=scheduler(spec),
+                                    max_concurrent_trials=concurrent, trial_dirname_creator=trial_folder_name),
+        run_config=run_config(spec, folder))
+    return finish(tuner, spec, folder)
+
+
+def resume_sweep(folder: str | Path, address: str | None = None, num_cpus: int | None = None) -> int:
+    """Finish the sweep in ``folder``: trials that did not end are continued from their last checkpoints."""
+    from ray import tune
+
+    folder = Path(folder).resolve()
+    saved = folder / SPEC_FILE
+    if not saved.exists():
+        raise SweepError(f"{folder}: not a sweep folder (no {SPEC_FILE}); colorgrid sweep run FILE makes one")
+    spec = load_sweep(saved, out=folder)
+    spec = spec.__class__(**{**spec.__dict__, "name": folder.name})
+    connect(address, num_cpus)
+    if not tune.Tuner.can_restore(str(folder)):
+        raise SweepError(f"{folder}: Ray Tune saved no experiment state here yet; start it again with "
+                         f"colorgrid sweep run")
+    print(f"resuming sweep {folder.name} in {folder}", flush=True)
+    tuner = tune.Tuner.restore(str(folder), trainable=trainable(spec), resume_unfinished=True, resume_errored=True)
+    return finish(tuner, spec, folder)
+
+
+def finish(tuner, spec: SweepSpec, folder: Path) -> int:
+    from train.sweep.results import collect
+
+    grid = tuner.fit()
+    trials, _ = collect(folder)
+    ended = grid.num_terminated + grid.num_errors
+    done = int(trials["finished"].sum()) if len(trials) else 0
+    print(f"sweep {folder.name}: {done} of {spec.num_trials()} trials ran to the end"
+          + (f", {grid.num_terminated - done} stopped early by the scheduler" if grid.num_terminated > done else "")
+          + (f", {grid.num_errors} failed" if grid.num_errors else "") + f"; tables in {folder}", flush=True)
+    if ended < spec.num_trials():
+        print(f"stopped before its end; finish it with: colorgrid sweep resume {folder}", flush=True)
+        return 130
+    if grid.num_errors:
+        print(f"first failure: {first_line(grid.errors[0])}", file=sys.stderr)
+        return 1
+    print(f"report: colorgrid sweep report {folder}", flush=True)
+    return 0
+
+
+def first_line(error: BaseException) -> str:
+    text = str(error).strip().splitlines()
+    lines = [line for line in text if line.strip()]
+    return lines[-1] if lines else type(error).__name__
+
+
+def trial_folder_name(trial) -> str:
+    return f"trial_{trial.trial_id}"
+
+
+def _import_callback_base():
+    from ray import tune
+
+    return tune.Callback
+
+
+class ProgressLines(_import_callback_base()):
+    """One line per trial as it goes (at most every ``every`` seconds each), and one when it ends."""
+
+    def __init__(self, spec: SweepSpec, every: float = 30.0):
+        self.spec, self.every = spec, every
+        self.shown: dict[str, float] = {}
+
+    def _line(self, trial, result: dict, what: str) -> str:
+        value = result.get(self.spec.metric)
+        total = result.get("total_steps") or 0
+        step = result.get("step") or 0
+        return (f"{what} [{trial_label(self.spec, trial.config)}] step {int(step):,}/{int(total):,} "
+                f"{self.spec.metric} {value:+.2f}" if isinstance(value, float) else f"{what} "
+                f"[{trial_label(self.spec, trial.config)}] step {int(step):,}")
+
+    def on_trial_result(self, iteration, trials, trial, result, **info):
+        now = time.monotonic()
+        if now - self.shown.get(trial.trial_id, -1e9) >= self.every:
+            self.shown[trial.trial_id] = now
+            sps = result.get("sps")
+            print(self._line(trial, result, "trial") + (f", {sps:,.0f} steps/s" if sps else ""), flush=True)
+
+    def on_trial_complete(self, iteration, trials, trial, **info):
+        print(self._line(trial, trial.last_result or {}, "ended"), flush=True)
+
+    def on_trial_error(self, iteration, trials, trial, **info):
+        print(f"failed [{trial_label(self.spec, trial.config)}]: see {trial.local_path}/error.txt", flush=True)

@@ -1,0 +1,73 @@
+"""One trial of a sweep: an ordinary training run, reported to Ray Tune.
+
+The trial builds its ``TrainConfig`` from the sweep file and its parameter values, restores the
+run from Tune's checkpoint when Tune restarts it (after a crash, a lost node or ``sweep
+resume``), calls ``Trainer.train`` and reports every iteration's log row, and each checkpoint the
+trainer saves, to Tune. A resumed run continues exactly as if never stopped (the trainer's
+checkpoints hold every random state), so a restarted trial ends with the metrics it would have had.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from pathlib import Path
+
+from train.sweep.spec import SweepSpec
+
+RUN_FOLDER = "run"
+"""The training run's folder inside the trial's folder (config.json, metrics.jsonl, train.csv, ...)."""
+
+
+def trial_config(spec: SweepSpec, params: dict):
+    """The trial's training config: the sweep's, with its parameter values, seed, thread count and device."""
+    import dataclasses
+
+    values = {p.name: params[p.name] for p in spec.params if not p.random}
+    values.update(params.get("sample") or {})
+    config = spec.config(values, int(params["seed"]))
+    threads = max(1, math.ceil(spec.resources.cpus_per_trial))
+    device = "cuda" if spec.resources.gpus_per_trial > 0 else "cpu"
+    return dataclasses.replace(config, threads=threads, device=device)
+
+
+def run_trial(params: dict, spec: SweepSpec, workdir: str) -> None:
+    """Tune's function trainable: train one configuration and seed, reporting as it goes."""
+    import ray
+    from ray import tune
+
+    if Path(workdir).is_dir():  # paths in the sweep file (checkpoints, populations) read as where it was started
+        os.chdir(workdir)
+    config = trial_config(spec, params)
+    limit_threads(config.threads)
+    from train.trainer import Trainer
+
+    run_dir = Path(tune.get_context().get_trial_dir()) / RUN_FOLDER
+    trainer = Trainer(config, run_dir, progress=False, keep_steps=False)
+    checkpoint = tune.get_checkpoint()
+    if checkpoint is not None:
+        with checkpoint.as_directory() as folder:
+            trainer.restore(Path(folder) / "latest.pt")
+    node = ray.get_runtime_context().get_node_id()
+    latest = {spec.metric: math.nan}
+
+    def report(row: dict, saved: Path | None) -> None:
+        metrics = {k: float(v) for k, v in row.items() if isinstance(v, (int, float))}
+        latest.update({k: v for k, v in metrics.items() if math.isfinite(v)})
+        metrics[spec.metric] = latest[spec.metric]  # Tune needs the metric in every report
+        metrics.update(step=trainer.step, total_steps=config.num_iterations * config.batch_steps, node_id=node)
+        if saved is None:
+            tune.report(metrics)
+        else:
+            tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(str(saved.parent)))
+
+    trainer.train(on_iteration=report)
+
+
+def limit_threads(threads: int) -> None:
+    """Torch and numba use at most ``threads`` threads (the trial's CPU allotment)."""
+    import numba
+    import torch
+
+    torch.set_num_threads(threads)
+    numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
