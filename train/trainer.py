@@ -270,7 +270,9 @@ class Trainer:
                 fi = infos["final_info"]
                 totals = {"block_reward": fi["episode_block_reward"][done],
                           "goal_pickups": fi["episode_goal_pickups"][done],
-                          "wrong_pickups": fi["episode_wrong_pickups"][done], "training_reward": shaped_sum[done]}
+                          "wrong_pickups": fi["episode_wrong_pickups"][done],
+                          "net_pickups": fi["episode_goal_pickups"][done] - fi["episode_wrong_pickups"][done],
+                          "training_reward": shaped_sum[done]}
                 for key, values in episode_columns(cfg.env, totals).items():
                     done_eps.setdefault(key, []).extend(values)
                 done_eps.setdefault("team_reward", []).extend(fi["episode_block_reward"][done].sum(axis=1))

@@ -3,8 +3,9 @@
 * ``curves``: a row per trial and report (every training iteration): the trial, its parameter
   values and seed, ``step`` and every metric reported.
 * ``trials``: a row per trial: parameter values, seed, steps done and planned, whether it ran to
-  the end, wall time, and for each summary column its final value (the mean of the last
-  ``final_window`` reports) and its best.
+  the end, wall time, median env-steps/s, the Ray node that ran its last iteration, and for each
+  summary column its final value (the mean of the last ``final_window`` reports), and the best
+  value of the sweep's metric.
 
 Both are written as CSV and Parquet beside the trials (``curves.csv``, ``trials.parquet``, ...).
 A trial restarted from a checkpoint reports some iterations twice; the later report of a step is
@@ -78,7 +79,7 @@ def collect(folder: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
         ident = {"trial": trial_dir.name, "configuration": configuration_label(spec, values), **values}
         rows = [{**ident, **numeric(report)} for _, report in sorted(by_step.items())]
         curves.extend(rows)
-        trials.append(summarize_trial(spec, ident, rows))
+        trials.append({**summarize_trial(spec, ident, rows), "node": by_step[max(by_step)].get("node_id", "")})
     curves_df, trials_df = pd.DataFrame(curves), pd.DataFrame(trials)
     write_table(curves_df, folder / "curves")
     write_table(trials_df, folder / "trials")

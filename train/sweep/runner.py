@@ -26,6 +26,7 @@ def connect(address: str | None, num_cpus: int | None = None) -> None:
     started in this process is used as it is."""
     import ray
 
+    os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")  # with verbose=0: no tables of Tune's own; ProgressLines speaks
     if ray.is_initialized():
         return
     if address:
@@ -100,7 +101,8 @@ def run_sweep(spec: SweepSpec, address: str | None = None, num_cpus: int | None 
     tuner = tune.Tuner(
         trainable(spec), param_space=param_space(spec),
         tune_config=tune.TuneConfig(metric=spec.metric, mode=spec.mode, scheduler=scheduler(spec),
-                                    max_concurrent_trials=concurrent, trial_dirname_creator=trial_folder_name),
+                                    max_concurrent_trials=concurrent, trial_dirname_creator=trial_folder_name,
+                                    reuse_actors=True),  # a worker process imports torch and compiles once
         run_config=run_config(spec, folder))
     return finish(tuner, spec, folder)
 
@@ -129,7 +131,7 @@ def finish(tuner, spec: SweepSpec, folder: Path) -> int:
 
     grid = tuner.fit()
     trials, _ = collect(folder)
-    ended = grid.num_terminated + grid.num_errors
+    ended = ended_trials(folder)
     done = int(trials["finished"].sum()) if len(trials) else 0
     print(f"sweep {folder.name}: {done} of {spec.num_trials()} trials ran to the end"
           + (f", {grid.num_terminated - done} stopped early by the scheduler" if grid.num_terminated > done else "")
@@ -142,6 +144,19 @@ def finish(tuner, spec: SweepSpec, folder: Path) -> int:
         return 1
     print(f"report: colorgrid sweep report {folder}", flush=True)
     return 0
+
+
+def ended_trials(folder: Path) -> int:
+    """Trials that the experiment state saved on disk counts as ended (finished, stopped by the scheduler or
+    failed). After Ctrl+C Tune saves the state before it stops the running trials, so those count as not
+    ended there, and ``Tuner.restore`` continues them."""
+    import logging
+
+    from ray import tune
+
+    logging.getLogger("ray.tune.analysis.experiment_analysis").setLevel(logging.ERROR)  # trials yet to report
+    analysis = tune.ExperimentAnalysis(str(folder))
+    return sum(t.status in ("TERMINATED", "ERROR") for t in analysis.trials)
 
 
 def first_line(error: BaseException) -> str:

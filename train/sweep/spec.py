@@ -291,10 +291,11 @@ def parse_param(name: str, value) -> Param:
 def _check_key(where: str, key: str) -> None:
     if key == "seed":
         raise bad(where, key, "any training key but seed (list seeds in 'seeds')")
+    probe = f"{key}=0"
     try:
-        parse_override(f"{key}=0")
+        parse_override(probe)
     except ConfigError as err:
-        raise SweepError(f"{where}: {err}") from None
+        raise SweepError(f"{where}: {str(err).replace(f' in {probe!r}', '')}") from None
 
 
 def parse_resources(data: dict) -> Resources:
@@ -347,7 +348,8 @@ def metric_columns(config: TrainConfig) -> set[str]:
     import numpy as np
 
     A = config.env.num_agents
-    totals = {k: np.zeros((1, A)) for k in ("block_reward", "goal_pickups", "wrong_pickups", "training_reward")}
+    totals = {k: np.zeros((1, A)) for k in ("block_reward", "goal_pickups", "wrong_pickups", "net_pickups",
+                                                  "training_reward")}
     columns = {"team_reward", "penalty_coef", "sps", "episodes", *episode_columns(config.env, totals)}
     names = [*config.env.agent_names, *([f"{r}s" for r in ("leader", "follower")] if not config.env.one_to_one
                                         else [])]

@@ -1,0 +1,182 @@
+"""Sweeps on a real local Ray instance (one for the module): tables and report, a trial killed mid-run that
+resumes to exactly the metrics it would have had, a sweep interrupted by Ctrl+C and finished by ``sweep
+resume``, and ASHA stopping trials early."""
+
+import json
+import math
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+ray = pytest.importorskip("ray", reason="the sweep extra (make test installs it)")
+
+from train.sweep.report import mean_interval, write_report  # noqa: E402
+from train.sweep.results import read_tables  # noqa: E402
+from train.sweep.runner import resume_sweep, run_sweep  # noqa: E402
+from train.sweep.spec import load_sweep  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+TINY = """
+description = "a tiny sweep"
+preset = "default"
+set = ["total_steps={total}", "ppo.num_envs=2", "ppo.num_steps=32", "env.horizon=32", "eval_every=0",
+       "save_every={save_every}", "ppo.num_minibatches=2", "ppo.update_epochs=1", "leader.net.hidden=16",
+       "follower.net.hidden=16"]
+seeds = {seeds}
+metric = "{metric}"
+final_window = 2
+{top}
+{params}
+
+[resources]
+cpus_per_trial = 1
+{tables}
+"""
+TIMING = {"sps", "rollout_sps", "update_sps", "wall_time_s"}
+"""Columns that measure the machine, not what was learned."""
+
+
+def sweep_file(tmp_path: Path, name: str, params: str, seeds="[0, 1]", total=512, save_every=2, top="",
+               tables="", metric="team_reward") -> Path:
+    path = tmp_path / f"{name}.toml"
+    path.write_text(TINY.format(params=params, seeds=seeds, total=total, save_every=save_every, top=top,
+                                tables=tables, metric=metric))
+    return path
+
+
+@pytest.fixture(scope="module", autouse=True)
+def local_ray():
+    ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING", log_to_driver=False)
+    yield
+    ray.shutdown()
+
+
+def learned(curves: pd.DataFrame) -> pd.DataFrame:
+    """What a trial learned, step by step: its curves without the machine's timings."""
+    columns = [c for c in curves.columns if c not in TIMING and c not in ("trial", "node_id")]
+    return curves[columns].reset_index(drop=True)
+
+
+def test_tiny_sweep_writes_tables_and_report(tmp_path):
+    path = sweep_file(tmp_path, "tiny", '[params]\n"ppo.lr" = [1e-4, 1e-3]',
+                      tables='\n[[paper]]\nwhere = { "ppo.lr" = 1e-3 }\nvalue = 12.5\n')
+    spec = load_sweep(path, out=tmp_path / "out")
+    assert run_sweep(spec) == 0
+    trials, curves = read_tables(tmp_path / "out")
+    assert sorted(zip(trials["ppo.lr"], trials["seed"])) == [(1e-4, 0), (1e-4, 1), (1e-3, 0), (1e-3, 1)]
+    assert trials["finished"].all() and (trials["steps"] == 512).all()
+    assert (pd.read_csv(tmp_path / "out" / "trials.csv")["final_team_reward"].to_numpy()
+            == pytest.approx(trials["final_team_reward"].to_numpy()))
+    for _, trial in trials.iterrows():  # the final value is the mean of the trial's last final_window reports
+        mine = curves[curves["trial"] == trial["trial"]].sort_values("step")
+        assert list(mine["step"]) == list(range(64, 513, 64))
+        assert trial["final_team_reward"] == pytest.approx(mine["team_reward"].dropna().iloc[-2:].mean())
+        run = tmp_path / "out" / trial["trial"] / "run"
+        config = json.loads((run / "config.json").read_text())
+        assert (config["ppo"]["lr"], config["seed"], config["threads"]) == (trial["ppo.lr"], trial["seed"], 1)
+        assert (run / "checkpoints" / "latest.pt").exists() and not list(run.glob("checkpoints/step_*"))
+    text, pictures = write_report(tmp_path / "out")
+    assert (tmp_path / "out" / "report.md").read_text() == text
+    assert [p.name for p in pictures] == ["curves_team_reward.png"] and pictures[0].stat().st_size > 10_000
+    assert pictures[0].read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    summary = pd.read_csv(tmp_path / "out" / "summary.csv")
+    row = summary[summary["ppo.lr"] == 1e-3].iloc[0]
+    mean, half, n = mean_interval(trials[trials["ppo.lr"] == 1e-3]["final_team_reward"])
+    assert (row["seeds"], n) == (2, 2)
+    assert row["final_team_reward_mean"] == pytest.approx(mean) and row["final_team_reward_ci95"] == pytest.approx(half)
+    assert f"| ppo.lr=0.001 | 2 (2) | 512 | {mean:+.2f} ± {half:.2f} | +12.5 |" in text
+    # a second run into the same folder is refused: the sweep is resumed, never overwritten
+    with pytest.raises(ValueError, match="already holds a sweep; finish it with colorgrid sweep resume"):
+        run_sweep(spec)
+
+
+def watch_and_kill(folder: Path, copy: str, stop: threading.Event, killed: list) -> None:
+    """SIGKILL the process of trial ``copy`` once it has reported a checkpoint and gone on past it."""
+    while not stop.is_set():
+        for params in folder.glob("trial_*/params.json"):
+            if json.loads(params.read_text()).get("copy") != copy:
+                continue
+            reports = [json.loads(line) for line in (params.parent / "result.json").read_text().splitlines()
+                       if line.strip()] if (params.parent / "result.json").exists() else []
+            saved = [r for r in reports if r.get("checkpoint_dir_name")]
+            if saved and reports[-1]["step"] > saved[-1]["step"]:
+                os.kill(reports[-1]["pid"], signal.SIGKILL)
+                killed.append(reports[-1]["step"])
+                return
+        time.sleep(0.02)
+
+
+def test_trial_killed_mid_run_resumes_to_the_same_metrics(tmp_path):
+    """Two trials of one configuration (two options that change nothing); one is SIGKILLed after a checkpoint.
+    Tune restarts it from that checkpoint and it ends with exactly the other's learning curve."""
+    path = sweep_file(tmp_path, "kill", '[params.copy.options]\nkilled = {}\nuntouched = {}', seeds="[3]",
+                      total=64 * 40, save_every=8)
+    folder = tmp_path / "out"
+    stop, killed = threading.Event(), []
+    watcher = threading.Thread(target=watch_and_kill, args=(folder, "killed", stop, killed), daemon=True)
+    watcher.start()
+    try:
+        assert run_sweep(load_sweep(path, out=folder)) == 0
+    finally:
+        stop.set()
+        watcher.join()
+    assert killed, "the trial ended before it could be killed"
+    trials, curves = read_tables(folder)
+    assert trials["finished"].all()
+    by_copy = {c: learned(curves[curves["copy"] == c]).drop(columns=["copy", "configuration"])
+               for c in ("killed", "untouched")}
+    assert len(by_copy["killed"]) == 40
+    pd.testing.assert_frame_equal(by_copy["killed"], by_copy["untouched"])
+    reports = (folder / trials[trials["copy"] == "killed"]["trial"].iloc[0] / "result.json").read_text()
+    assert len(reports.splitlines()) > 40  # the steps after the checkpoint were reported twice
+
+
+def test_interrupted_sweep_finishes_with_sweep_resume(tmp_path):
+    path = sweep_file(tmp_path, "stop", '[params]\n"ppo.lr" = [1e-4, 3e-4]', total=64 * 60, save_every=5)
+    folder = tmp_path / "out"
+    run = subprocess.Popen([sys.executable, "-m", "colorgrid_apps", "sweep", "run", str(path), "--out", str(folder),
+                            "--num-cpus", "1"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:  # Ctrl+C once the first trial has saved a checkpoint
+            if any("checkpoint_dir_name\": \"checkpoint" in p.read_text() for p in folder.glob("trial_*/result.json")):
+                break
+            time.sleep(0.1)
+        else:
+            pytest.fail("no trial reported a checkpoint")
+        run.send_signal(signal.SIGINT)
+        out, _ = run.communicate(timeout=120)
+    finally:
+        run.kill()
+    assert run.returncode == 130, out
+    assert f"finish it with: colorgrid sweep resume {folder}" in out
+    trials, _ = read_tables(folder)
+    assert not trials["finished"].all()
+    assert resume_sweep(folder) == 0
+    trials, curves = read_tables(folder)
+    assert len(trials) == 4 and trials["finished"].all() and (trials["steps"] == 64 * 60).all()
+    for trial in trials["trial"]:  # every step once in the table, in order
+        assert list(curves[curves["trial"] == trial]["step"]) == list(range(64, 64 * 61, 64))
+
+
+def test_asha_stops_trailing_trials_early(tmp_path):
+    """Trials run one at a time, each worse than the last (the metric is the penalty coefficient, which the
+    config sets and the log reports): ASHA lets the first run to the end and stops the others at the first rung."""
+    path = sweep_file(tmp_path, "asha", '[params]\n"env.penalty_coef" = [1.0, 0.75, 0.5, 0.25]', seeds="[0]",
+                      total=64 * 16, metric="penalty_coef", top="",
+                      tables="\n[scheduler]\nkind = \"asha\"\ngrace_period = 128\nreduction_factor = 2\n")
+    text = path.read_text().replace("cpus_per_trial = 1", "cpus_per_trial = 1\nmax_concurrent = 1")
+    path.write_text(text)
+    assert run_sweep(load_sweep(path, out=tmp_path / "out")) == 0
+    trials, _ = read_tables(tmp_path / "out")
+    steps = dict(zip(trials["env.penalty_coef"], trials["steps"]))
+    assert steps[1.0] == 64 * 16
+    assert all(steps[p] < 64 * 16 for p in (0.75, 0.5, 0.25)), steps
+    assert not math.isnan(trials["best_penalty_coef"].iloc[0])

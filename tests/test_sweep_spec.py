@@ -1,0 +1,120 @@
+"""The sweep file: every kind of mistake gets one line naming the place and what is allowed, exit code 2;
+good files build the trials' training configs as ``colorgrid train --set`` would. No Ray is started here."""
+
+from pathlib import Path
+
+import pytest
+
+from colorgrid_apps.cli import main
+from train.config import from_dict, load_preset, merge, parse_override
+from train.sweep.spec import SweepError, load_sweep
+from train.sweep.trial import trial_config
+
+ROOT = Path(__file__).resolve().parents[1]
+GOOD = """
+description = "a test"
+preset = "default"
+set = ["total_steps=4096", "env.asymmetric=false"]
+seeds = [0, 1]
+metric = "team_reward"
+
+[params.aux]
+keys = ["leader.aux_coef", "follower.aux_coef"]
+grid = [0.0, 0.2]
+
+[params.annealing.options]
+none = {}
+early = { "schedule.penalty_start" = 0, "schedule.penalty_end" = 2048 }
+
+[params."ppo.lr"]
+loguniform = [1e-5, 1e-3]
+"""
+
+
+def write(tmp_path: Path, text: str, name: str = "s.toml") -> Path:
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+def test_good_file_builds_each_trial_config_as_train_set_would(tmp_path):
+    spec = load_sweep(write(tmp_path, "num_samples = 3\n" + GOOD))
+    assert spec.num_trials() == 2 * 2 * 3 * 2 and spec.grid_size() == 4
+    draws = spec.samples()
+    assert len(draws) == 3 and all(1e-5 <= d["ppo.lr"] <= 1e-3 for d in draws)
+    assert spec.samples() == draws  # drawn the same every time (resume rebuilds the same trials)
+    params = {"seed": 1, "aux": 0.2, "annealing": "early", "ppo.lr": None, "sample": draws[2]}
+    config = trial_config(spec, params)
+    expected = load_preset("default")
+    for line in ["total_steps=4096", "env.asymmetric=false", "leader.aux_coef=0.2", "follower.aux_coef=0.2",
+                 "schedule.penalty_start=0", "schedule.penalty_end=2048", f"ppo.lr={draws[2]['ppo.lr']}", "seed=1",
+                 "threads=1", "device=\"cpu\""]:
+        expected = merge(expected, parse_override(line))
+    assert config == from_dict(expected)
+    none = trial_config(spec, {**params, "annealing": "none"})
+    assert none.schedule.penalty_start is None and none.leader.aux_coef == 0.2
+
+
+def test_shipped_sweep_files_load():
+    files = sorted((ROOT / "sweeps").glob("*.toml"))
+    assert files, "sweeps/ holds the paper's experiments"
+    for path in files:
+        spec = load_sweep(path)
+        assert spec.num_trials() >= 1 and spec.description
+
+
+MISTAKES = {
+    "unknown top-level field": ("sedes = [1]\n" + GOOD, "unknown field 'sedes'"),
+    "seeds not distinct": (GOOD.replace("seeds = [0, 1]", "seeds = [1, 1]"), "seeds=[1, 1] is invalid: a list of distinct"),
+    "negative seed": (GOOD.replace("seeds = [0, 1]", "seeds = [-1]"), "seeds=[-1] is invalid"),
+    "unknown training key": (GOOD.replace('"follower.aux_coef"]', '"follower.aux_coeff"]'),
+                             "params.aux.keys: unknown TrainConfig field 'follower.aux_coeff'; allowed: ["),
+    "bad value for a key": (GOOD.replace("grid = [0.0, 0.2]", "grid = [0.0, -1.0]"),
+                            "params (aux=-1.0, annealing='none', ppo.lr=1e-05): leader.aux_coef=-1.0 is invalid"),
+    "bad option value": (GOOD.replace('"schedule.penalty_end" = 2048', '"schedule.penalty_end" = "soon"'),
+                         "schedule.penalty_end='soon' is invalid"),
+    "two kinds": (GOOD.replace("grid = [0.0, 0.2]", "grid = [0.0, 0.2]\nchoice = [1]"),
+                  "params.aux: needs exactly one of"),
+    "no kind": (GOOD.replace("grid = [0.0, 0.2]", "gird = [0.0, 0.2]"), "params.aux: unknown field 'gird'"),
+    "loguniform from zero": (GOOD.replace("loguniform = [1e-5, 1e-3]", "loguniform = [0, 1e-3]"),
+                             "params.ppo.lr.loguniform=[0, 0.001] is invalid: [low, high] with 0 < low < high"),
+    "empty grid": (GOOD.replace("grid = [0.0, 0.2]", "grid = []"), "params.aux.grid=[] is invalid"),
+    "seed as a parameter": (GOOD + '\n[params.seed]\ngrid = [1, 2]\n', "other than 'seed'"),
+    "seed in set": (GOOD.replace('"env.asymmetric=false"]', '"env.asymmetric=false", "seed=3"]'),
+                    "set[2]='seed=3' is invalid: any training key but seed"),
+    "set not KEY=VALUE": (GOOD.replace('"env.asymmetric=false"]', '"env.asymmetric"]'),
+                          "set[1]: --set 'env.asymmetric': expected KEY=VALUE"),
+    "unknown preset": (GOOD.replace('preset = "default"', 'preset = "defualt"'), "preset: unknown preset 'defualt'"),
+    "unknown metric": (GOOD.replace('metric = "team_reward"', 'metric = "team_rewards"'),
+                       "metric='team_rewards' is invalid: a column of the training log"),
+    "bad mode": ('mode = "maximum"\n' + GOOD, "mode='maximum' is invalid: 'max' or 'min'"),
+    "num_samples without random": ("num_samples = 2\n"
+                                   + GOOD.replace('[params."ppo.lr"]\nloguniform = [1e-5, 1e-3]', ""), "num_samples=2 is invalid: 1 unless a parameter is random"),
+    "bad scheduler": (GOOD + '\n[scheduler]\nkind = "hyperband"\n', "scheduler.kind='hyperband' is invalid"),
+    "zero cpus": (GOOD + "\n[resources]\ncpus_per_trial = 0\n", "resources.cpus_per_trial=0 is invalid"),
+    "unknown resource": (GOOD + "\n[resources]\ncpu = 1\n", "resources: unknown field 'cpu'"),
+    "paper figure for an unknown value": (GOOD + '\n[[paper]]\nwhere = { aux = 0.5 }\nvalue = 48.8\n',
+                                          "paper[0].where.aux=0.5 is invalid: one of [0.0, 0.2]"),
+    "not TOML": ("seeds = [0,\n", "not valid TOML"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(MISTAKES))
+def test_each_mistake_is_one_line_and_exit_code_2(tmp_path, capsys, name):
+    text, expected = MISTAKES[name]
+    path = write(tmp_path, text)
+    with pytest.raises(SweepError) as caught:
+        load_sweep(path)
+    assert expected in str(caught.value), str(caught.value)
+    assert main(["sweep", "check", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("colorgrid sweep check: error: ") and err.count("\n") == 1 and str(path) in err
+
+
+def test_missing_file_and_folders_that_are_not_sweeps(tmp_path, capsys):
+    assert main(["sweep", "check", str(tmp_path / "none.toml")]) == 2
+    assert "no such sweep file" in capsys.readouterr().err
+    for action in ("report", "resume"):
+        assert main(["sweep", action, str(tmp_path)]) == 2
+        err = capsys.readouterr().err
+        assert "not a sweep folder (no sweep.toml)" in err and err.count("\n") == 1
