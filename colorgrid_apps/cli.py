@@ -44,6 +44,8 @@ def cmd_eval(args: argparse.Namespace) -> int:
     if args.episodes < 1:
         raise ValueError(f"--episodes must be >= 1, got {args.episodes}")
     followers = args.compare or [args.follower]
+    if args.address and not args.leaders:
+        raise ValueError("--address runs the cells of a --leaders matrix on Ray; add --leaders POPULATION")
     if args.leaders:
         from colorgrid_apps.matrix import evaluate_matrix, format_matrix, leaders_from
 
@@ -53,7 +55,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
             raise ValueError("--leaders pairs one leader of a population with one follower (a 1:1 team); "
                              "leave out --team and --agent")
         payload = evaluate_matrix(config, leaders_from(args.leaders), followers, args.episodes, args.seed,
-                                  workers=args.workers)
+                                  workers=args.workers, address=args.address)
         print(format_matrix(payload))
     else:
         reports = [evaluate(config, args.leader, name, args.episodes, args.seed, record_dir=args.record, agents=agents)
@@ -166,6 +168,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--episodes", type=int, default=100)
     ev.add_argument("--workers", type=int, default=None, help="with --leaders: processes for the cells (default: "
                     "one per CPU; the result is the same for any number)")
+    ev.add_argument("--address", help="with --leaders: run the cells as Ray tasks on the Ray cluster at this "
+                    "address (HEAD:6379, or 'auto'; needs the sweep extra); the result is the same")
     ev.add_argument("--seed", type=int, default=0, help="episode i uses seed + i")
     ev.add_argument("--json", help="also write the report(s) as JSON to this path")
     ev.add_argument("--record", metavar="DIR", help="save every episode as a replay in DIR")

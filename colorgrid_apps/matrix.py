@@ -44,16 +44,20 @@ def cell(config: EnvConfig, leader: str, follower: str, episodes: int, seed: int
 
 
 def evaluate_matrix(config: EnvConfig, leaders: dict[str, str], followers: list[str], episodes: int,
-                    seed: int, workers: int | None = None) -> dict:
+                    seed: int, workers: int | None = None, address: str | None = None) -> dict:
     """``leaders`` (name -> policy spec) x ``followers``; paired differences against the first follower.
 
-    Cells run in ``workers`` processes (default: one per CPU); each cell is seeded the same whatever
-    process runs it, so the result does not depend on ``workers``.
+    Cells run in ``workers`` processes (default: one per CPU), or, with ``address``, as Ray tasks of one
+    CPU each on the Ray cluster there (``auto``: the one this machine belongs to; a Ray already started
+    in this process is used as it is). Each cell is seeded the same whatever process runs it, so the
+    result depends on neither.
     """
     start = time.perf_counter()
     pairs = [(name, follower) for name in leaders for follower in followers]
     workers = max(1, min(workers or os.cpu_count() or 1, len(pairs)))
-    if workers == 1:
+    if address:
+        results = ray_cells(address, [(config, leaders[n], f, episodes, seed) for n, f in pairs])
+    elif workers == 1:
         results = [cell(config, leaders[n], f, episodes, seed) for n, f in pairs]
     else:
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
@@ -69,8 +73,21 @@ def evaluate_matrix(config: EnvConfig, leaders: dict[str, str], followers: list[
                for f in followers}
     return {"env_id": ENV_ID, "config": config.to_dict(), "episodes": episodes, "seed": seed,
             "leaders": leaders, "followers": followers, "cells": cells, "baseline": base,
-            "paired_difference": paired, "mean_over_leaders": overall, "workers": workers,
+            "paired_difference": paired, "mean_over_leaders": overall,
+            "workers": None if address else workers, "ray_address": address,
             "wall_seconds": time.perf_counter() - start}
+
+
+def ray_cells(address: str, jobs: list[tuple]) -> list:
+    """Every cell as a Ray task (one CPU each) on the cluster at ``address``, in order."""
+    try:
+        import ray
+    except ImportError:
+        raise ValueError("--address runs the cells on Ray: pip install 'colorgrid[sweep]'") from None
+    if not ray.is_initialized():
+        ray.init(address=address, logging_level="WARNING", log_to_driver=False)
+    task = ray.remote(num_cpus=1)(cell)
+    return ray.get([task.remote(*job) for job in jobs])
 
 
 def leaders_from(spec: str) -> dict[str, str]:

@@ -46,3 +46,18 @@ def test_trials_run_on_both_nodes(tmp_path: Path, two_nodes):
     trials, _ = read_tables(tmp_path / "out")
     assert trials["finished"].all() and len(trials) == 2
     assert set(trials["node"]) == nodes
+
+
+def test_population_matrix_cells_as_ray_tasks_equal_local_ones(two_nodes):
+    """``colorgrid eval --leaders ... --address``: the cells run as Ray tasks on the cluster; the report is the
+    one the local processes make."""
+    from colorgrid.config import EnvConfig
+    from colorgrid_apps.matrix import evaluate_matrix
+
+    cluster, _ = two_nodes
+    config, leaders = EnvConfig(horizon=32), {"astar": "astar", "slips": "person:slip=0.2"}
+    on_ray = evaluate_matrix(config, leaders, ["copy", "bayes"], episodes=4, seed=5, address=cluster.address)
+    local = evaluate_matrix(config, leaders, ["copy", "bayes"], episodes=4, seed=5, workers=1)
+    assert on_ray["ray_address"] == cluster.address and on_ray["workers"] is None
+    for key in ("cells", "paired_difference", "mean_over_leaders"):
+        assert on_ray[key] == local[key]

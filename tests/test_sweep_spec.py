@@ -118,3 +118,9 @@ def test_missing_file_and_folders_that_are_not_sweeps(tmp_path, capsys):
         assert main(["sweep", action, str(tmp_path)]) == 2
         err = capsys.readouterr().err
         assert "not a sweep folder (no sweep.toml)" in err and err.count("\n") == 1
+
+
+def test_eval_address_needs_a_population_matrix(capsys):
+    assert main(["eval", "--address", "auto", "--episodes", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err == "colorgrid eval: error: --address runs the cells of a --leaders matrix on Ray; add --leaders POPULATION\n"
