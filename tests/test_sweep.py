@@ -77,6 +77,7 @@ def test_tiny_sweep_writes_tables_and_report(tmp_path):
     for _, trial in trials.iterrows():  # the final value is the mean of the trial's last final_window reports
         mine = curves[curves["trial"] == trial["trial"]].sort_values("step")
         assert list(mine["step"]) == list(range(64, 513, 64))
+        assert (mine["torch_threads"] == 1).all() and (mine["numba_threads"] == 1).all()  # the trial's one CPU
         assert trial["final_team_reward"] == pytest.approx(mine["team_reward"].dropna().iloc[-2:].mean())
         run = tmp_path / "out" / trial["trial"] / "run"
         config = json.loads((run / "config.json").read_text())

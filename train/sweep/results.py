@@ -14,6 +14,7 @@ kept (a resumed run repeats the same numbers). Reports read these tables, not th
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -29,7 +30,7 @@ ID_COLUMNS = ("trial", "configuration", "seed")
 
 def load_spec(folder: Path) -> SweepSpec:
     spec = load_sweep(folder / SPEC_FILE, out=folder)
-    return spec.__class__(**{**spec.__dict__, "name": folder.name})
+    return dataclasses.replace(spec, name=folder.name)
 
 
 def trial_values(spec: SweepSpec, params: dict) -> dict:

@@ -9,13 +9,14 @@ checkpoint (``FailureConfig``); a sweep stopped by Ctrl+C or a lost driver is fi
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import sys
 import time
 from pathlib import Path
 
 from train.sweep.spec import SPEC_FILE, SweepError, SweepSpec, load_sweep
-from train.sweep.trial import run_trial
+from train.sweep.trial import run_trial, trial_folder
 
 MAX_FAILURES = 3
 """Restarts of a trial from its last checkpoint before it counts as failed."""
@@ -65,6 +66,7 @@ def trainable(spec: SweepSpec, workdir: str | None = None):
     from ray import tune
 
     resources = {"cpu": spec.resources.cpus_per_trial, "gpu": spec.resources.gpus_per_trial}
+    spec = dataclasses.replace(spec, out=spec.out.resolve())  # trials write their run folders there
     return tune.with_resources(tune.with_parameters(run_trial, spec=spec, workdir=workdir or os.getcwd()),
                                resources)
 
@@ -116,7 +118,7 @@ def resume_sweep(folder: str | Path, address: str | None = None, num_cpus: int |
     if not saved.exists():
         raise SweepError(f"{folder}: not a sweep folder (no {SPEC_FILE}); colorgrid sweep run FILE makes one")
     spec = load_sweep(saved, out=folder)
-    spec = spec.__class__(**{**spec.__dict__, "name": folder.name})
+    spec = dataclasses.replace(spec, name=folder.name)
     connect(address, num_cpus)
     if not tune.Tuner.can_restore(str(folder)):
         raise SweepError(f"{folder}: Ray Tune saved no experiment state here yet; start it again with "
@@ -166,7 +168,7 @@ def first_line(error: BaseException) -> str:
 
 
 def trial_folder_name(trial) -> str:
-    return f"trial_{trial.trial_id}"
+    return trial_folder(trial.trial_id)
 
 
 def _import_callback_base():

@@ -144,13 +144,13 @@ class SweepSpec:
 
     def samples(self) -> list[dict]:
         """``num_samples`` draws of the random parameters (``{name: value}`` each; one empty draw if none), made
-        once from a generator seeded by the sweep's name, so that every seed of a configuration shares its draw
-        and a resumed sweep draws the same."""
+        once from a generator seeded by the sweep file's text, so that every seed of a configuration shares its
+        draw and the file kept in the sweep's folder draws the same again."""
         import zlib
 
         import numpy as np
 
-        rng = np.random.default_rng(zlib.crc32(self.name.encode()))
+        rng = np.random.default_rng(zlib.crc32(self.text.encode()))
         draws = []
         for _ in range(self.num_samples):
             draw = {}

@@ -19,6 +19,11 @@ RUN_FOLDER = "run"
 """The training run's folder inside the trial's folder (config.json, metrics.jsonl, train.csv, ...)."""
 
 
+def trial_folder(trial_id: str) -> str:
+    """The name of a trial's folder in the sweep's folder."""
+    return f"trial_{trial_id}"
+
+
 def trial_config(spec: SweepSpec, params: dict):
     """The trial's training config: the sweep's, with its parameter values, seed, thread count and device."""
     import dataclasses
@@ -42,20 +47,24 @@ def run_trial(params: dict, spec: SweepSpec, workdir: str) -> None:
     limit_threads(config.threads)
     from train.trainer import Trainer
 
-    run_dir = Path(tune.get_context().get_trial_dir()) / RUN_FOLDER
+    # in the sweep's folder, not Tune's get_trial_dir(): that is a local staging folder, and a reused worker's
+    # is never copied to the sweep's folder
+    run_dir = Path(spec.out) / trial_folder(tune.get_context().get_trial_id()) / RUN_FOLDER
     trainer = Trainer(config, run_dir, progress=False, keep_steps=False)
     checkpoint = tune.get_checkpoint()
     if checkpoint is not None:
         with checkpoint.as_directory() as folder:
             trainer.restore(Path(folder) / "latest.pt")
     node = ray.get_runtime_context().get_node_id()
+    threads = thread_counts()
     latest = {spec.metric: math.nan}
 
     def report(row: dict, saved: Path | None) -> None:
         metrics = {k: float(v) for k, v in row.items() if isinstance(v, (int, float))}
         latest.update({k: v for k, v in metrics.items() if math.isfinite(v)})
         metrics[spec.metric] = latest[spec.metric]  # Tune needs the metric in every report
-        metrics.update(step=trainer.step, total_steps=config.num_iterations * config.batch_steps, node_id=node)
+        metrics.update(step=trainer.step, total_steps=config.num_iterations * config.batch_steps, node_id=node,
+                       **threads)
         if saved is None:
             tune.report(metrics)
         else:
@@ -71,3 +80,11 @@ def limit_threads(threads: int) -> None:
 
     torch.set_num_threads(threads)
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+
+
+def thread_counts() -> dict[str, int]:
+    """The threads torch and numba compute with in this process (reported with every iteration)."""
+    import numba
+    import torch
+
+    return {"torch_threads": torch.get_num_threads(), "numba_threads": numba.get_num_threads()}
