@@ -35,9 +35,14 @@ def mean_interval(values) -> tuple[float, float, int]:
     return float(values.mean()), float(half), n
 
 
+def matches(figure, row) -> bool:
+    """Whether a configuration's row (of the summary or the curves) is the one the paper's ``figure`` is for."""
+    return all(str(row.get(name)) == str(value) for name, value in figure.where.items())
+
+
 def paper_value(spec: SweepSpec, row: pd.Series) -> str:
     for figure in spec.paper:
-        if all(str(row.get(name)) == str(value) for name, value in figure.where.items()):
+        if matches(figure, row):
             return f"{figure.value:+.1f}" + (f" ({figure.note})" if figure.note else "")
     return ""
 
@@ -60,8 +65,10 @@ def summary(spec: SweepSpec, trials: pd.DataFrame) -> pd.DataFrame:
 def format_summary(spec: SweepSpec, table: pd.DataFrame) -> str:
     """The summary as a Markdown table: the metric and the other team figures, with the paper's number."""
     metric = f"final_{spec.metric}"
-    extra = [c[len("final_"):-len("_mean")] for c in table.columns
-             if c.startswith("final_") and c.endswith("_mean") and c != f"{metric}_mean"]
+    finals = [c[len("final_"):-len("_mean")] for c in table.columns if c.startswith("final_") and c.endswith("_mean")]
+    shown = ("team_reward", "eval/team_reward")
+    extra = [c for c in finals if c != spec.metric and (c in shown or (not c.startswith("eval/") and c.endswith(
+        ("_net_pickups", "_wrong_pickups"))))]  # the rest is in summary.csv
     head = ["configuration", "seeds (finished)", "steps", f"{spec.metric} (final, 95% CI)"]
     head += (["paper"] if spec.paper else []) + [f"{c}" for c in extra]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -92,6 +99,7 @@ def plot_curves(spec: SweepSpec, curves: pd.DataFrame, column: str, out: Path) -
 
     fig, ax = plt.subplots(figsize=(8, 4.5), dpi=110)
     smooth = max(1, spec.final_window)
+    colors = {}
     for label, group in curves.groupby("configuration", sort=False):
         per_seed = group.pivot_table(index="step", columns="trial", values=column)
         per_seed = per_seed.rolling(smooth, min_periods=1).mean()  # each seed's running mean, as the final value
@@ -101,12 +109,15 @@ def plot_curves(spec: SweepSpec, curves: pd.DataFrame, column: str, out: Path) -
         steps = per_seed.index.to_numpy()
         line, = ax.plot(steps, mean, label=f"{label} ({per_seed.shape[1]} seeds)")
         ax.fill_between(steps, mean - half, mean + half, color=line.get_color(), alpha=0.2, linewidth=0)
-    for figure in spec.paper:
-        ax.axhline(figure.value, color="gray", linestyle=":", linewidth=1)
+        colors[label] = (line.get_color(), group.iloc[0])
+    if column == spec.metric:  # the paper's figures are of the metric: each in its configuration's color
+        for figure in spec.paper:
+            color = next((c for c, row in colors.values() if matches(figure, row)), "gray")
+            ax.axhline(figure.value, color=color, linestyle=":", linewidth=1.2)
     ax.set_xlabel("env steps")
     ax.set_ylabel(f"{column} (running mean of {smooth} reports)")
-    ax.set_title(f"{spec.name}: mean across seeds, 95% band" + (" (dotted: the paper's figures)" if spec.paper
-                                                                 else ""))
+    dotted = " (dotted: the paper's figures)" if spec.paper and column == spec.metric else ""
+    ax.set_title(f"{spec.name}: mean across seeds, 95% band{dotted}")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="best")
     fig.tight_layout()
@@ -130,8 +141,9 @@ def write_report(folder: str | Path) -> tuple[str, list[Path]]:
     text = "\n".join([
         f"# Sweep {folder.name}", "",
         spec.description, "",
-        f"{len(trials)} of {spec.num_trials()} trials have reported; {done} ran to the end. Final values are the "
-        f"mean of each trial's last {spec.final_window} reports; ± is the half-width of a 95% Student-t interval "
+        f"{len(trials)} of {spec.num_trials()} trials have reported; {done} ran to the end. A final value is the "
+        f"mean of a trial's last {spec.final_window} values of that column (evaluation columns come every "
+        f"eval_every iterations); ± is the half-width of a 95% Student-t interval "
         f"across seeds.", "",
         format_summary(spec, table), "",
         *[f"![{p.stem}]({p.name})" for p in pictures], ""])
