@@ -141,9 +141,9 @@ def write_report(folder: str | Path) -> tuple[str, list[Path]]:
     text = "\n".join([
         f"# Sweep {folder.name}", "",
         spec.description, "",
-        f"{len(trials)} of {spec.num_trials()} trials have reported; {done} ran to the end. A final value is the "
-        f"mean of a trial's last {spec.final_window} values of that column (evaluation columns come every "
-        f"eval_every iterations); ± is the half-width of a 95% Student-t interval "
+        f"{len(trials)} of {spec.num_trials()} trials have reported; {done} ran to the end. A final value is a "
+        f"trial's mean over its last {spec.final_window} iterations (an evaluation column: its evaluations "
+        f"there, or its last one); ± is the half-width of a 95% Student-t interval "
         f"across seeds.", "",
         format_summary(spec, table), "",
         *[f"![{p.stem}]({p.name})" for p in pictures], ""])

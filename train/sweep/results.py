@@ -4,8 +4,8 @@
   values and seed, ``step`` and every metric reported.
 * ``trials``: a row per trial: parameter values, seed, steps done and planned, whether it ran to
   the end, wall time, median env-steps/s, the Ray node that ran its last iteration, and for each
-  summary column its final value (the mean of the last ``final_window`` reports), and the best
-  value of the sweep's metric.
+  summary column its final value (its mean over the last ``final_window`` reports, or, for an
+  evaluation column with no value there, its last value), and the best value of the sweep's metric.
 
 Both are written as CSV and Parquet beside the trials (``curves.csv``, ``trials.parquet``, ...).
 A trial restarted from a checkpoint reports some iterations twice; the later report of a step is
@@ -107,8 +107,11 @@ def summarize_trial(spec: SweepSpec, ident: dict, rows: list[dict]) -> dict:
            "sps": float(pd.Series([r.get("sps", math.nan) for r in rows]).median())}
     out["finished"] = out["steps"] >= out["total_steps"]
     for column in summary_columns(spec, rows):
-        series = pd.Series([r.get(column, math.nan) for r in rows], dtype=float).dropna()
-        out[f"final_{column}"] = float(series.iloc[-spec.final_window:].mean()) if len(series) else math.nan
+        every = pd.Series([r.get(column, math.nan) for r in rows], dtype=float)
+        series, window = every.dropna(), every.iloc[-spec.final_window:].dropna()
+        # an evaluation column has a value every eval_every reports: its last one when none falls in the window
+        final = window.mean() if len(window) else (series.iloc[-1] if len(series) else math.nan)
+        out[f"final_{column}"] = float(final)
         if column == spec.metric:
             best = series.max() if spec.mode == "max" else series.min()
             out[f"best_{column}"] = float(best) if len(series) else math.nan
