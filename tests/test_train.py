@@ -107,6 +107,20 @@ def test_fast_encoder_patches_compute_its_convolutions_exactly(planes):
     assert torch.allclose(grads[0], grads[1], atol=1e-4)
 
 
+@pytest.mark.parametrize("height, width", [(32, 32), (30, 27), (5, 7)])
+def test_compiled_fast_view_equals_the_tensor_ops(height, width):
+    """The fast network's view cut by train.views' kernels is the tensor ops' to the bit, pooled edges included."""
+    enc = FastEncoder(EnvConfig(height=height, width=width, block_density=0.3), goal_in=3, hidden=8)
+    generator = torch.Generator().manual_seed(height * width)
+    obs = (torch.rand(50, 5, height, width, generator=generator) < 0.4).to(torch.uint8)
+    me = torch.stack([torch.randint(0, height, (50,), generator=generator),
+                      torch.randint(0, width, (50,), generator=generator)], dim=1)
+    compiled, reference = enc.prepare(obs, me), enc.prepare_with_tensor_ops(obs, me)
+    assert compiled.keys() == reference.keys()
+    for key, value in compiled.items():
+        assert value.dtype == reference[key].dtype and torch.equal(value, reference[key]), key
+
+
 def test_sampled_actions_follow_the_probabilities():
     probs = torch.tensor([[0.1, 0.2, 0.0, 0.7]]).repeat(40_000, 1)
     actions = sample(probs, torch.Generator().manual_seed(0))

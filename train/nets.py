@@ -15,6 +15,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from colorgrid.config import EnvConfig
+from train import views
 from train.config import NetConfig
 
 
@@ -132,9 +133,18 @@ class FastEncoder(nn.Module):
         """The network's view of ``obs [N, P, H, W]``: computed once per sample, reused by every epoch.
 
         ``patches [N, cells^2, P + 1, 9]`` (float): the egocentric window (``egocentric``) cut
-        into the first conv's 3x3 patches, gathered in one indexing op. Float, because PPO
-        epochs reuse it: converting once per sample is cheaper than once per minibatch.
+        into the first conv's 3x3 patches; ``coarse [N, P * ceil(H/4) * ceil(W/4)]`` (float): every
+        plane average-pooled. Float, because PPO epochs reuse it: converting once per sample is
+        cheaper than once per minibatch. A uint8 board on the CPU is cut by compiled kernels
+        (``train.views``), anything else by tensor ops (``prepare_with_tensor_ops``): the same values.
         """
+        if obs.device.type == "cpu" and obs.dtype == torch.uint8:  # one compiled pass each (train/views.py)
+            return {"patches": views.window_patches(obs, me, self.radius, self.cells),
+                    "coarse": views.pooled(obs, self.pool)}
+        return self.prepare_with_tensor_ops(obs, me)
+
+    def prepare_with_tensor_ops(self, obs: torch.Tensor, me: torch.Tensor) -> dict[str, torch.Tensor]:
+        """``prepare`` with tensor ops on any device and dtype (the same values: a test checks)."""
         N, P = obs.shape[:2]
         padded = pad_board(obs, self.radius)
         # the window's top-left corner in padded coordinates is the agent's own cell
