@@ -43,16 +43,20 @@ def _pooled(obs, pool, out):
     """``out [N, P, ceil(H / pool), ceil(W / pool)]``: the mean of each ``pool x pool`` block of ``obs [N, P, H, W]``
     (blocks cut by the far edges: the mean of the cells they hold), as ``avg_pool2d(ceil_mode=True)`` computes it."""
     N, P, H, W = obs.shape
+    rows = np.empty(W, dtype=np.int32)  # one band of ``pool`` rows summed down each column
     for n in range(N):
         for p in range(P):
             for i in range(out.shape[2]):
                 r0, r1 = i * pool, min(i * pool + pool, H)
+                rows[:] = 0
+                for r in range(r0, r1):
+                    for c in range(W):  # contiguous: vectorised
+                        rows[c] += obs[n, p, r, c]
                 for j in range(out.shape[3]):
                     c0, c1 = j * pool, min(j * pool + pool, W)
                     total = 0
-                    for r in range(r0, r1):
-                        for c in range(c0, c1):
-                            total += obs[n, p, r, c]
+                    for c in range(c0, c1):
+                        total += rows[c]
                     out[n, p, i, j] = np.float32(total) / np.float32((r1 - r0) * (c1 - c0))
 
 
