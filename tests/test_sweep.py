@@ -39,8 +39,9 @@ final_window = 2
 cpus_per_trial = 1
 {tables}
 """
-TIMING = {"sps", "rollout_sps", "update_sps", "wall_time_s"}
-"""Columns that measure the machine, not what was learned."""
+MACHINE = {"sps", "rollout_sps", "update_sps", "wall_time_s", "torch_threads", "numba_threads"}
+"""Columns that describe the machine, not what was learned (the thread counts come from Tune's reports, whose
+last few before a kill are lost)."""
 
 
 def sweep_file(tmp_path: Path, name: str, params: str, seeds="[0, 1]", total=512, save_every=2, top="",
@@ -60,7 +61,7 @@ def local_ray():
 
 def learned(curves: pd.DataFrame) -> pd.DataFrame:
     """What a trial learned, step by step: its curves without the machine's timings."""
-    columns = [c for c in curves.columns if c not in TIMING and c not in ("trial", "node_id")]
+    columns = [c for c in curves.columns if c not in MACHINE and c not in ("trial", "node_id")]
     return curves[columns].reset_index(drop=True)
 
 
@@ -98,45 +99,78 @@ def test_tiny_sweep_writes_tables_and_report(tmp_path):
         run_sweep(spec)
 
 
-def watch_and_kill(folder: Path, copy: str, stop: threading.Event, killed: list) -> None:
-    """SIGKILL the process of trial ``copy`` once it has reported a checkpoint and gone on past it."""
-    while not stop.is_set():
-        for params in folder.glob("trial_*/params.json"):
-            if json.loads(params.read_text()).get("copy") != copy:
+def parent(pid: int) -> int:
+    return int((Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[1])
+
+
+def trial_processes() -> list[int]:
+    """The pids of the processes running a Tune trial of this test's Ray (Ray names them ``ray::ImplicitFunc...``;
+    they descend from this process, which started Ray)."""
+    pids = []
+    for cmdline in Path("/proc").glob("[0-9]*/cmdline"):
+        try:
+            if not cmdline.read_bytes().startswith(b"ray::ImplicitFunc"):
                 continue
-            reports = [json.loads(line) for line in (params.parent / "result.json").read_text().splitlines()
-                       if line.strip()] if (params.parent / "result.json").exists() else []
-            saved = [r for r in reports if r.get("checkpoint_dir_name")]
-            if saved and reports[-1]["step"] > saved[-1]["step"]:
-                os.kill(reports[-1]["pid"], signal.SIGKILL)
-                killed.append(reports[-1]["step"])
+            pid = ancestor = int(cmdline.parent.name)
+            while ancestor > 1 and ancestor != os.getpid():
+                ancestor = parent(ancestor)
+            if ancestor == os.getpid():
+                pids.append(pid)
+        except (OSError, ValueError, IndexError):  # a process that ended while we looked
+            continue
+    return pids
+
+
+def watch_and_kill(folder: Path, at_step: int, stop: threading.Event, killed: list) -> None:
+    """SIGKILL the (only) running trial's process once its training log has passed ``at_step``."""
+    while not stop.is_set():
+        for log in folder.glob("trial_*/run/metrics.jsonl"):
+            try:
+                steps = [json.loads(line)["step"] for line in log.read_text().splitlines() if line.endswith("}")]
+            except (OSError, ValueError):
+                continue
+            pids = trial_processes()
+            if steps and steps[-1] >= at_step and len(pids) == 1:
+                os.kill(pids[0], signal.SIGKILL)
+                killed.append(steps[-1])
                 return
         time.sleep(0.02)
 
 
+def steps_reported(trial_dir: Path) -> list[int]:
+    """Every step a trial's training log recorded, in order (a restarted trial's repeated steps included)."""
+    lines = (trial_dir / "run" / "metrics.jsonl").read_text().splitlines()
+    return [row["step"] for row in map(json.loads, lines) if row["stream"] == "train"]
+
+
 def test_trial_killed_mid_run_resumes_to_the_same_metrics(tmp_path):
-    """Two trials of one configuration (two options that change nothing); one is SIGKILLed after a checkpoint.
-    Tune restarts it from that checkpoint and it ends with exactly the other's learning curve."""
+    """Two trials of one configuration (two options that change nothing), run one after the other; the first is
+    SIGKILLed six iterations past its first checkpoint. Tune restarts it from a checkpoint, not from the start,
+    and it ends with exactly the other's learning curve."""
     path = sweep_file(tmp_path, "kill", '[params.copy.options]\nkilled = {}\nuntouched = {}', seeds="[3]",
                       total=64 * 40, save_every=8)
+    path.write_text(path.read_text().replace("cpus_per_trial = 1", "cpus_per_trial = 1\nmax_concurrent = 1"))
     folder = tmp_path / "out"
     stop, killed = threading.Event(), []
-    watcher = threading.Thread(target=watch_and_kill, args=(folder, "killed", stop, killed), daemon=True)
+    watcher = threading.Thread(target=watch_and_kill, args=(folder, 64 * 14, stop, killed), daemon=True)
     watcher.start()
     try:
         assert run_sweep(load_sweep(path, out=folder)) == 0
     finally:
         stop.set()
         watcher.join()
-    assert killed, "the trial ended before it could be killed"
+    assert killed and killed[0] < 64 * 40, "the trial ended before it could be killed"
     trials, curves = read_tables(folder)
     assert trials["finished"].all()
     by_copy = {c: learned(curves[curves["copy"] == c]).drop(columns=["copy", "configuration"])
                for c in ("killed", "untouched")}
     assert len(by_copy["killed"]) == 40
     pd.testing.assert_frame_equal(by_copy["killed"], by_copy["untouched"])
-    reports = (folder / trials[trials["copy"] == "killed"]["trial"].iloc[0] / "result.json").read_text()
-    assert len(reports.splitlines()) > 40  # the steps after the checkpoint were reported twice
+    steps = steps_reported(folder / trials[trials["copy"] == "killed"]["trial"].iloc[0])
+    drops = [i for i in range(1, len(steps)) if steps[i] <= steps[i - 1]]
+    assert len(drops) == 1, steps  # one restart ...
+    restart = steps[drops[0]]
+    assert restart > 64 and (restart - 64) % (64 * 8) == 0, steps  # ... from a checkpoint (every 8 iterations)
 
 
 def test_interrupted_sweep_finishes_with_sweep_resume(tmp_path):
@@ -146,12 +180,13 @@ def test_interrupted_sweep_finishes_with_sweep_resume(tmp_path):
                             "--num-cpus", "1"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         deadline = time.monotonic() + 120
-        while time.monotonic() < deadline:  # Ctrl+C once the first trial has saved a checkpoint
-            if any("checkpoint_dir_name\": \"checkpoint" in p.read_text() for p in folder.glob("trial_*/result.json")):
+        while time.monotonic() < deadline:  # Ctrl+C three iterations after a trial's first checkpoint (at 5)
+            logs = [p.read_text() for p in folder.glob("trial_*/run/metrics.jsonl")]
+            if any(f'"step": {64 * 8},' in log for log in logs):
                 break
-            time.sleep(0.1)
+            time.sleep(0.05)
         else:
-            pytest.fail("no trial reported a checkpoint")
+            pytest.fail("no trial got past its first checkpoint")
         run.send_signal(signal.SIGINT)
         out, _ = run.communicate(timeout=120)
     finally:
@@ -165,6 +200,9 @@ def test_interrupted_sweep_finishes_with_sweep_resume(tmp_path):
     assert len(trials) == 4 and trials["finished"].all() and (trials["steps"] == 64 * 60).all()
     for trial in trials["trial"]:  # every step once in the table, in order
         assert list(curves[curves["trial"] == trial]["step"]) == list(range(64, 64 * 61, 64))
+    restarts = [steps[i] for trial in trials["trial"] for steps in [steps_reported(folder / trial)]
+                for i in range(1, len(steps)) if steps[i] <= steps[i - 1]]
+    assert restarts and all(r > 64 and (r - 64) % (64 * 5) == 0 for r in restarts), restarts  # from checkpoints
 
 
 def test_asha_stops_trailing_trials_early(tmp_path):

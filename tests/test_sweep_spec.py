@@ -65,7 +65,8 @@ def test_shipped_sweep_files_load():
 
 MISTAKES = {
     "unknown top-level field": ("sedes = [1]\n" + GOOD, "unknown field 'sedes'"),
-    "seeds not distinct": (GOOD.replace("seeds = [0, 1]", "seeds = [1, 1]"), "seeds=[1, 1] is invalid: a list of distinct"),
+    "seeds not distinct": (GOOD.replace("seeds = [0, 1]", "seeds = [1, 1]"),
+                           "seeds=[1, 1] is invalid: a list of distinct"),
     "negative seed": (GOOD.replace("seeds = [0, 1]", "seeds = [-1]"), "seeds=[-1] is invalid"),
     "unknown training key": (GOOD.replace('"follower.aux_coef"]', '"follower.aux_coeff"]'),
                              "params.aux.keys: unknown TrainConfig field 'follower.aux_coeff'; allowed: ["),
@@ -79,7 +80,7 @@ MISTAKES = {
     "loguniform from zero": (GOOD.replace("loguniform = [1e-5, 1e-3]", "loguniform = [0, 1e-3]"),
                              "params.ppo.lr.loguniform=[0, 0.001] is invalid: [low, high] with 0 < low < high"),
     "empty grid": (GOOD.replace("grid = [0.0, 0.2]", "grid = []"), "params.aux.grid=[] is invalid"),
-    "seed as a parameter": (GOOD + '\n[params.seed]\ngrid = [1, 2]\n', "other than 'seed'"),
+    "seed as a parameter": (GOOD + '\n[params.seed]\ngrid = [1, 2]\n', "params='seed' is invalid: names of"),
     "seed in set": (GOOD.replace('"env.asymmetric=false"]', '"env.asymmetric=false", "seed=3"]'),
                     "set[2]='seed=3' is invalid: any training key but seed"),
     "set not KEY=VALUE": (GOOD.replace('"env.asymmetric=false"]', '"env.asymmetric"]'),
@@ -89,13 +90,26 @@ MISTAKES = {
                        "metric='team_rewards' is invalid: a column of the training log"),
     "bad mode": ('mode = "maximum"\n' + GOOD, "mode='maximum' is invalid: 'max' or 'min'"),
     "num_samples without random": ("num_samples = 2\n"
-                                   + GOOD.replace('[params."ppo.lr"]\nloguniform = [1e-5, 1e-3]', ""), "num_samples=2 is invalid: 1 unless a parameter is random"),
+                                   + GOOD.replace('[params."ppo.lr"]\nloguniform = [1e-5, 1e-3]', ""),
+                                   "num_samples=2 is invalid: 1 unless a parameter is random"),
     "bad scheduler": (GOOD + '\n[scheduler]\nkind = "hyperband"\n', "scheduler.kind='hyperband' is invalid"),
     "zero cpus": (GOOD + "\n[resources]\ncpus_per_trial = 0\n", "resources.cpus_per_trial=0 is invalid"),
     "unknown resource": (GOOD + "\n[resources]\ncpu = 1\n", "resources: unknown field 'cpu'"),
     "paper figure for an unknown value": (GOOD + '\n[[paper]]\nwhere = { aux = 0.5 }\nvalue = 48.8\n',
                                           "paper[0].where.aux=0.5 is invalid: one of [0.0, 0.2]"),
     "not TOML": ("seeds = [0,\n", "not valid TOML"),
+    "a reserved parameter name": (GOOD + '\n[params.sample]\nkeys = ["ppo.ent_coef"]\ngrid = [0.0]\n',
+                                  "params='sample' is invalid: names of 1 to 64 letters"),
+    "two parameters set one key": (GOOD + '\n[params.kappa]\nkeys = ["follower.aux_coef"]\ngrid = [0.5]\n',
+                                   "params.kappa='follower.aux_coef' is invalid: a key no other parameter sets "
+                                   "(params.aux sets it too)"),
+    "asha grace beyond the run": (GOOD + '\n[scheduler]\nkind = "asha"\ngrace_period = 5000\n',
+                                  "scheduler.grace_period=5000 is invalid: fewer env steps than total_steps=4096"),
+    "asha over runs of unequal length": (GOOD + '\n[params.budget]\nkeys = ["total_steps"]\ngrid = [4096, 8192]\n'
+                                         '[scheduler]\nkind = "asha"\n', "a sweep whose trials all train as long"),
+    "an empty paper where": (GOOD + '\n[[paper]]\nwhere = {}\nvalue = 1.0\n', "paper[0].where={} is invalid"),
+    "a statistic of no learner": ('metric = "folower/aux_loss"\n' + GOOD.replace('metric = "team_reward"', ""),
+                                  "'NAME/key' with NAME one of ['leader', 'follower', 'leader', 'follower']"),
 }
 
 
@@ -111,6 +125,20 @@ def test_each_mistake_is_one_line_and_exit_code_2(tmp_path, capsys, name):
     assert err.startswith("colorgrid sweep check: error: ") and err.count("\n") == 1 and str(path) in err
 
 
+def test_paper_figures_match_their_configuration_by_value(tmp_path):
+    """``where = {aux = 0}`` is the grid's 0.0, and a figure is shown beside that configuration only."""
+    import pandas as pd
+
+    from train.sweep.report import matches
+
+    path = write(tmp_path, GOOD + '\n[[paper]]\nwhere = { aux = 0, annealing = "early" }\nvalue = 32.8\n')
+    figure = load_sweep(path).paper[0]
+    assert figure.where == {"aux": 0.0, "annealing": "early"}
+    assert matches(figure, pd.Series({"aux": 0.0, "annealing": "early"}))
+    assert not matches(figure, pd.Series({"aux": 0.2, "annealing": "early"}))
+    assert not matches(figure, pd.Series({"aux": 0.0, "annealing": "none"}))
+
+
 def test_missing_file_and_folders_that_are_not_sweeps(tmp_path, capsys):
     assert main(["sweep", "check", str(tmp_path / "none.toml")]) == 2
     assert "no such sweep file" in capsys.readouterr().err
@@ -123,4 +151,5 @@ def test_missing_file_and_folders_that_are_not_sweeps(tmp_path, capsys):
 def test_eval_address_needs_a_population_matrix(capsys):
     assert main(["eval", "--address", "auto", "--episodes", "1"]) == 2
     err = capsys.readouterr().err
-    assert err == "colorgrid eval: error: --address runs the cells of a --leaders matrix on Ray; add --leaders POPULATION\n"
+    assert err == ("colorgrid eval: error: --address runs the cells of a --leaders matrix on Ray; add --leaders "
+                   "POPULATION\n")

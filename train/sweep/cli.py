@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+MISSING = "sweeps need Ray Tune and matplotlib: pip install 'colorgrid[sweep]'"
+
 
 def add_sweep_commands(sub) -> None:
     sweep = sub.add_parser("sweep", help="run a sweep of training runs (configurations x seeds) on Ray Tune",
@@ -28,33 +30,23 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         raise ValueError(f"--num-cpus must be >= 1, got {args.num_cpus}")
     if args.action == "check":
         spec = load_sweep(args.path, args.out)
-        print(f"{spec.path}: {spec.num_trials()} trials ({spec.grid_size() * spec.num_samples} configurations x "
-              f"{len(spec.seeds)} seeds), metric {spec.metric} ({spec.mode}), into {spec.out}")
+        print(f"{spec.path}: {spec.summary()}, metric {spec.metric} ({spec.mode}), into {spec.out}")
         return 0
     if args.action == "report":
-        from train.sweep.report import write_report
-
-        text, pictures = write_report(_sweep_folder(args.path))
+        try:
+            from train.sweep.report import write_report
+        except ImportError:
+            raise ValueError(MISSING) from None
+        text, _ = write_report(args.path)
         print(text)
         return 0
     try:
         import ray  # noqa: F401
         from ray import tune  # noqa: F401
     except ImportError:
-        raise ValueError("sweeps need Ray Tune: pip install 'colorgrid[sweep]'") from None
+        raise ValueError(MISSING) from None
     from train.sweep.runner import resume_sweep, run_sweep
 
     if args.action == "run":
         return run_sweep(load_sweep(args.path, args.out), args.address, args.num_cpus)
-    return resume_sweep(_sweep_folder(args.path), args.address, args.num_cpus)
-
-
-def _sweep_folder(path: str):
-    from pathlib import Path
-
-    from train.sweep.spec import SPEC_FILE
-
-    folder = Path(path)
-    if not (folder / SPEC_FILE).is_file():
-        raise ValueError(f"{folder}: not a sweep folder (no {SPEC_FILE}); colorgrid sweep run FILE makes one")
-    return folder
+    return resume_sweep(args.path, args.address, args.num_cpus)

@@ -13,8 +13,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from train.sweep.results import collect, load_spec
-from train.sweep.spec import SweepSpec
+from train.sweep.results import collect
+from train.sweep.spec import SweepSpec, load_folder, same_value
 
 T_975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131,
          2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042)
@@ -37,7 +37,7 @@ def mean_interval(values) -> tuple[float, float, int]:
 
 def matches(figure, row) -> bool:
     """Whether a configuration's row (of the summary or the curves) is the one the paper's ``figure`` is for."""
-    return all(str(row.get(name)) == str(value) for name, value in figure.where.items())
+    return all(same_value(row.get(name), value) for name, value in figure.where.items())
 
 
 def paper_value(spec: SweepSpec, row: pd.Series) -> str:
@@ -130,7 +130,7 @@ def plot_curves(spec: SweepSpec, curves: pd.DataFrame, column: str, out: Path) -
 def write_report(folder: str | Path) -> tuple[str, list[Path]]:
     """Collect the tables, then write ``report.md`` and the curve pictures; returns the text and the pictures."""
     folder = Path(folder)
-    spec = load_spec(folder)
+    spec = load_folder(folder)
     trials, curves = collect(folder)
     if trials.empty:
         return f"sweep {folder.name}: no trial has reported yet", []

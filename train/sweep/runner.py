@@ -10,14 +10,17 @@ checkpoint (``FailureConfig``); a sweep stopped by Ctrl+C or a lost driver is fi
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import sys
 import time
 from pathlib import Path
 
-from train.sweep.spec import SPEC_FILE, SweepError, SweepSpec, load_sweep
+from train.sweep.spec import SPEC_FILE, SweepError, SweepSpec, load_folder
 from train.sweep.trial import run_trial, trial_folder
 
+WORKDIR_FILE = "workdir"
+"""The folder the sweep was started in: paths in the sweep file are read from there, on resume too."""
 MAX_FAILURES = 3
 """Restarts of a trial from its last checkpoint before it counts as failed."""
 
@@ -28,13 +31,26 @@ def connect(address: str | None, num_cpus: int | None = None) -> None:
     import ray
 
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")  # with verbose=0: no tables of Tune's own; ProgressLines speaks
+    # Tune warns of every trial without results yet when it saves an interrupted sweep: those are expected
+    logging.getLogger("ray.tune.analysis.experiment_analysis").setLevel(logging.ERROR)
     if ray.is_initialized():
         return
     if address:
         ray.init(address=address, logging_level="WARNING", log_to_driver=False)
-    else:
-        ray.init(num_cpus=num_cpus or os.cpu_count(), include_dashboard=False, logging_level="WARNING",
-                 log_to_driver=False)
+    else:  # num_cpus None: Ray counts the CPUs this process may use (container limits included)
+        ray.init(num_cpus=num_cpus, include_dashboard=False, logging_level="WARNING", log_to_driver=False)
+
+
+def check_resources(spec: SweepSpec) -> None:
+    """A trial that asks for more than any node has would wait for ever: say so in one line instead."""
+    import ray
+
+    nodes = [n["Resources"] for n in ray.nodes() if n.get("Alive")]
+    for kind, wanted in (("CPU", spec.resources.cpus_per_trial), ("GPU", spec.resources.gpus_per_trial)):
+        most = max((n.get(kind, 0) for n in nodes), default=0)
+        if wanted > most:
+            raise SweepError(f"resources: a trial asks for {wanted:g} {kind}s but the largest node of this Ray "
+                             f"cluster has {most:g}; lower [resources] or join a larger cluster (--address)")
 
 
 def param_space(spec: SweepSpec) -> dict:
@@ -72,9 +88,7 @@ def trainable(spec: SweepSpec, workdir: str | None = None):
 
 
 def trial_label(spec: SweepSpec, params: dict) -> str:
-    parts = [f"{p.name}={params.get(p.name)}" for p in spec.params if not p.random]
-    parts += [f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in (params.get("sample") or {}).items()]
-    return ", ".join(parts + [f"seed={params.get('seed')}"])
+    return f"{spec.label(spec.values(params))}, seed={params.get('seed')}"
 
 
 def run_config(spec: SweepSpec, folder: Path):
@@ -91,15 +105,16 @@ def run_sweep(spec: SweepSpec, address: str | None = None, num_cpus: int | None 
     from ray import tune
 
     folder = spec.out.resolve()
-    if (folder / SPEC_FILE).exists():
+    if (folder / SPEC_FILE).exists() and tune.Tuner.can_restore(str(folder)):
         raise SweepError(f"{folder} already holds a sweep; finish it with colorgrid sweep resume {spec.out}, or "
                          f"choose another --out")
+    connect(address, num_cpus)
+    check_resources(spec)
     folder.mkdir(parents=True, exist_ok=True)
     (folder / SPEC_FILE).write_text(spec.text)
-    connect(address, num_cpus)
+    (folder / WORKDIR_FILE).write_text(os.getcwd())
     concurrent = spec.resources.max_concurrent or None
-    print(f"sweep {spec.name}: {spec.num_trials()} trials ({spec.grid_size() * spec.num_samples} configurations x "
-          f"{len(spec.seeds)} seeds) into {folder}", flush=True)
+    print(f"sweep {spec.name}: {spec.summary()} into {folder}", flush=True)
     tuner = tune.Tuner(
         trainable(spec), param_space=param_space(spec),
         tune_config=tune.TuneConfig(metric=spec.metric, mode=spec.mode, scheduler=scheduler(spec),
@@ -114,17 +129,16 @@ def resume_sweep(folder: str | Path, address: str | None = None, num_cpus: int |
     from ray import tune
 
     folder = Path(folder).resolve()
-    saved = folder / SPEC_FILE
-    if not saved.exists():
-        raise SweepError(f"{folder}: not a sweep folder (no {SPEC_FILE}); colorgrid sweep run FILE makes one")
-    spec = load_sweep(saved, out=folder)
-    spec = dataclasses.replace(spec, name=folder.name)
-    connect(address, num_cpus)
+    spec = load_folder(folder)
     if not tune.Tuner.can_restore(str(folder)):
         raise SweepError(f"{folder}: Ray Tune saved no experiment state here yet; start it again with "
                          f"colorgrid sweep run")
+    workdir = (folder / WORKDIR_FILE).read_text() if (folder / WORKDIR_FILE).exists() else os.getcwd()
+    connect(address, num_cpus)
+    check_resources(spec)
     print(f"resuming sweep {folder.name} in {folder}", flush=True)
-    tuner = tune.Tuner.restore(str(folder), trainable=trainable(spec), resume_unfinished=True, resume_errored=True)
+    tuner = tune.Tuner.restore(str(folder), trainable=trainable(spec, workdir), resume_unfinished=True,
+                               resume_errored=True)
     return finish(tuner, spec, folder)
 
 
@@ -135,8 +149,9 @@ def finish(tuner, spec: SweepSpec, folder: Path) -> int:
     trials, _ = collect(folder)
     ended = ended_trials(folder)
     done = int(trials["finished"].sum()) if len(trials) else 0
+    early = ended - done - grid.num_errors  # ended on disk without reaching the end: the scheduler stopped them
     print(f"sweep {folder.name}: {done} of {spec.num_trials()} trials ran to the end"
-          + (f", {grid.num_terminated - done} stopped early by the scheduler" if grid.num_terminated > done else "")
+          + (f", {early} stopped early by the scheduler" if early > 0 else "")
           + (f", {grid.num_errors} failed" if grid.num_errors else "") + f"; tables in {folder}", flush=True)
     if ended < spec.num_trials():
         print(f"stopped before its end; finish it with: colorgrid sweep resume {folder}", flush=True)
@@ -152,11 +167,8 @@ def ended_trials(folder: Path) -> int:
     """Trials that the experiment state saved on disk counts as ended (finished, stopped by the scheduler or
     failed). After Ctrl+C Tune saves the state before it stops the running trials, so those count as not
     ended there, and ``Tuner.restore`` continues them."""
-    import logging
-
     from ray import tune
 
-    logging.getLogger("ray.tune.analysis.experiment_analysis").setLevel(logging.ERROR)  # trials yet to report
     analysis = tune.ExperimentAnalysis(str(folder))
     return sum(t.status in ("TERMINATED", "ERROR") for t in analysis.trials)
 
@@ -203,4 +215,4 @@ class ProgressLines(_import_callback_base()):
         print(self._line(trial, trial.last_result or {}, "ended"), flush=True)
 
     def on_trial_error(self, iteration, trials, trial, **info):
-        print(f"failed [{trial_label(self.spec, trial.config)}]: see {trial.local_path}/error.txt", flush=True)
+        print(f"failed [{trial_label(self.spec, trial.config)}]: see {Path(trial.path) / 'error.txt'}", flush=True)

@@ -9,6 +9,7 @@ trial. ``load_sweep`` raises ``SweepError`` with the place in the file and what 
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import re
@@ -29,6 +30,8 @@ NAME_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 TOP_LEVEL = ("description", "preset", "set", "seeds", "params", "num_samples", "metric", "mode", "final_window",
              "out", "resources", "scheduler", "paper")
 MAX_COMBINATIONS = 10_000
+RESERVED = ("seed", "sample", "trial", "configuration", "step", "steps", "total_steps", "finished", "node")
+"""Names a parameter may not take: Tune's axes and the columns of the sweep's tables."""
 SPEC_FILE = "sweep.toml"
 """The sweep file as read, kept in the sweep's folder (``sweep resume`` and ``sweep report`` read it)."""
 
@@ -128,6 +131,18 @@ class SweepSpec:
     def param_names(self) -> list[str]:
         return [p.name for p in self.params]
 
+    def values(self, params: dict) -> dict:
+        """A trial's parameter values by name (listed values, option labels, random draws) from Tune's params."""
+        values = {p.name: params.get(p.name) for p in self.params if not p.random}
+        values.update(params.get("sample") or {})
+        return values
+
+    def label(self, values: dict) -> str:
+        """A configuration's name in tables and pictures: ``aux=0.2, annealing=none`` (random draws to 4 digits)."""
+        parts = [f"{p.name}={values.get(p.name):.4g}" if p.random and isinstance(values.get(p.name), float)
+                 else f"{p.name}={values.get(p.name)}" for p in self.params]
+        return ", ".join(parts) or "base"
+
     def config(self, values: dict, seed: int) -> TrainConfig:
         """The training config of the trial with parameter ``values`` (by name) and ``seed``."""
         data = self.base
@@ -141,6 +156,10 @@ class SweepSpec:
 
     def num_trials(self) -> int:
         return self.grid_size() * self.num_samples * len(self.seeds)
+
+    def summary(self) -> str:
+        return (f"{self.num_trials()} trials ({self.grid_size() * self.num_samples} configurations x "
+                f"{len(self.seeds)} seeds)")
 
     def samples(self) -> list[dict]:
         """``num_samples`` draws of the random parameters (``{name: value}`` each; one empty draw if none), made
@@ -163,6 +182,14 @@ class SweepSpec:
                     draw[p.name] = float(np.exp(rng.uniform(np.log(p.values[0]), np.log(p.values[1]))))
             draws.append(draw)
         return draws
+
+
+def load_folder(folder: str | Path) -> SweepSpec:
+    """The sweep in ``folder`` (made by ``sweep run``), from the file kept there; named after the folder."""
+    folder = Path(folder)
+    if not (folder / SPEC_FILE).is_file():
+        raise SweepError(f"{folder}: not a sweep folder (no {SPEC_FILE}); colorgrid sweep run FILE makes one")
+    return dataclasses.replace(load_sweep(folder / SPEC_FILE, out=folder), name=folder.name)
 
 
 def to_json(value) -> str:
@@ -197,6 +224,13 @@ def parse_sweep(data: dict, path: Path, text: str = "", out: str | Path | None =
             or len(set(seeds)) != len(seeds)):
         raise bad("seeds", seeds, "a list of distinct whole numbers >= 0, e.g. [0, 1, 2]")
     params = tuple(parse_param(name, value) for name, value in _table(data, "params").items())
+    owners: dict[str, str] = {}
+    for param in params:
+        for key in {*param.keys, *(k for o in param.options.values() for k in o)}:
+            if key in owners:
+                raise bad(f"params.{param.name}", key, f"a key no other parameter sets (params.{owners[key]} "
+                                                       f"sets it too)")
+            owners[key] = param.name
     num_samples = data.get("num_samples", 1)
     if not _is_int(num_samples) or num_samples < 1:
         raise bad("num_samples", num_samples, "a whole number >= 1 (draws of the random parameters per grid point)")
@@ -245,8 +279,8 @@ def base_config(data: dict) -> dict:
 
 def parse_param(name: str, value) -> Param:
     where = f"params.{name}"
-    if not NAME_PATTERN.match(name) or name == "seed":
-        raise bad("params", name, "names of 1 to 64 letters, digits, '_', '.' or '-', other than 'seed'")
+    if not NAME_PATTERN.match(name) or name in RESERVED:
+        raise bad("params", name, f"names of 1 to 64 letters, digits, '_', '.' or '-', other than {list(RESERVED)}")
     if isinstance(value, list):  # the short form: a training key and its values
         value = {"grid": value}
     if not isinstance(value, dict):
@@ -327,18 +361,27 @@ def parse_scheduler(data: dict) -> Scheduler:
 
 
 def check_configs(spec: SweepSpec) -> None:
-    """Build the training config of every grid combination (random parameters at both ends of their range), so
-    that a bad value fails now, in one line, and not in a trial an hour later."""
+    """Build the training config of every grid combination (random parameters at both ends of their range; the
+    first ``MAX_COMBINATIONS``), so that a bad value fails now, in one line, and not in a trial an hour later."""
     corners = [[(p.name, v) for v in p.corners()] for p in spec.params]
+    totals = set()
     for i, combination in enumerate(itertools.product(*corners)):
         if i >= MAX_COMBINATIONS:
             break
         values = dict(combination)
         try:
-            spec.config(values, spec.seeds[0])
+            config = spec.config(values, spec.seeds[0])
         except ConfigError as err:
             where = ", ".join(f"{k}={v!r}" for k, v in values.items())
             raise SweepError(f"params ({where}): {err}") from None
+        totals.add(config.num_iterations * config.batch_steps)
+    if spec.scheduler.kind == "asha":
+        if len(totals) > 1:
+            raise bad("scheduler.kind", "asha", f"a sweep whose trials all train as long (total_steps varies: "
+                                                f"{sorted(totals)}), or kind = 'none'")
+        if spec.scheduler.grace_period >= min(totals):
+            raise bad("scheduler.grace_period", spec.scheduler.grace_period,
+                      f"fewer env steps than total_steps={min(totals)}")
 
 
 def metric_columns(config: TrainConfig) -> set[str]:
@@ -361,13 +404,18 @@ def metric_columns(config: TrainConfig) -> set[str]:
 def check_metric(spec: SweepSpec) -> None:
     if not isinstance(spec.metric, str) or not spec.metric:
         raise bad("metric", spec.metric, "a column of the training log, e.g. 'team_reward'")
-    if "/" in spec.metric and not spec.metric.startswith("eval/"):
-        return  # a learner's statistic (follower/aux_loss, ...): its names come from the learner
-    columns = metric_columns(spec.config({p.name: p.values[0] for p in spec.params}, spec.seeds[0]))
+    config = spec.config({p.name: p.values[0] for p in spec.params}, spec.seeds[0])
+    if "/" in spec.metric and not spec.metric.startswith("eval/"):  # a learner's statistic (follower/aux_loss)
+        learners = [name for name, _ in config.networks] + list(config.env.agent_names)
+        if spec.metric.split("/")[0] not in learners:
+            raise bad("metric", spec.metric, f"a column of the training log, or a learner's statistic: "
+                                             f"'NAME/key' with NAME one of {learners}")
+        return
+    columns = metric_columns(config)
     if spec.metric not in columns:
         raise bad("metric", spec.metric, f"a column of the training log: one of {sorted(columns)}, or a learner's "
                                          f"statistic such as 'follower/aux_loss'")
-    if spec.metric.startswith("eval/") and not spec.base.get("eval_every", 10):
+    if spec.metric.startswith("eval/") and not config.eval_every:
         raise bad("metric", spec.metric, "a training column, or set eval_every > 0 for an eval/ column")
 
 
@@ -383,18 +431,33 @@ def _with_paper(spec: SweepSpec, rows) -> SweepSpec:
             raise bad(where, row, "a table with 'where' and 'value'")
         _no_unknown(where, row, ("where", "value", "note"))
         match, value = row.get("where", {}), row.get("value")
-        if not isinstance(match, dict):
-            raise bad(f"{where}.where", match, "a table of {parameter name = value}")
+        if not isinstance(match, dict) or not match:
+            raise bad(f"{where}.where", match, "a non-empty table of {parameter name = value}")
         for name, v in match.items():
             param = next((p for p in spec.params if p.name == name), None)
             if param is None or param.random:
-                raise bad(f"{where}.where", name, f"one of the listed parameters {[p.name for p in spec.params if not p.random]}")
-            if v not in param.values:
+                listed = [p.name for p in spec.params if not p.random]
+                raise bad(f"{where}.where", name, f"one of the listed parameters {listed}")
+            listed = [p for p in param.values if same_value(p, v)]
+            if not listed:
                 raise bad(f"{where}.where.{name}", v, f"one of {list(param.values)}")
+            match[name] = listed[0]
         if not _is_number(value):
             raise bad(f"{where}.value", value, "a number")
         figures.append(PaperFigure(dict(match), float(value), _string(row, "note", "")))
     return dataclasses.replace(spec, paper=tuple(figures))
+
+
+def same_value(a, b) -> bool:
+    """Whether two parameter values are the same (``0`` and ``0.0`` are; ``'0'`` and ``0`` are not)."""
+    import numbers
+
+    def number(v) -> bool:
+        return isinstance(v, numbers.Real) and not isinstance(v, bool)
+
+    if number(a) and number(b):
+        return float(a) == float(b)
+    return not (number(a) or number(b)) and str(a) == str(b)  # labels, booleans
 
 
 def _table(data: dict, name: str) -> dict:

@@ -28,9 +28,7 @@ def trial_config(spec: SweepSpec, params: dict):
     """The trial's training config: the sweep's, with its parameter values, seed, thread count and device."""
     import dataclasses
 
-    values = {p.name: params[p.name] for p in spec.params if not p.random}
-    values.update(params.get("sample") or {})
-    config = spec.config(values, int(params["seed"]))
+    config = spec.config(spec.values(params), int(params["seed"]))
     threads = max(1, math.ceil(spec.resources.cpus_per_trial))
     device = "cuda" if spec.resources.gpus_per_trial > 0 else "cpu"
     return dataclasses.replace(config, threads=threads, device=device)
@@ -57,12 +55,10 @@ def run_trial(params: dict, spec: SweepSpec, workdir: str) -> None:
             trainer.restore(Path(folder) / "latest.pt")
     node = ray.get_runtime_context().get_node_id()
     threads = thread_counts()
-    latest = {spec.metric: math.nan}
 
     def report(row: dict, saved: Path | None) -> None:
         metrics = {k: float(v) for k, v in row.items() if isinstance(v, (int, float))}
-        latest.update({k: v for k, v in metrics.items() if math.isfinite(v)})
-        metrics[spec.metric] = latest[spec.metric]  # Tune needs the metric in every report
+        metrics.setdefault(spec.metric, math.nan)  # Tune needs the metric in every report; NaN: none this time
         metrics.update(step=trainer.step, total_steps=config.num_iterations * config.batch_steps, node_id=node,
                        **threads)
         if saved is None:
