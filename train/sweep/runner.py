@@ -31,6 +31,8 @@ def connect(address: str | None, num_cpus: int | None = None) -> None:
     import ray
 
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")  # with verbose=0: no tables of Tune's own; ProgressLines speaks
+    # short trials checkpoint often; Tune's advice to checkpoint less is not for a sweep file to act on
+    os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
     # Tune warns of every trial without results yet when it saves an interrupted sweep: those are expected
     logging.getLogger("ray.tune.analysis.experiment_analysis").setLevel(logging.ERROR)
     if ray.is_initialized():
