@@ -137,7 +137,7 @@ def profile_update(name: str, threads: int, device: str) -> None:
         trainer.train_iteration()
         trainer.collect_rollout()
         learner = trainer.learners[0]
-        bootstrap = learner.value(trainer._tensors(0, trainer._inputs(0)))
+        bootstrap = learner.value(trainer._learner_tensors(learner))
         with profile(activities=[ProfilerActivity.CPU]) as prof:
             learner.update(bootstrap)
         trainer.log.close()

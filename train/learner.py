@@ -153,8 +153,8 @@ def sample(probs: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
 
 
 def rows(t: torch.Tensor, dim: int, idx: torch.Tensor) -> torch.Tensor:
-    """``t.index_select(dim, idx)`` for a contiguous ``t``, through its 2-D or 3-D form: the same tensor, several
-    times faster on a CPU for the rollout's many-dimensional views than selecting along the full shape."""
+    """``t.index_select(dim, idx)`` for a contiguous ``t``, through its 2-D or 3-D form: the same tensor (one
+    selection over flat rows instead of one along the view's full shape)."""
     flat = t.reshape(*t.shape[:dim + 1], -1).index_select(dim, idx)
     return flat.reshape(*flat.shape[:dim + 1], *t.shape[dim + 1:])
 

@@ -3,8 +3,8 @@
 ``FastEncoder.prepare`` needs, for every sample, the egocentric window cut into its first
 conv's 3x3 patches and every plane average-pooled. Built with tensor ops that is a padded
 copy of the board, a gather, two float conversions and a pooling of a float copy of the
-board: a dozen small ops that cost far more than the network's arithmetic at a rollout's
-batch. These kernels write the same float32 values straight from the board.
+board: a dozen small ops at a rollout's batch. These kernels write the same float32 values
+straight from the board (docs/PERFORMANCE.md has the bench before and after).
 """
 
 from __future__ import annotations

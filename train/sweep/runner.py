@@ -16,6 +16,9 @@ import sys
 import time
 from pathlib import Path
 
+import ray
+from ray import tune
+
 from train.sweep.spec import SPEC_FILE, SweepError, SweepSpec, load_folder
 from train.sweep.trial import run_trial, trial_folder
 
@@ -28,8 +31,6 @@ MAX_FAILURES = 3
 def connect(address: str | None, num_cpus: int | None = None) -> None:
     """Join the cluster at ``address``, or start a local Ray instance (no dashboard, every CPU); a Ray already
     started in this process is used as it is."""
-    import ray
-
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")  # with verbose=0: no tables of Tune's own; ProgressLines speaks
     # short trials checkpoint often; Tune's advice to checkpoint less is not for a sweep file to act on
     os.environ.setdefault("TUNE_WARN_EXCESSIVE_EXPERIMENT_CHECKPOINT_SYNC_THRESHOLD_S", "0")
@@ -45,8 +46,6 @@ def connect(address: str | None, num_cpus: int | None = None) -> None:
 
 def check_resources(spec: SweepSpec) -> None:
     """A trial that asks for more than any node has would wait for ever: say so in one line instead."""
-    import ray
-
     nodes = [n["Resources"] for n in ray.nodes() if n.get("Alive")]
     for kind, wanted in (("CPU", spec.resources.cpus_per_trial), ("GPU", spec.resources.gpus_per_trial)):
         most = max((n.get(kind, 0) for n in nodes), default=0)
@@ -58,8 +57,6 @@ def check_resources(spec: SweepSpec) -> None:
 def param_space(spec: SweepSpec) -> dict:
     """Every seed, listed value and option is a grid axis; the random parameters' draws are one more axis
     (``sample``), drawn once, so that the seeds of a configuration share its draw."""
-    from ray import tune
-
     space = {"seed": tune.grid_search(list(spec.seeds))}
     for param in spec.params:
         if not param.random:
@@ -81,8 +78,6 @@ def scheduler(spec: SweepSpec):
 
 
 def trainable(spec: SweepSpec, workdir: str | None = None):
-    from ray import tune
-
     resources = {"cpu": spec.resources.cpus_per_trial, "gpu": spec.resources.gpus_per_trial}
     spec = dataclasses.replace(spec, out=spec.out.resolve())  # trials write their run folders there
     return tune.with_resources(tune.with_parameters(run_trial, spec=spec, workdir=workdir or os.getcwd()),
@@ -94,8 +89,6 @@ def trial_label(spec: SweepSpec, params: dict) -> str:
 
 
 def run_config(spec: SweepSpec, folder: Path):
-    from ray import tune
-
     return tune.RunConfig(
         name=folder.name, storage_path=str(folder.parent), verbose=0, callbacks=[ProgressLines(spec)],
         failure_config=tune.FailureConfig(max_failures=MAX_FAILURES),
@@ -104,8 +97,6 @@ def run_config(spec: SweepSpec, folder: Path):
 
 def run_sweep(spec: SweepSpec, address: str | None = None, num_cpus: int | None = None) -> int:
     """Run every trial of ``spec`` into ``spec.out``; returns the exit status (0: every trial finished)."""
-    from ray import tune
-
     folder = spec.out.resolve()
     if (folder / SPEC_FILE).exists() and tune.Tuner.can_restore(str(folder)):
         raise SweepError(f"{folder} already holds a sweep; finish it with colorgrid sweep resume {spec.out}, or "
@@ -128,8 +119,6 @@ def run_sweep(spec: SweepSpec, address: str | None = None, num_cpus: int | None 
 
 def resume_sweep(folder: str | Path, address: str | None = None, num_cpus: int | None = None) -> int:
     """Finish the sweep in ``folder``: trials that did not end are continued from their last checkpoints."""
-    from ray import tune
-
     folder = Path(folder).resolve()
     spec = load_folder(folder)
     if not tune.Tuner.can_restore(str(folder)):
@@ -169,8 +158,6 @@ def ended_trials(folder: Path) -> int:
     """Trials that the experiment state saved on disk counts as ended (finished, stopped by the scheduler or
     failed). After Ctrl+C Tune saves the state before it stops the running trials, so those count as not
     ended there, and ``Tuner.restore`` continues them."""
-    from ray import tune
-
     analysis = tune.ExperimentAnalysis(str(folder))
     return sum(t.status in ("TERMINATED", "ERROR") for t in analysis.trials)
 
@@ -185,13 +172,7 @@ def trial_folder_name(trial) -> str:
     return trial_folder(trial.trial_id)
 
 
-def _import_callback_base():
-    from ray import tune
-
-    return tune.Callback
-
-
-class ProgressLines(_import_callback_base()):
+class ProgressLines(tune.Callback):
     """One line per trial as it goes (at most every ``every`` seconds each), and one when it ends."""
 
     def __init__(self, spec: SweepSpec, every: float = 30.0):
