@@ -37,6 +37,7 @@ class Learner:
         self.identity = self.model.identity(self.agents, ppo.num_envs, device)  # None unless shared
         self.buffer: dict[str, list] = {}
         self.views: dict[str, torch.Tensor] = {}  # [num_steps, rows, ...] per view key, reused by every rollout
+        self.shuffled: dict[str, torch.Tensor] = {}  # [num_steps * rows, ...] per view key, reused by every epoch
         self.steps = 0  # steps acted in this rollout
 
     # ------------------------------------------------------------ rollout
@@ -109,27 +110,21 @@ class Learner:
                                           self.ppo.gae_lambda)
         T, B = values.shape
         recurrent = self.model.lstm is not None
+        samples = {**{k: b[k] for k in (*_SIDE, "actions", "logp", "true_goal", "aux_target") if k in b},
+                   "values": values, "advantages": advantages, "returns": returns}  # [T, B, ...] each
         epochs_done, stats = 0, []
         for _ in range(self.ppo.update_epochs):
             stats = []
             # recurrent minibatches are whole envs (sequences kept intact), others single steps
             order = torch.randperm(B if recurrent else T * B, generator=self.generator).to(self.device)
-            for idx in order.view(self.ppo.num_minibatches, -1):
-                if recurrent:
-                    envs = lambda t: t.index_select(1, idx)  # noqa: E731
-                    state = tuple(envs(s) for s in self.initial_state)
-                    view = {k: rows(v, 1, idx) for k, v in b["view"].items()}
-                    logits, v, gl, _ = self.model(view, *(envs(b[k]) for k in _SIDE), state)
-                    pick = lambda t: pick_all(envs(t))  # noqa: E731
-                    logits, v, gl = (pick_all(z) for z in (logits, v, gl))
-                else:
-                    pick = lambda t: t.reshape(T * B, *t.shape[2:]).index_select(0, idx)  # noqa: E731
-                    view = {k: rows(v.reshape(T * B, *v.shape[2:]), 0, idx)[None] for k, v in b["view"].items()}
-                    logits, v, gl, _ = self.model(view, *(pick(b[k])[None] for k in _SIDE), None)
-                    logits, v, gl = logits[0], v[0], gl[0]
-                loss, s = ppo_loss(logits, v, gl, pick(b["actions"]), pick(b["logp"]), pick(values),
-                                   pick(advantages), pick(returns), pick(b["true_goal"]), self.weights,
-                                   pick(b["aux_target"]) if "aux_target" in b else None)
+            batches = (self.sequences(b["view"], samples, order) if recurrent
+                       else self.shuffled_steps(b["view"], samples, order))
+            for view, mb, state in batches:
+                logits, v, gl, _ = self.model(view, *(mb[k] for k in _SIDE), state)
+                logits, v, gl = (pick_all(z) for z in (logits, v, gl))
+                flat = {k: pick_all(t) for k, t in mb.items()}
+                loss, s = ppo_loss(logits, v, gl, flat["actions"], flat["logp"], flat["values"], flat["advantages"],
+                                   flat["returns"], flat["true_goal"], self.weights, flat.get("aux_target"))
                 self.optimizer.zero_grad(set_to_none=True)
                 loss.backward()
                 torch.nn.utils.clip_grad_norm_(self.model.parameters(), self.ppo.max_grad_norm)
@@ -145,6 +140,35 @@ class Learner:
         out["lr"] = self.optimizer.param_groups[0]["lr"]
         return out
 
+    def sequences(self, view: dict, samples: dict, order: torch.Tensor):
+        """Recurrent minibatches: ``(view, samples, initial state)`` of the envs in each part of ``order [B]``, every
+        tensor ``[T, b, ...]`` (whole sequences, replayed from the rollout's initial recurrent state)."""
+        for idx in order.view(self.ppo.num_minibatches, -1):
+            envs = lambda t: t.index_select(1, idx)  # noqa: E731
+            yield ({k: rows(v, 1, idx) for k, v in view.items()}, {k: envs(t) for k, t in samples.items()},
+                   tuple(envs(s) for s in self.initial_state))
+
+    def shuffled_steps(self, view: dict, samples: dict, order: torch.Tensor):
+        """Feed-forward minibatches: ``(view, samples, None)`` of the steps in each part of ``order [T * B]``, every
+        tensor ``[1, n, ...]``. Each tensor is put in ``order`` once per epoch, the views into storage kept between
+        updates, and cut into contiguous parts: the same rows as one selection per minibatch, without allocating
+        a fresh 5 MB patch tensor each time (its page faults cost more than the copy)."""
+        shuffled = {k: self.shuffled_storage(k, v.reshape(-1, *v.shape[2:])) for k, v in view.items()}
+        for k, v in view.items():
+            rows(v.reshape(-1, *v.shape[2:]), 0, order, out=shuffled[k])
+        picked = {k: t.reshape(-1, *t.shape[2:]).index_select(0, order) for k, t in samples.items()}
+        n = len(order) // self.ppo.num_minibatches
+        for start in range(0, len(order), n):
+            part = lambda t: t[None, start:start + n]  # noqa: E731
+            yield {k: part(v) for k, v in shuffled.items()}, {k: part(t) for k, t in picked.items()}, None
+
+    def shuffled_storage(self, key: str, like: torch.Tensor) -> torch.Tensor:
+        """A tensor shaped as ``like`` to hold view ``key``'s rows in an epoch's order, allocated once."""
+        stored = self.shuffled.get(key)
+        if stored is None or stored.shape != like.shape or stored.dtype != like.dtype:
+            stored = self.shuffled[key] = torch.empty_like(like, memory_format=torch.contiguous_format)
+        return stored
+
 
 def sample(probs: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
     """One action per row of ``probs [B, A]`` by inverting the CDF (uniforms from ``generator``, on the CPU)."""
@@ -152,11 +176,15 @@ def sample(probs: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
     return (probs.cumsum(dim=1) <= u).sum(dim=1).clamp_(max=probs.shape[1] - 1)
 
 
-def rows(t: torch.Tensor, dim: int, idx: torch.Tensor) -> torch.Tensor:
+def rows(t: torch.Tensor, dim: int, idx: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
     """``t.index_select(dim, idx)`` for a contiguous ``t``, through its 2-D or 3-D form: the same tensor (one
-    selection over flat rows instead of one along the view's full shape)."""
-    flat = t.reshape(*t.shape[:dim + 1], -1).index_select(dim, idx)
-    return flat.reshape(*flat.shape[:dim + 1], *t.shape[dim + 1:])
+    selection over flat rows instead of one along the view's full shape); written into ``out`` if given."""
+    flat = t.reshape(*t.shape[:dim + 1], -1)
+    if out is None:
+        picked = flat.index_select(dim, idx)
+    else:
+        picked = torch.index_select(flat, dim, idx, out=out.view(*flat.shape[:dim], len(idx), -1))
+    return picked.reshape(*picked.shape[:dim + 1], *t.shape[dim + 1:])
 
 
 def pick_all(t: torch.Tensor) -> torch.Tensor:
