@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 
+from colorgrid.extras import MissingExtra, require
 from colorgrid_apps.cli_env import add_config_arguments, config_from_args
 
 
@@ -113,9 +114,13 @@ def cmd_view(args: argparse.Namespace) -> int:
     """Serve the 3D replay viewer (viser) for a folder of replays, or export one replay to standalone HTML."""
     from pathlib import Path
 
+    from colorgrid.replay.format import SUFFIX
+    from colorgrid.resources import find_shipped, shipped
+
+    require("viewer", "colorgrid view")
     from colorgrid_apps.viewer import ReplayViewer, export_html
 
-    path = Path(args.path)
+    path = shipped("replays") if args.path is None else find_shipped(args.path, "replays", SUFFIX)
     if args.export:
         if not path.is_file():
             raise FileNotFoundError(f"--export needs one replay file, got {path}")
@@ -136,14 +141,33 @@ def cmd_view(args: argparse.Namespace) -> int:
 
 
 class OneLineParser(argparse.ArgumentParser):
-    """A parser whose usage errors are one line (``colorgrid play: error: ...``, exit code 2); ``-h`` has the rest."""
+    """A parser whose usage errors are one line (``colorgrid play: error: ...``, exit code 2); ``-h`` has the rest.
+
+    ``needs``: the extra this command needs and that is not installed; whatever follows the command
+    (``--help`` too) then ends in one line saying how to install it, exit code 2.
+    """
+
+    def __init__(self, *args, needs: str | None = None, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.needs = needs
+
+    def parse_known_args(self, args=None, namespace=None):
+        if self.needs is not None:
+            from colorgrid.extras import missing
+
+            self.exit(2, f"{self.prog}: error: this command needs the {self.needs!r} extra "
+                         f"({', '.join(missing(self.needs))} not installed): pip install 'colorgrid[{self.needs}]'\n")
+        return super().parse_known_args(args, namespace)
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} -h)\n")
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from colorgrid import __version__
+
     parser = OneLineParser(prog="colorgrid", description="The colorgrid command line: one sub-command per job.")
+    parser.add_argument("--version", action="version", version=f"colorgrid {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser)
     demo = sub.add_parser("demo", help="draw an episode of random agents in the terminal")
     demo.add_argument("--seed", type=int, default=0)
@@ -176,8 +200,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_config_arguments(ev)
     ev.set_defaults(func=cmd_eval)
     view = sub.add_parser("view", help="3D replay viewer (viser) for a folder of replays")
-    view.add_argument("path", nargs="?", default="replays", help="a folder of *.replay.json (searched recursively) "
-                      "or one replay file (its folder is listed)")
+    view.add_argument("path", nargs="?", help="a folder of *.replay.json (searched recursively), one replay file (its "
+                      "folder is listed) or a released replay's name (default: the released replays)")
     view.add_argument("--host", default="127.0.0.1")
     view.add_argument("--port", type=int, default=8080, help="0 picks a free port")
     view.add_argument("--export", metavar="OUT.html", help="write PATH (one replay) as a standalone offline HTML file "
@@ -192,13 +216,35 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+PLUGIN_EXTRAS = {"play": ("play", ("play",)), "train": ("train", ("train", "checkpoint", "train-bc")),
+                 "study": ("study", ("study",)), "sweep": ("sweep", ("sweep",))}
+"""For each ``colorgrid.commands`` entry point: the extra it needs (``colorgrid.extras``) and the commands it
+adds. (``view``, a core command, checks the ``viewer`` extra itself.)"""
+
+
+def missing_extra_commands(extra: str, names: tuple[str, ...]):
+    """``add(subparsers)`` for commands whose extra is not installed: each takes anything and says in one line
+    which extra to install (``OneLineParser.needs``)."""
+    def add(sub):
+        for name in names:
+            sub.add_parser(name, help=f"(needs pip install 'colorgrid[{extra}]')", add_help=False, needs=extra)
+    return add
+
+
 def plugin_commands() -> list:
     """``add(subparsers)`` functions that other packages declare under the ``colorgrid.commands`` entry
-    points (the play server, the trainer), in name order; one that cannot be imported is left out."""
+    points (the play server, the trainer), in name order. A command whose extra is not installed is added
+    in its place by ``missing_extra_commands``; one from a package that cannot be imported is left out."""
     from importlib.metadata import entry_points
+
+    from colorgrid.extras import missing
 
     found = []
     for point in sorted(entry_points(group="colorgrid.commands"), key=lambda p: p.name):
+        extra, names = PLUGIN_EXTRAS.get(point.name, (None, ()))
+        if extra is not None and missing(extra):
+            found.append(missing_extra_commands(extra, names))
+            continue
         try:
             found.append(point.load())
         except ImportError:  # that application is not installed here
@@ -221,7 +267,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args) or 0)
-    except (ValueError, OSError) as err:  # FileNotFoundError is an OSError
+    except (ValueError, OSError, MissingExtra) as err:  # FileNotFoundError is an OSError
         print(f"colorgrid {command_name(args)}: error: {err}", file=sys.stderr)
         return 2
 

@@ -7,11 +7,14 @@ import json
 from pathlib import Path
 
 from colorgrid.replay.format import SUFFIX
+from colorgrid.resources import find_shipped, shipped, shipped_names
 from colorgrid_apps.cli_env import add_config_arguments, config_from_args
 
 
 def _replay_files(target: Path) -> list[Path]:
-    """A folder's replays, or the target itself: a path named like a replay is one, whatever it is."""
+    """A folder's replays, or the target itself: a path named like a replay is one, whatever it is. A target
+    that is not a path here may name a released replay or folder (``default/astar+bayes_seed2026``)."""
+    target = find_shipped(target, "replays", SUFFIX)
     if target.is_dir() and not target.name.endswith(SUFFIX):
         files = sorted(target.glob("*.replay.json"))
         if not files:
@@ -69,7 +72,7 @@ def cmd_verify(args: argparse.Namespace) -> int:
 def cmd_info(args: argparse.Namespace) -> int:
     from colorgrid.replay import load
 
-    replay = load(args.file)
+    replay = load(find_shipped(args.file, "replays", SUFFIX))
     print(json.dumps({"kind": replay.kind, "env_id": replay.env_id, "source": replay.source, "agents": replay.agents,
                       "team": team_entries(replay), "seed": replay.seed, "steps": replay.num_steps,
                       "ended": replay.ended, "final": replay.final(), "config": replay.config.to_dict(),
@@ -101,6 +104,15 @@ def cmd_release(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_list(args: argparse.Namespace) -> int:
+    """The released replays that ship with colorgrid, by the name the replay commands take."""
+    names = shipped_names("replays", SUFFIX)
+    for name in names:
+        print(name)
+    print(f"{len(names)} released replays in {shipped('replays')} (give a name to export, info, branch, verify)")
+    return 0
+
+
 def cmd_export(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
@@ -127,7 +139,7 @@ def cmd_branch(args: argparse.Namespace) -> int:
     from colorgrid.replay import load, save, verify
     from colorgrid_apps.branch import branch
 
-    path = Path(args.replay)
+    path = find_shipped(args.replay, "replays", SUFFIX)
     child = branch(load(path), args.step, args.follower, args.leader, args.seed, parent_name=path.name)
     tag = Path(args.follower).stem.replace(":", "_").replace("=", "").replace(",", "_")
     out = save(child, Path(args.out) / f"{path.name[:-len(SUFFIX)]}--branch{args.step}-{tag}{SUFFIX}")
@@ -155,6 +167,8 @@ def add_replay_commands(sub) -> None:
                                             "(teams other than 1:1: then one line per agent)")
     verify.add_argument("files", nargs="+", help="replay files or folders")
     verify.set_defaults(func=cmd_verify)
+    listing = rsub.add_parser("list", help="list the released replays that ship with colorgrid, by name")
+    listing.set_defaults(func=cmd_list)
     info = rsub.add_parser("info", help="print a replay's header and totals, with one entry per agent (team)")
     info.add_argument("file")
     info.set_defaults(func=cmd_info)
@@ -185,7 +199,7 @@ def add_replay_commands(sub) -> None:
     rel.set_defaults(func=cmd_release)
 
     exp = sub.add_parser("export", help="export replays to GIF or MP4 without a display")
-    exp.add_argument("target", help="a replay file or a folder of them")
+    exp.add_argument("target", help="a replay file or a folder of them, or a released replay's name (replay list)")
     exp.add_argument("--format", required=True, choices=["gif", "mp4"])
     exp.add_argument("--out", help="output file (one replay) or folder (default: beside each replay)")
     exp.add_argument("--fps", type=float, default=8.0)

@@ -23,6 +23,7 @@ from starlette.middleware.trustedhost import TrustedHostMiddleware
 from colorgrid import __version__
 from colorgrid.presets import PRESETS, env_config
 from colorgrid.render import look
+from colorgrid.resources import shipped
 from server.hub import GameHub, ServerFull
 from server.jobs import Busy, ReplayJobs, branch_file, summaries
 from server.limits import AddressLimits, FloodRule, TokenBucket
@@ -30,9 +31,9 @@ from server.protocol import (CLIENT_TYPES, KEY_ACTIONS, MAX_HORIZON, ROOM_CODE_L
                              NewGame, PageEvent, Ping, Quit, Ready, Rejoin, Team, client_message, error)
 from server.replays import ID_PATTERN, SUFFIX, ReplayCatalogue
 from server.rooms import RoomError
-from server.settings import REPO_ROOT, ServerSettings
+from server.settings import ServerSettings
 
-WEB_DIR = REPO_ROOT / "web"
+WEB_DIR = shipped("web")
 DOCS_ASSETS = Path(fastapi_offline.__file__).parent / "static"  # Swagger UI 5 and ReDoc, so /docs works offline
 CLOSE_POLICY = 1008  # a flood, or a page from an origin that is not allowed
 CLOSE_GOING_AWAY = 1001  # idle without a game

@@ -8,8 +8,7 @@ from typing import ClassVar
 
 from colorgrid.configkit import check_bool, check_choice, check_int, check_number, check_strings, fail
 from colorgrid.presets import PRESETS
-
-REPO_ROOT = Path(__file__).resolve().parents[1]
+from colorgrid.resources import shipped
 
 
 @dataclass(frozen=True)
@@ -35,7 +34,7 @@ class ServerSettings:
     """Real-time mode: world steps per second."""
     replays_dir: Path = Path("recordings")
     """Where every game's replay is written."""
-    released_dir: Path = REPO_ROOT / "replays"
+    released_dir: Path = shipped("replays")
     """Released replays listed beside the recorded games (read-only)."""
     max_sessions: int = 100
     """Concurrent games, rooms waiting for their people included; the next player gets a clear 'server full'

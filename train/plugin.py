@@ -6,12 +6,12 @@ imported only when one of these policies is asked for.
 
 from __future__ import annotations
 
-from pathlib import Path
-
+from colorgrid.extras import require
+from colorgrid.resources import shipped
 from train.acting import ACTING
 from train.model_cache import ModelCache
 
-CHECKPOINTS_DIR = Path(__file__).resolve().parents[1] / "checkpoints"
+CHECKPOINTS_DIR = shipped("checkpoints")
 SHIPPED = {"ippo": "follower.pt", "ippo-people": "follower_people.pt", "ippo-cautious": "follower_cautious.pt",
            "ippo-leader": "leader.pt"}
 """Trained agents that ship in ``checkpoints/``, by name: the IPPO follower (trained beside A*), the same follower
@@ -20,9 +20,10 @@ and the IPPO leader (see their model cards)."""
 
 
 def shipped_policy(name: str, role: str | None, cache: ModelCache | None = None, **acting):
+    require("train", f"the trained policy {name!r}", only=("torch",))
     path = CHECKPOINTS_DIR / SHIPPED[name]
     if not path.is_file():
-        raise ValueError(f"the shipped checkpoint for {name!r} is missing: {path} (it is part of the repository)")
+        raise ValueError(f"the shipped checkpoint for {name!r} is missing: {path} (it ships with colorgrid: reinstall it)")
     policy = checkpoint_policy(str(path), role, cache, **acting)
     policy.name = name
     return policy
@@ -30,6 +31,7 @@ def shipped_policy(name: str, role: str | None, cache: ModelCache | None = None,
 
 def checkpoint_policy(path: str, role: str | None, cache: ModelCache | None = None, **acting):
     """``acting``: settings from the name (``x.pt:min_belief=0.7``), see ``train.policy.NetPolicy``."""
+    require("train", f"the checkpoint policy {path!r}", only=("torch",))
     from train.policy import load_policy
 
     return load_policy(path, role=role, cache=cache, **acting)

@@ -13,28 +13,24 @@ episode start (population play), so a learner trained beside it meets every memb
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 
 from colorgrid.config import EnvConfig
 from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
 
 PARTS = ("training", "held_out")
-POPULATIONS_DIR = Path(__file__).resolve().parents[2] / "populations"
 
 
 def load_population(spec: str) -> dict[str, str]:
     """``FILE[#PART]`` -> ``{member name: policy spec}``: one part, or both in file order.
 
-    ``FILE`` is a path or the name of a file in ``populations/`` (``people`` is ``populations/people.json``).
+    ``FILE`` is a path or the name of a shipped population (``people`` is ``populations/people.json``).
     """
     from colorgrid.files import JSONFileError, read_json_object
+    from colorgrid.resources import find_shipped
 
     file, _, part = spec.partition("#")
-    path = Path(file)
-    if not path.exists() and (POPULATIONS_DIR / f"{file}.json").exists():
-        path = POPULATIONS_DIR / f"{file}.json"
+    path = find_shipped(file, "populations", ".json")
     try:
         data = read_json_object(path, "a population: {\"training\": {name: spec}, \"held_out\": {name: spec}}")
     except JSONFileError as err:

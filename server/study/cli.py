@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from colorgrid.configkit import add_arguments, from_args
+from colorgrid.resources import find_shipped
 from server.cli import FLAGS, check_follower, check_writable
 from server.settings import ServerSettings
 from server.study.config import Study, load_study
@@ -45,18 +46,24 @@ def study_folder(study: Study, replays_dir: Path | None) -> Path:
     return replays_dir if replays_dir is not None else ServerSettings().replays_dir / study.id
 
 
+def study_path(text: str) -> Path:
+    """A study file's path, or the name of a shipped example study (``belief_display``)."""
+    return find_shipped(text, "studies", ".toml")
+
+
 def add_study_commands(sub) -> None:
     study = sub.add_parser("study", help="run a human study from a study file, and export its data")
     commands = study.add_subparsers(dest="study_command", required=True)
     run = commands.add_parser("run", help="serve the study: participants open /study?PROLIFIC_PID=..., the admin /study/admin")
-    run.add_argument("study_file", type=Path, help="the study file (TOML; see studies/ and docs/STUDIES.md)")
+    run.add_argument("study_file", type=study_path, help="the study file (TOML; see docs/STUDIES.md), or the name of "
+                     "a shipped example (belief_display)")
     run.add_argument("--db", type=Path, help="the study's SQLite database (default: study.sqlite in the replays folder)")
     add_arguments(run, ServerSettings, FLAGS, skip=("replays_dir",))
     run.add_argument("--replays-dir", type=Path, help="where the games are recorded (default: recordings/STUDY_ID)")
     run.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
     run.set_defaults(func=cmd_run)
     export = commands.add_parser("export", help="write the study's tables (Parquet and CSV) for analysis")
-    export.add_argument("study_file", type=Path, help="the study file the study ran with")
+    export.add_argument("study_file", type=study_path, help="the study file the study ran with (or its shipped name)")
     export.add_argument("--out", type=Path, required=True, help="the folder to write the tables to")
     export.add_argument("--replays-dir", type=Path, help="the study's replays folder (default: recordings/STUDY_ID)")
     export.add_argument("--db", type=Path, help="the study's database (default: study.sqlite in the replays folder)")

@@ -4,9 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-MISSING = "sweeps need Ray Tune and matplotlib: pip install 'colorgrid[sweep]'"
-
-
 def add_sweep_commands(sub) -> None:
     sweep = sub.add_parser("sweep", help="run a sweep of training runs (configurations x seeds) on Ray Tune",
                            description="Sweeps on Ray Tune. A sweep file (sweeps/*.toml) names a preset, what varies "
@@ -15,7 +12,8 @@ def add_sweep_commands(sub) -> None:
                                        "runs/sweeps/paper_table1_small")
     sweep.add_argument("action", choices=["run", "resume", "report", "check"],
                        help="run FILE | resume DIR | report DIR | check FILE (validate and list the trials)")
-    sweep.add_argument("path", help="run, check: a sweep file (.toml); resume, report: a sweep's folder")
+    sweep.add_argument("path", help="run, check: a sweep file (.toml) or a shipped one's name (paper_table1_small); "
+                                          "resume, report: a sweep's folder")
     sweep.add_argument("--out", help="run: the sweep's folder (default: the file's 'out', runs/sweeps/<name>)")
     sweep.add_argument("--address", help="run, resume: join the Ray cluster at this address (e.g. 10.0.0.5:6379, "
                                           "or 'auto'); default: start a local Ray instance")
@@ -33,18 +31,11 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         print(f"{spec.path}: {spec.summary()}, metric {spec.metric} ({spec.mode}), into {spec.out}")
         return 0
     if args.action == "report":
-        try:
-            from train.sweep.report import write_report
-        except ImportError:
-            raise ValueError(MISSING) from None
+        from train.sweep.report import write_report
+
         text, _ = write_report(args.path)
         print(text)
         return 0
-    try:
-        import ray  # noqa: F401
-        from ray import tune  # noqa: F401
-    except ImportError:
-        raise ValueError(MISSING) from None
     from train.sweep.runner import resume_sweep, run_sweep
 
     if args.action == "run":

@@ -199,8 +199,11 @@ def to_json(value) -> str:
 
 
 def load_sweep(path: str | Path, out: str | Path | None = None) -> SweepSpec:
-    """Read and check a sweep file; ``out`` replaces the file's ``out``."""
-    path = Path(path)
+    """Read and check a sweep file (a path, or the name of a shipped one: ``paper_table1_small``); ``out``
+    replaces the file's ``out``."""
+    from colorgrid.resources import find_shipped
+
+    path = find_shipped(path, "sweeps", ".toml")
     if not path.is_file():
         raise SweepError(f"{path}: no such sweep file")
     text = path.read_text()
