@@ -80,10 +80,11 @@ def evaluate_matrix(config: EnvConfig, leaders: dict[str, str], followers: list[
 
 def ray_cells(address: str, jobs: list[tuple]) -> list:
     """Every cell as a Ray task (one CPU each) on the cluster at ``address``, in order."""
-    try:
-        import ray
-    except ImportError:
-        raise ValueError("--address runs the cells on Ray: pip install 'colorgrid[sweep]'") from None
+    from colorgrid.extras import require
+
+    require("sweep", "--address (the cells as Ray tasks)", only=("ray",))
+    import ray
+
     if not ray.is_initialized():
         ray.init(address=address, logging_level="WARNING", log_to_driver=False)
     task = ray.remote(num_cpus=1)(cell)

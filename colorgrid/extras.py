@@ -1,0 +1,63 @@
+"""The package's optional parts ("extras", ``pip install 'colorgrid[train]'``) and one line for a missing one.
+
+``pip install colorgrid`` installs the core: the environment, its PettingZoo and Gymnasium views, scripted
+and Bayesian policies, replays, rendering and export, and the ``colorgrid`` command. The applications need
+more: ``train`` (torch, TensorBoard), ``play`` (the play server), ``study``, ``viewer``, ``sweep``. What
+each extra holds is read from the installed package's own metadata (``pyproject.toml``), so this module
+lists no dependency a second time.
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from importlib.metadata import PackageNotFoundError, distribution
+
+from packaging.requirements import Requirement
+
+DISTRIBUTION = "colorgrid"
+
+
+class MissingExtra(ImportError):
+    """A job needs an extra that is not installed; the message says which, and the command that installs it."""
+
+
+@cache
+def extra_requirements(extra: str) -> tuple[str, ...]:
+    """The distributions that ``extra`` adds (an extra it includes, such as ``colorgrid[play]``, expanded);
+    empty when the package's metadata is not installed (a bare source tree: nothing can be checked)."""
+    try:
+        lines = distribution(DISTRIBUTION).requires or []
+    except PackageNotFoundError:
+        return ()
+    names = []
+    for line in lines:
+        requirement = Requirement(line)
+        if requirement.marker is None or not requirement.marker.evaluate({"extra": extra}):
+            continue
+        if requirement.name == DISTRIBUTION:
+            names.extend(name for included in sorted(requirement.extras) for name in extra_requirements(included))
+        else:
+            names.append(requirement.name)
+    return tuple(dict.fromkeys(names))
+
+
+def missing(extra: str, only: tuple[str, ...] | None = None) -> list[str]:
+    """The distributions of ``extra`` (or of ``only``, those of them it names) that are not installed."""
+    out = []
+    for name in extra_requirements(extra):
+        if only is not None and name not in only:
+            continue
+        try:
+            distribution(name)
+        except PackageNotFoundError:
+            out.append(name)
+    return out
+
+
+def require(extra: str, what: str, only: tuple[str, ...] | None = None) -> None:
+    """Raise ``MissingExtra`` when ``what`` (e.g. ``"colorgrid train"``) cannot run: part of ``extra`` (or of
+    ``only`` within it) is not installed."""
+    absent = missing(extra, only)
+    if absent:
+        raise MissingExtra(f"{what} needs the {extra!r} extra ({', '.join(absent)} not installed): "
+                           f"pip install 'colorgrid[{extra}]'")
