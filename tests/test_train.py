@@ -6,6 +6,7 @@ import os
 import re
 import subprocess
 import sys
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -19,7 +20,7 @@ from train.checkpoint import export_agent, load_checkpoint
 from train.config import (NetConfig, TrainConfig, TrainConfigError, from_dict, load_preset, merge,
                           parse_override, preset_names)
 from train.learner import sample
-from train.nets import ActorCritic, FastEncoder, count_parameters, egocentric, goal_planes
+from train.nets import ActorCritic, FastEncoder, count_parameters, egocentric, goal_planes, layers
 from train.policy import load_policy
 from train.ppo import LossWeights, compute_gae, ppo_loss
 from train.trainer import Trainer
@@ -105,6 +106,24 @@ def test_fast_encoder_patches_compute_its_convolutions_exactly(planes):
         (out * torch.linspace(-1, 1, out.shape[1])).sum().backward()
         grads.append(torch.cat([p.grad.flatten() for p in enc.convs.parameters()]))
     assert torch.allclose(grads[0], grads[1], atol=1e-4)
+
+
+def test_layers_compute_what_the_modules_do_to_the_bit():
+    """``layers`` (the networks' stacks without nn.Module's call overhead) is each stack called as a module,
+    forward and backward, for every layer kind it shortcuts and one it calls as usual."""
+    torch.manual_seed(0)
+    stack = torch.nn.Sequential(torch.nn.Linear(7, 16), torch.nn.Tanh(), torch.nn.Linear(16, 16), torch.nn.ReLU(),
+                                torch.nn.LeakyReLU(), torch.nn.Linear(16, 3))
+    x = torch.randn(2, 5, 7)
+    outs, grads = [], []
+    for run in (stack, lambda t: layers(stack, t)):
+        stack.zero_grad()
+        out = run(x)
+        (out * torch.linspace(-1, 1, 3)).sum().backward()
+        outs.append(out)
+        grads.append([p.grad.clone() for p in stack.parameters()])
+    assert torch.equal(outs[0], outs[1])
+    assert all(torch.equal(a, b) for a, b in zip(*grads))
 
 
 @pytest.mark.parametrize("height, width", [(32, 32), (30, 27), (5, 7)])
@@ -233,6 +252,35 @@ def test_two_learners_updating_side_by_side_match_one_after_the_other(tmp_path):
         after = one_by_one.learners[i].model.state_dict()
         for key, value in weights(side_by_side.learners[i].model).items():
             assert torch.equal(value, after[key]), (i, key)
+
+
+def test_learners_acting_side_by_side_collect_what_acting_in_turn_does(tmp_path):
+    """With two torch threads the learners act on two threads, one torch thread each; the rollout is the one they
+    collect acting in turn on one thread, to the bit (the follower recurrent, so its state is carried too)."""
+    threads = torch.get_num_threads()
+    config = tiny(threads=2, follower={"net": {"lstm": True}}, env={"horizon": 6})  # episodes end mid-rollout
+    side_by_side, in_turn = (Trainer(config, tmp_path / name, progress=False, tensorboard=False) for name in "ab")
+    acting_threads = set()
+    for learner in side_by_side.learners.values():
+        act = learner.act
+        learner.act = lambda x, act=act: acting_threads.add(threading.current_thread().name) or act(x)
+    try:
+        side_by_side.collect_rollout()
+        torch.set_num_threads(1)
+        in_turn.collect_rollout()
+    finally:
+        torch.set_num_threads(threads)
+    assert len(acting_threads) == 2  # both paths were taken
+    for i in (0, 1):
+        a, b = side_by_side.learners[i].stacked(), in_turn.learners[i].stacked()
+        assert a.keys() == b.keys() and a["dones"].any()
+        for key in a:
+            pairs = a[key].items() if key == "view" else [(key, a[key])]
+            for name, value in pairs:
+                other = b["view"][name] if key == "view" else b[key]
+                assert torch.equal(value, other), (i, name)
+        assert all(torch.equal(s, t) for s, t in zip(side_by_side.learners[i].state or (),
+                                                       in_turn.learners[i].state or ()))
 
 
 def test_a_frozen_partner_never_changes_and_the_learner_does(tmp_path):

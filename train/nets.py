@@ -79,7 +79,7 @@ class PaperEncoder(nn.Module):
         x = view["obs"].float()
         if self.planes:
             x = torch.cat([x, goal_planes(x[:, :self.C], g)], dim=1)
-        return self.mlp(torch.cat([self.convs(x), side], dim=1))
+        return layers(self.mlp, torch.cat([self.convs(x), side], dim=1))
 
 
 class FastEncoder(nn.Module):
@@ -173,7 +173,24 @@ class FastEncoder(nn.Module):
                                 dim=2)
             grid = coarse.reshape(coarse.shape[0], self.P, -1)
             coarse = torch.cat([coarse, goal_planes(grid[:, :self.C], g).flatten(1)], dim=1)
-        return self.mlp(join([self.local(patches), coarse, side], dim=1))
+        return layers(self.mlp, join([self.local(patches), coarse, side], dim=1))
+
+
+def layers(stack: nn.Sequential, x: torch.Tensor) -> torch.Tensor:
+    """``stack(x)`` for a stack of ``Linear``, ``ReLU`` and ``Tanh`` layers (others are called as usual), through
+    the functions those layers call: the same tensor, without ``nn.Module``'s call overhead (about 8 us a layer
+    on this project's CPU, as much as a layer's own arithmetic at a rollout's batch of 16)."""
+    for layer in stack:
+        kind = type(layer)
+        if kind is nn.Linear:
+            x = F.linear(x, layer.weight, layer.bias)
+        elif kind is nn.Tanh:
+            x = torch.tanh(x)
+        elif kind is nn.ReLU and not layer.inplace:
+            x = torch.relu(x)
+        else:
+            x = layer(x)
+    return x
 
 
 def join(tensors: list[torch.Tensor], dim: int) -> torch.Tensor:
@@ -292,20 +309,20 @@ class ActorCritic(nn.Module):
         goal_logits, g = None, goal
         if self.belief_core:
             b, state = self._recur(extras, starts, state)
-            goal_logits = self.aux(b)
+            goal_logits = layers(self.aux, b)
             g = torch.softmax(goal_logits, dim=2).detach()
-        x = self.encoder(flat, side.reshape(T * B, -1), g.reshape(T * B, -1)).reshape(T, B, -1)
+        x = self.encoder.forward(flat, side.reshape(T * B, -1), g.reshape(T * B, -1)).reshape(T, B, -1)
         if self.lstm is not None and not self.belief_core:
             x, state = self._recur(x, starts, state)
         if goal_logits is None:
-            goal_logits = self.aux(x)
+            goal_logits = layers(self.aux, x)
         heads = [x]
         if self.net.goal_fusion == "late":
             heads.append(goal)
         if self.net.belief_input:
             heads.append(torch.softmax(goal_logits, dim=2).detach())
         h = join(heads, dim=2)
-        return self.policy(h), self.value(h)[..., 0], goal_logits, state
+        return layers(self.policy, h), layers(self.value, h)[..., 0], goal_logits, state
 
 
 def with_leader_progress(model: ActorCritic) -> ActorCritic:

@@ -16,8 +16,9 @@ import json
 import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Iterator, TypeVar
 
 import numpy as np
 import torch
@@ -41,6 +42,8 @@ from train.nets import ActorCritic, with_leader_progress
 from train.policy import NetPolicy, check_compatible
 
 
+R = TypeVar("R")
+
 TRAINER_STATE_FORMAT = 2
 """Version of the resumable trainer state in checkpoints (1 was a pickle, which ``--resume`` no longer reads)."""
 
@@ -62,15 +65,24 @@ def device_name(device: torch.device) -> str:
     return f"{cpu_name()} ({torch.get_num_threads()} torch threads)"
 
 
-def update_learner(learner: Learner, inputs: dict, threads: int | None = None) -> dict:
-    """One learner's bootstrap value and PPO update, both at ``threads`` torch threads (None: as set).
+def side_by_side(learners: dict[int, Learner], work: Callable[[Learner], R],
+                 pool: ThreadPoolExecutor | None) -> dict[int, R]:
+    """``work(learner)`` for every learner, by key: the first on the calling thread and the others on ``pool``'s,
+    all at the calling thread's torch thread count (set on each worker itself: OpenMP keeps the count per thread);
+    one after the other without a pool. The learners share nothing (own model, optimizer, buffers, random
+    generator), so the results are those of the learners one after the other, whatever the threads' timing."""
+    if pool is None:
+        return {i: work(lr) for i, lr in learners.items()}
+    threads = torch.get_num_threads()
+    (first, learner), *others = learners.items()
+    futures = {i: pool.submit(at_threads, threads, work, lr) for i, lr in others}
+    return {first: work(learner), **{i: f.result() for i, f in futures.items()}}
 
-    The thread count is set on the calling thread itself: OpenMP keeps it per thread, so a
-    worker thread must not inherit whatever its pool was created with.
-    """
-    if threads is not None:
-        torch.set_num_threads(threads)
-    return learner.update(learner.value(inputs))
+
+def at_threads(threads: int, work: Callable, *args):
+    """``work(*args)`` at ``threads`` torch threads, set on the calling thread."""
+    torch.set_num_threads(threads)
+    return work(*args)
 
 
 def watcher_state(policy) -> dict:
@@ -209,29 +221,52 @@ class Trainer:
         return row
 
     def _update_learners(self) -> dict[int, dict]:
-        """Every learner's PPO update on the rollout just collected.
+        """Every learner's PPO update on the rollout just collected, side by side where it can (``_threads_each``).
 
-        On a CPU with two or more learners and two or more torch threads, the updates run side
-        by side, on ``min(learners, threads)`` threads with ``max(1, threads // learners)``
-        torch threads each: small networks use one core each far better than two cores one
-        after the other. The learners share nothing (own model, optimizer and random
-        generator), and each one's whole update, its bootstrap value included, runs at that
-        thread count, so the result is bit for bit the learners updated one after the other
-        with that many threads, on any CPU. (It is not bit for bit an update with all the
-        threads: on some CPUs MKL and oneDNN split a small matrix product's sum across
-        threads; see docs/TRAINING.md.)
+        Each one's whole update, its bootstrap value included, runs at one thread count, so the
+        result is bit for bit the learners updated one after the other with that many threads,
+        on any CPU. (It is not bit for bit an update with all the threads: on some CPUs MKL and
+        oneDNN split a small matrix product's sum across threads; see docs/TRAINING.md.)
         """
-        inputs = {i: self._learner_tensors(lr) for i, lr in self.learners.items()}
-        threads = torch.get_num_threads()
-        if self.device.type != "cpu" or len(self.learners) < 2 or threads < 2:
-            return {i: update_learner(lr, inputs[i]) for i, lr in self.learners.items()}
+        inputs = {lr.name: self._learner_tensors(lr) for lr in self.learners.values()}
+        work = lambda lr: lr.update(lr.value(inputs[lr.name]))  # noqa: E731
+        each, threads = self._threads_each(), torch.get_num_threads()
+        if each is None:
+            return side_by_side(self.learners, work, None)
         if self._pool is None:
-            self._pool = ThreadPoolExecutor(min(len(self.learners), threads), thread_name_prefix="learner")
-        each = max(1, threads // len(self.learners))
+            self._pool = ThreadPoolExecutor(min(len(self.learners), threads) - 1, thread_name_prefix="learner")
         torch.set_num_threads(each)
         try:
-            futures = {i: self._pool.submit(update_learner, lr, inputs[i], each) for i, lr in self.learners.items()}
-            return {i: f.result() for i, f in futures.items()}
+            return side_by_side(self.learners, work, self._pool)
+        finally:
+            torch.set_num_threads(threads)
+
+    def _threads_each(self) -> int | None:
+        """Torch threads per learner when the learners act and update side by side, else None.
+
+        On a CPU with two or more learners and two or more torch threads, they run on
+        ``min(learners, threads)`` threads with ``max(1, threads // learners)`` torch threads
+        each: small networks use one core each far better than two cores one after the other,
+        and torch ops and the compiled view kernels release the GIL.
+        """
+        threads = torch.get_num_threads()
+        if self.device.type != "cpu" or len(self.learners) < 2 or threads < 2:
+            return None
+        return max(1, threads // len(self.learners))
+
+    @contextmanager
+    def _acting_side_by_side(self) -> Iterator[ThreadPoolExecutor | None]:
+        """The threads on which the learners act during one rollout (``_threads_each``; None: one after the other),
+        with this thread at the per-learner torch thread count while inside (the rollout's other torch ops too:
+        a rollout's operations are far too small to gain from more)."""
+        each, threads = self._threads_each(), torch.get_num_threads()
+        if each is None:
+            yield None
+            return
+        torch.set_num_threads(each)
+        try:
+            with ThreadPoolExecutor(min(len(self.learners), threads) - 1, thread_name_prefix="actor") as pool:
+                yield pool
         finally:
             torch.set_num_threads(threads)
 
@@ -245,38 +280,40 @@ class Trainer:
         done_eps: dict[str, list] = {}
         shaped_sum = self.shaped_sum
         hits = {a: 0.0 for learner in self.learners.values() for a in learner.agents}
-        for _ in range(cfg.ppo.num_steps):
-            true_goal = env.state.goal.copy()
-            actions = np.zeros((B, A), dtype=np.int64)
-            targets = {i: self._aux_targets(lr, true_goal) for i, lr in self.learners.items()}
-            for learner in self.learners.values():
-                chosen, probs = learner.act(self._learner_tensors(learner, true_goal))
-                for k, a in enumerate(learner.agents):  # rows are agent-major: agent k's envs are rows kB..(k+1)B
-                    actions[:, a] = chosen[k * B:(k + 1) * B]
-                    hits[a] += float((probs[k * B:(k + 1) * B].argmax(axis=1) == true_goal).mean())
-            for i, partner in self.partners.items():
-                actions[:, i] = partner.act(self._inputs(i, true_goal)).actions
-            self.obs, rewards, terms, truncs, infos = env.step(actions)
-            rewards = self._training_rewards(rewards, infos, shaping)
-            shaped_sum += rewards
-            done = terms.any(axis=1) | truncs.any(axis=1)  # [B]: every agent's episode ends at once
-            self.last.record(actions, infos, done)
-            final = self._final_values(infos, done) if done.any() else {}
-            for i, learner in self.learners.items():
-                k = len(learner.agents)
-                learner.record(rewards[:, learner.agents].T.reshape(-1), np.tile(done, k), np.tile(true_goal, k),
-                               final.get(i), targets[i])
-            if done.any():
-                fi = infos["final_info"]
-                totals = {"block_reward": fi["episode_block_reward"][done],
-                          "goal_pickups": fi["episode_goal_pickups"][done],
-                          "wrong_pickups": fi["episode_wrong_pickups"][done],
-                          "net_pickups": fi["episode_goal_pickups"][done] - fi["episode_wrong_pickups"][done],
-                          "training_reward": shaped_sum[done]}
-                for key, values in episode_columns(cfg.env, totals).items():
-                    done_eps.setdefault(key, []).extend(values)
-                done_eps.setdefault("team_reward", []).extend(fi["episode_block_reward"][done].sum(axis=1))
-                shaped_sum[done] = 0.0
+        with self._acting_side_by_side() as acting:
+            for _ in range(cfg.ppo.num_steps):
+                true_goal = env.state.goal.copy()
+                actions = np.zeros((B, A), dtype=np.int64)
+                targets = {i: self._aux_targets(lr, true_goal) for i, lr in self.learners.items()}
+                acted = side_by_side(self.learners, lambda lr: lr.act(self._learner_tensors(lr, true_goal)), acting)
+                for i, learner in self.learners.items():
+                    chosen, probs = acted[i]
+                    for k, a in enumerate(learner.agents):  # rows are agent-major: agent k's envs are rows kB..(k+1)B
+                        actions[:, a] = chosen[k * B:(k + 1) * B]
+                        hits[a] += float((probs[k * B:(k + 1) * B].argmax(axis=1) == true_goal).mean())
+                for i, partner in self.partners.items():
+                    actions[:, i] = partner.act(self._inputs(i, true_goal)).actions
+                self.obs, rewards, terms, truncs, infos = env.step(actions)
+                rewards = self._training_rewards(rewards, infos, shaping)
+                shaped_sum += rewards
+                done = terms.any(axis=1) | truncs.any(axis=1)  # [B]: every agent's episode ends at once
+                self.last.record(actions, infos, done)
+                final = self._final_values(infos, done) if done.any() else {}
+                for i, learner in self.learners.items():
+                    k = len(learner.agents)
+                    learner.record(rewards[:, learner.agents].T.reshape(-1), np.tile(done, k), np.tile(true_goal, k),
+                                   final.get(i), targets[i])
+                if done.any():
+                    fi = infos["final_info"]
+                    totals = {"block_reward": fi["episode_block_reward"][done],
+                              "goal_pickups": fi["episode_goal_pickups"][done],
+                              "wrong_pickups": fi["episode_wrong_pickups"][done],
+                              "net_pickups": fi["episode_goal_pickups"][done] - fi["episode_wrong_pickups"][done],
+                              "training_reward": shaped_sum[done]}
+                    for key, values in episode_columns(cfg.env, totals).items():
+                        done_eps.setdefault(key, []).extend(values)
+                    done_eps.setdefault("team_reward", []).extend(fi["episode_block_reward"][done].sum(axis=1))
+                    shaped_sum[done] = 0.0
         episodes = {k: float(np.mean(v)) for k, v in done_eps.items()}
         if done_eps:
             episodes["episodes"] = len(done_eps["team_reward"])

@@ -14,7 +14,7 @@ import torch
 from numba import njit
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _window_patches(obs, me, radius, cells, out):
     """``out [N, cells^2, P + 1, 9]``: the ``3 * cells`` square of the window of ``obs [N, P, H, W]`` whose top-left
     corner is ``radius`` cells up and left of ``me [N, 2]``, as 3x3 patches; plane ``P`` is 1 on the grid."""
@@ -38,7 +38,7 @@ def _window_patches(obs, me, radius, cells, out):
                                 out[n, cell, p, k] = 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)
 def _pooled(obs, pool, out):
     """``out [N, P, ceil(H / pool), ceil(W / pool)]``: the mean of each ``pool x pool`` block of ``obs [N, P, H, W]``
     (blocks cut by the far edges: the mean of the cells they hold), as ``avg_pool2d(ceil_mode=True)`` computes it."""
