@@ -35,17 +35,18 @@ class RunningServer:
 
 
 def start_server(tmp: Path, *flags: str, command: tuple[str, ...] = ("play",), env: dict | None = None,
-                 own_group: bool = False) -> RunningServer:
+                 own_group: bool = False, python: str = sys.executable, cwd: Path = ROOT) -> RunningServer:
     """``colorgrid play`` (or ``command``) on a free port, once ready; ``own_group`` starts it in a process group
-    of its own, as a terminal runs a command (Ctrl+C signals the whole group)."""
+    of its own, as a terminal runs a command (Ctrl+C signals the whole group). ``python`` and ``cwd``: another
+    installation (a virtualenv) run from another folder."""
     port = free_port()
     replays_dir = tmp / "recordings"
     log_path = tmp / "server.log"
     log = open(log_path, "w")
     process = subprocess.Popen(
-        [sys.executable, "-m", "colorgrid_apps", *command, "--port", str(port), "--replays-dir", str(replays_dir),
+        [python, "-m", "colorgrid_apps", *command, "--port", str(port), "--replays-dir", str(replays_dir),
          "--log-level", "warning", *flags],
-        cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
+        cwd=cwd, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
         start_new_session=own_group,
     )
     server = RunningServer(port, replays_dir, process, log_path)
