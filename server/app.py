@@ -15,7 +15,7 @@ from urllib.parse import urlsplit
 import fastapi_offline
 from fastapi import FastAPI, HTTPException, Query, Request, WebSocket, WebSocketDisconnect
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
-from fastapi.responses import FileResponse, JSONResponse
+from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
 from pydantic import BaseModel, Field, ValidationError
 from starlette.middleware.trustedhost import TrustedHostMiddleware
@@ -35,6 +35,8 @@ from server.settings import ServerSettings
 
 WEB_DIR = shipped("web")
 DOCS_ASSETS = Path(fastapi_offline.__file__).parent / "static"  # Swagger UI 5 and ReDoc, so /docs works offline
+REDOC_LOGO = "https://cdn.redoc.ly/redoc/logo-mini.svg"  # ReDoc's footer fetches it; /redoc serves its own copy
+EMPTY_SVG = "data:image/svg+xml,%3Csvg xmlns=%27http://www.w3.org/2000/svg%27/%3E"
 CLOSE_POLICY = 1008  # a flood, or a page from an origin that is not allowed
 CLOSE_GOING_AWAY = 1001  # idle without a game
 CLOSE_RESTART = 1012  # the server is stopping (after game_over)
@@ -151,6 +153,13 @@ def create_app(settings: ServerSettings | None = None, study=None) -> FastAPI:
         return FileResponse(WEB_DIR / "replay.html")
 
     app.mount("/static", StaticFiles(directory=WEB_DIR), name="static")
+    redoc_js = (DOCS_ASSETS / "redoc.standalone.js").read_bytes().replace(REDOC_LOGO.encode(), EMPTY_SVG.encode())
+
+    @app.get("/docs-assets/redoc.standalone.js", include_in_schema=False)
+    async def redoc_script():
+        # ReDoc's script draws its footer's logo from a CDN: served here without it, so /redoc works offline
+        return Response(redoc_js, media_type="text/javascript")
+
     app.mount("/docs-assets", StaticFiles(directory=DOCS_ASSETS), name="docs-assets")
 
     @app.get("/favicon.ico", include_in_schema=False)

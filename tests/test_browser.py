@@ -427,5 +427,9 @@ def test_the_api_docs_render_without_internet(server, browser):
     page.goto(server.url + "/docs")
     expect(page.locator(".swagger-ui .info .title")).to_contain_text("ColorGrid play server")
     expect(page.locator(".opblock-summary-path", has_text="/api/options")).to_be_visible()
+    page.goto(server.url + "/redoc")
+    expect(page.locator("h1", has_text="ColorGrid play server")).to_be_visible()
+    expect(page.get_by_text("API docs by Redocly")).to_be_visible()  # its footer drew a logo from a CDN
+    page.wait_for_load_state("networkidle")
     assert outside == []
     page.close()
