@@ -186,7 +186,7 @@ def create_app(settings: ServerSettings | None = None, study=None) -> FastAPI:
         def pct(q):
             return round(lateness[int(q * (len(lateness) - 1))], 2) if lateness else 0.0
 
-        return {"status": "ok", "ready": hub.ready, "version": __version__, "games": len(hub.games),
+        return {"status": "ok", "ready": hub.ready, "version": __version__, "games": hub.live_games(),
                 "rooms": len(hub.rooms),
                 "max_sessions": settings.max_sessions, "connections": len(sockets.open),
                 "follower_pools": len(hub.pools), "tick_hz": settings.tick_hz,
@@ -562,6 +562,12 @@ class Connection:
                 raise ValueError(f"the game of room {self.room.code} has not started: send ready (or quit to leave)")
         elif isinstance(msg, Ready):
             raise ValueError("no room on this connection: send create_room or join_room first")
+        elif hub.played_to_the_end(self.game, self):  # keys on their way at the end are logged, not refused
+            seat = self.game.seat_of(self)
+            if isinstance(msg, Key) and (problem := self.game.press(msg.key, msg.seq, msg.t_client, seat)):
+                await self.send(error("bad_key", problem))
+            elif isinstance(msg, PageEvent):
+                self.game.page_event(msg.event, msg.visible, msg.t_client, seat)
         elif self.game is None or not hub.controls(self.game, self):
             raise ValueError("no live game on this connection: send new_game or rejoin first")
         elif isinstance(msg, Key):

@@ -157,7 +157,8 @@ class Game:
         not moves.
 
         The latest key wins: one pressed before the previous one was applied marks
-        that one ``superseded`` in the key log (nothing is dropped silently).
+        that one ``superseded`` in the key log (nothing is dropped silently). A key that arrives after the
+        game's last step is logged ``unapplied``.
         """
         seat = seat or self.seats[0]
         entry = {"seq": seq, "key": key, "t_client": t_client, "t_server": now_ms(), "applied_step": None}
@@ -169,6 +170,10 @@ class Game:
             self._log(entry)
             return f"key {key!r} is not a move; use the arrow keys or WASD"
         entry["action"] = action
+        if self.finished:  # on its way when the last step was made: recorded, never applied
+            entry["status"] = "unapplied"
+            self._log(entry)
+            return None
         if seat.pending is not None:
             seat.pending["status"] = "superseded"
         entry["status"] = "pending"

@@ -25,6 +25,9 @@ from server.settings import ServerSettings
 
 log = logging.getLogger("colorgrid.server")
 POOL_IDLE_S = 120.0  # a follower pool with no game for this long is freed (the default follower's stay)
+LATE_KEYS_S = 0.3
+"""After a game's last step, how long its keys still on their way are taken (logged ``unapplied``) before it is saved
+and its people told ``game_over``: a held key repeats every ~33 ms, and a page learns of the end a network trip late."""
 
 
 class Client(Protocol):
@@ -51,6 +54,7 @@ class GameHub:
     def __init__(self, settings: ServerSettings):
         self.settings = settings
         self.games: dict[str, Game] = {}
+        self.ending: dict[str, Game] = {}  # games past their last step, taking late keys for LATE_KEYS_S
         self.rooms: dict[str, Room] = {}  # code -> a room waiting for its people (each counts as a session)
         self.reserved = 0  # new games past the session check, still loading their followers
         self.pools: dict[tuple, FollowerPool] = {}
@@ -65,6 +69,7 @@ class GameHub:
         self.lateness_ms: list[float] = []
         self._tasks: list[asyncio.Task] = []
         self._notices: set[asyncio.Task] = set()  # seat changes being told to the other people of a game
+        self._endings: set[asyncio.Task] = set()  # games waiting out LATE_KEYS_S before they are saved
         self._clocks: dict[float, asyncio.Task] = {}
         self.listeners: list = []  # told game_started(game) and game_over(game, reason, scores): a study's records
         self._seed_counter = int(time.time())
@@ -103,12 +108,15 @@ class GameHub:
         if self.stopped:
             return []
         self.stopped = True
-        for task in self._tasks:
+        for task in [*self._tasks, *self._endings]:
             task.cancel()
-        told = [s.client for g in self.games.values() for s in g.people if s.client is not None]
+        told = [s.client for g in [*self.games.values(), *self.ending.values()] for s in g.people
+                if s.client is not None]
         told += [m.client for room in self.rooms.values() for m in room.members if m is not None]
         for room in list(self.rooms.values()):
             await self._close_room(room, "server_shutdown", "the server is shutting down; try again in a minute")
+        for game in list(self.ending.values()):  # complete already: saved as such, without waiting for late keys
+            await self.finish(game, "complete")
         for game in list(self.games.values()):
             try:
                 await self.finish(game, "server_shutdown")
@@ -177,10 +185,14 @@ class GameHub:
 
     def check_capacity(self) -> None:
         """Refuse a new game or room past ``max_sessions`` (games, games being made and waiting rooms)."""
-        running = len(self.games) + self.reserved + len(self.rooms)
+        running = self.live_games() + self.reserved + len(self.rooms)
         if self.stopped or running >= self.settings.max_sessions:
             raise ServerFull(f"server full: {running} games are running (limit {self.settings.max_sessions});"
                              " try again in a minute")
+
+    def live_games(self) -> int:
+        """Games in play or past their last step but not yet saved (each holds its followers' slots)."""
+        return len(self.games) + len(self.ending)
 
     async def new_game(self, follower: str | None, preset: str | None, mode: Mode, horizon: int | None,
                        show_belief: bool, client: Client, tick_hz: float | None = None, study: dict | None = None,
@@ -256,6 +268,10 @@ class GameHub:
     def controls(self, game: Game, client: Client) -> bool:
         """Whether ``client`` plays ``game`` now (it is live and was not taken over, and the person is in it)."""
         return game.game_id in self.games and game.seat_of(client) is not None
+
+    def played_to_the_end(self, game: Game | None, client: Client) -> bool:
+        """Whether ``client`` played ``game``, which has made its last step and takes late keys (``LATE_KEYS_S``)."""
+        return game is not None and game.game_id in self.ending and game.seat_of(client) is not None
 
     def disconnect(self, game: Game, client: Client) -> None:
         """``client`` closed: its seat waits for a rejoin (a connection that was replaced changes nothing)."""
@@ -445,7 +461,21 @@ class GameHub:
             for g in games:
                 await self._send(g, g.state_message())
                 if g.finished:
-                    await self.finish(g, "complete")  # never raises: one game's failure is its own
+                    self._end_after_late_keys(g)
+
+    def _end_after_late_keys(self, game: Game) -> None:
+        """``game`` made its last step: keys still on their way are logged ``unapplied`` for ``LATE_KEYS_S``, then
+        it is saved and its people told ``game_over`` (off the tick: no other game waits for it)."""
+        self.games.pop(game.game_id, None)
+        self.ending[game.game_id] = game
+
+        async def end() -> None:
+            await asyncio.sleep(LATE_KEYS_S)
+            await self.finish(game, "complete")  # never raises: one game's failure is its own
+
+        task = asyncio.get_running_loop().create_task(end())
+        self._endings.add(task)
+        task.add_done_callback(self._endings.discard)
 
     async def _infer(self, pool: FollowerPool, inputs, slots):
         """Run the pool within the deadline; on a miss, fall back to idle moves and say so."""
@@ -527,7 +557,7 @@ class GameHub:
     async def finish(self, game: Game, reason: str) -> None:
         """Save the game's replay (atomically) and tell its people; idempotent, and never raises:
         a game that cannot be saved is logged and counted, and its people still get ``game_over``."""
-        if self.games.pop(game.game_id, None) is None:
+        if self.games.pop(game.game_id, None) is None and self.ending.pop(game.game_id, None) is None:
             return
         game.finished = True
         self._release(game)

@@ -125,6 +125,34 @@ def test_realtime_game_applies_the_latest_key_once_per_tick(server):
     client.close()
 
 
+def test_a_key_held_through_the_end_of_a_realtime_game_is_logged_unapplied_not_refused(server):
+    client = Client(server)
+    client.new_game(mode="realtime", horizon=6, follower="copy")
+    sent = 0
+    while True:  # the key is held: the page's auto-repeat sends it again and again
+        client.key("ArrowUp")
+        sent += 1
+        state = client.recv("state")
+        if state["step"] == state["horizon"]:
+            break
+    client.key("ArrowUp")  # a repeat on its way when the last step was made
+    client.key("ArrowLeft")
+    sent += 2
+    messages = []
+    while (msg := client.recv())["type"] != "game_over":
+        messages.append(msg)
+    assert [m for m in messages if m["type"] == "error"] == [], "late keys are not refused"
+    assert msg["reason"] == "complete" and msg["steps"] == 6
+    replay = load(server.replays_dir / f"{msg['replay_id']}.replay.json")
+    assert verify(replay).ok and replay.ended == "complete"
+    log = replay.key_events
+    assert len(log) == sent, "every key is in the log"
+    assert [e["key"] for e in log[-2:]] == ["ArrowUp", "ArrowLeft"]
+    assert all(e["status"] == "unapplied" and e["applied_step"] is None for e in log[-2:])
+    assert all(e["status"] == "unapplied" or isinstance(e["applied_step"], int) for e in log[:-2])
+    client.close()
+
+
 def test_bad_messages_get_errors_and_the_game_goes_on(server):
     client = Client(server)
     client.new_game(mode="turn", horizon=50)
