@@ -341,9 +341,151 @@ def test_two_participants_in_chromium_one_reloading_mid_trial(study_server, brow
     assert (keys.status == "applied").sum() == 8 * 4 and keys.reaction_ms.notna().all()
     answers = tables["answers"][tables["answers"].participant.isin(ours)]
     assert len(answers) == 2 * (4 * 2 + 2)  # two after each trial, two at the end
-    assert answers[answers.question == "comments"].value.isna().all()  # the optional one, skipped
+    assert answers[answers.question == "comments"].text.isna().all()  # the optional one, skipped
     participants = tables["participants"].set_index("participant")
     assert participants.loc["browser-2", "url_STUDY_ID"] == "st" and participants.loc["browser-2", "status"] == "completed"
     assert (tables["focus"].participant == "api-1").any()
     status, archive = get(study_server, "/api/study/admin/export.zip", TOKEN)
     assert status == 200 and archive[:2] == b"PK"
+
+
+# ---------------------------------------------------------------- the export's declared schema
+SEVERAL_CONDITIONS = """
+id = "two_followers"
+title = "Two followers"
+[factors]
+follower = ["copy", "bayes"]
+show_belief = [true, false]
+[defaults]
+mode = "turn"
+horizon = 3
+[design]
+assignment = "within"
+order = "fixed"
+
+[[pages]]
+kind = "consent"
+text = "Agree?"
+
+[[pages]]
+kind = "practice"
+game = { follower = "copy", horizon = 2, mode = "turn" }
+
+[[pages]]
+kind = "trials"
+
+[[pages.after_each]]
+id = "helpful"
+kind = "likert"
+prompt = "How helpful was your AI partner?"
+scale = 5
+labels = ["not at all", "very"]
+
+[[pages]]
+kind = "questionnaire"
+id = "final"
+
+[[pages.questions]]
+id = "which"
+kind = "choice"
+prompt = "Which partner did you prefer?"
+options = ["the first", "the second"]
+
+[[pages.questions]]
+id = "comments"
+kind = "text"
+prompt = "Anything else?"
+required = false
+
+[[pages]]
+kind = "debrief"
+text = "Thank you."
+"""
+
+
+def test_every_exported_table_has_the_declared_columns_and_types_in_parquet_and_csv(tmp_path):
+    import pyarrow.parquet as pq
+
+    from server.study.export import write_tables
+    from server.study.schema import SCHEMA_FILE, check_arrow, check_frame, export_schema, read_csv
+
+    path = tmp_path / "two.toml"
+    path.write_text(SEVERAL_CONDITIONS)
+    study = load_study(path)
+    assert len(study.conditions) == 4
+    server = start_server(tmp_path, command=("study", "run", str(path)), env={"COLORGRID_ADMIN_TOKEN": TOKEN})
+    try:
+        for pid, finish in (("p-1", True), ("p-2", True), ("p-3", False)):
+            joined = post(server, "/api/study/join", {"params": {"PROLIFIC_PID": pid, "STUDY_ID": "s"}})[1]
+            who = {"pid": pid, "session": joined["session"]}
+            view = post(server, "/api/study/advance", {**who, "step": 0, "agree": True})[1]
+            if not finish:
+                continue
+            ref = {"participant": pid, "session": joined["session"]}
+            with connect(server.ws_url, open_timeout=20) as ws:
+                while view["kind"] != "questionnaire":
+                    if view.get("game"):
+                        play_turns(ws, ref, keys=view["game"]["horizon"])
+                        body = {}
+                    else:  # after a trial: the Likert question, an answer per trial
+                        body = {"answers": {"helpful": view["trial_index"] + 1}}
+                    view = post(server, "/api/study/advance", {**who, "step": view["step"], **body})[1]
+            view = post(server, "/api/study/advance", {**who, "step": view["step"],
+                                                       "answers": {"which": "the second", "comments": None}})[1]
+            assert view["kind"] == "debrief"
+    finally:
+        stop_server(server)
+
+    out = tmp_path / "export"  # the command is run in the test above; here the function it calls
+    counts = write_tables(study, server.replays_dir / "study.sqlite", server.replays_dir, out)
+    assert counts["trials"] == 10 and counts["participants"] == 3
+    declared = export_schema(study)
+    assert json.loads((out / SCHEMA_FILE).read_text())["tables"]["answers"]["questions"]["after_trial"][0]["scale"] == 5
+    tables = {}
+    for name, table in declared.items():
+        parquet = pd.read_parquet(out / f"{name}.parquet")
+        csv = read_csv(out, name)
+        arrow = pq.read_table(out / f"{name}.parquet").schema
+        assert check_frame(parquet, table) == [] and check_frame(csv, table) == [] and check_arrow(arrow, table) == []
+        assert len(parquet) > 0, name
+        pd.testing.assert_frame_equal(csv, parquet)  # the same values and types from either file
+        assert json.loads(arrow.metadata[b"colorgrid"])["columns"][0]["name"] == "participant"
+        assert (parquet.arm_label.notna()).all(), name  # every row says whose arm it is
+        tables[name] = parquet
+    assert pd.api.types.is_integer_dtype(tables["trials"].trial_index)  # not float, empty for practice
+    assert tables["trials"].trial_index.isna().sum() == 2 and (tables["trials"].kind == "practice").sum() == 2
+    trials = tables["trials"][tables["trials"].kind == "trial"]
+    assert set(trials.condition) == {"C1", "C2", "C3", "C4"}
+    assert trials.groupby("condition_follower", observed=True).size().to_dict() == {"copy": 4, "bayes": 4}
+    answers = tables["answers"]
+    likert = answers[answers.question == "helpful"]
+    assert likert.likert.dtype == "Int64" and (likert.scale == 5).all() and len(likert) == 8
+    # each answer after a trial carries that trial's condition, as the trials table has it
+    merged = likert.merge(trials, on=["participant", "trial_index"], suffixes=("", "_trial"))
+    assert (merged.condition == merged.condition_trial).all() and len(merged) == 8
+    assert answers.groupby("condition_show_belief", observed=True).likert.count().to_dict() == {True: 4, False: 4}
+    final = answers[answers.page == "final"].set_index(["participant", "question"])
+    assert final.loc[("p-1", "which"), "choice"] == "the second" and pd.isna(final.loc[("p-1", "comments"), "text"])
+    people = tables["participants"].set_index("participant")
+    assert people.loc["p-3", "status"] == "active" and pd.isna(people.loc["p-3", "completed"])
+    assert str(people.started.dtype) == "datetime64[us, UTC]" and people.loc["p-1", "url_STUDY_ID"] == "s"
+    steps = tables["steps"]
+    assert steps.belief_0.notna().any() and steps[steps.condition_follower == "copy"].belief_0.isna().all()
+
+
+def test_the_data_dictionary_in_the_docs_is_the_declared_schema():
+    from server.study.schema import data_dictionary
+
+    assert data_dictionary(load_study(EXAMPLE)) in (ROOT / "docs" / "STUDIES.md").read_text()
+
+
+def test_a_value_outside_its_declared_type_stops_the_export_with_its_place():
+    from server.study.schema import conform, export_schema
+
+    focus = export_schema(load_study(EXAMPLE))["focus"]
+    with pytest.raises(ValueError, match=r"focus.event: \['scroll'\] not among its categories"):
+        conform([{"participant": "p", "arm": 0, "kind": "trial", "attempt": 0, "event": "scroll"}], focus)
+    with pytest.raises(ValueError, match=r"focus.arm: a missing value"):
+        conform([{"participant": "p", "kind": "trial", "attempt": 0, "event": "blur"}], focus)
+    with pytest.raises(ValueError, match=r"columns \['colour'\] are not declared"):
+        conform([{"colour": 1}], focus)

@@ -40,6 +40,13 @@ def arms(study: Study) -> list[list[int]]:
     return [order * k for order in orders]
 
 
+def arm_labels(study: Study) -> list[str]:
+    """Each arm's name: its condition (``C2``, between subjects) or its order (``C1 → C2 → C4 → C3``)."""
+    if study.design.assignment == "between":
+        return [f"C{arm[0] + 1}" for arm in arms(study)]
+    return [" → ".join(f"C{c + 1}" for c in arm) for arm in arms(study)]
+
+
 def choose_arm(counts: list[int], quota: int | None, balance: str, rng: random.Random) -> int | None:
     """The arm for the next participant, given how many each arm has; None when every arm is at its quota."""
     open_arms = [a for a, c in enumerate(counts) if quota is None or c < quota]

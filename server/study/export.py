@@ -1,14 +1,17 @@
 """``colorgrid study export``: a study's database and replays as analysis-ready tables.
 
-Six tables, each written as Parquet and CSV (columns in docs/STUDIES.md, "Data dictionary"):
+Six tables, each written as Parquet and CSV, of the columns and types declared in
+``server.study.schema`` (listed in docs/STUDIES.md, "Data dictionary"):
 ``participants``, ``trials`` (one row per game played, practice included), ``steps`` (one row
 per game step), ``keys`` (the key log with reaction times), ``answers`` and ``focus`` (the page's
 focus and visibility changes during games). Games are read back from their replay files and
-re-simulated, so positions come from the rules, not from what the page showed.
+re-simulated, so positions come from the rules, not from what the page showed. Every table carries
+the participant's arm and the condition of the row's game or trial, so a ``groupby`` needs no join.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import sqlite3
 from pathlib import Path
@@ -20,7 +23,9 @@ from colorgrid.config import AGENTS, FOLLOWER, LEADER
 from colorgrid.replay import load
 from colorgrid.replay.simulate import replay_states
 from colorgrid.replay.timeline import reaction_times
+from server.study.assign import arm_labels, arms
 from server.study.config import Study
+from server.study.schema import SCHEMA_FILE, conform, export_schema, questions_metadata, sidecar, write_parquet
 
 TABLES = ("participants", "trials", "steps", "keys", "answers", "focus")
 
@@ -39,25 +44,45 @@ def _time(seconds) -> pd.Timestamp | None:
     return pd.Timestamp(seconds, unit="s", tz="UTC") if seconds is not None else None
 
 
+def _condition(study: Study, index: int | None, settings: dict | None = None) -> dict:
+    """The ``condition*`` columns: a condition by index, or a game's own settings (practice: no index)."""
+    if settings is None:
+        settings = dataclasses.asdict(study.conditions[index]) if index is not None else {}
+    return {"condition_index": index, "condition": f"C{index + 1}" if index is not None else None,
+            **{f"condition_{k}": v for k, v in settings.items()}}
+
+
 def tables(study: Study, db: Path, replays_dir: Path) -> dict[str, pd.DataFrame]:
-    """The six tables as pandas DataFrames."""
+    """The six tables as pandas DataFrames, each of the columns and types ``export_schema`` declares."""
     data = read_db(db)
-    participants = pd.DataFrame([{
-        "participant": p["pid"], "status": p["status"], "arm": p["arm"],
-        "conditions": json.dumps(json.loads(p["conditions"])), "step": p["step"],
+    labels, arm_list = arm_labels(study), arms(study)
+    between = study.design.assignment == "between"
+    people = {p["pid"]: p for p in data["participants"]}
+
+    def who(pid: str) -> dict:
+        arm = people[pid]["arm"] if pid in people else None
+        return {"participant": pid, "arm": arm, "arm_label": labels[arm] if arm is not None and 0 <= arm < len(labels)
+                else None}
+
+    def own_condition(pid: str) -> int | None:
+        """The participant's one condition (between subjects), else None."""
+        arm = people[pid]["arm"] if pid in people else None
+        return arm_list[arm][0] if between and arm is not None and 0 <= arm < len(arm_list) else None
+
+    participants = [{
+        **who(p["pid"]), **_condition(study, own_condition(p["pid"])),
+        "conditions": json.dumps(json.loads(p["conditions"])), "status": p["status"], "step": p["step"],
         **{f"url_{k}": v for k, v in json.loads(p["url_params"]).items()},
         "user_agent": p["user_agent"], "started": _time(p["started"]), "completed": _time(p["completed"]),
         "minutes": (p["completed"] - p["started"]) / 60 if p["completed"] else None,
-    } for p in data["participants"]])
+    } for p in data["participants"]]
     trials, steps, keys, focus = [], [], [], []
     for g in sorted(data["games"], key=lambda g: (g["pid"], g["step"], g["attempt"])):
-        settings = json.loads(g["settings"])
         scores = json.loads(g["scores"]) if g["scores"] else {}
-        row = {"participant": g["pid"], "kind": g["kind"], "trial_index": g["trial_index"],
-               "condition_index": g["condition"], "attempt": g["attempt"], "page_step": g["step"],
-               **{f"condition_{k}": v for k, v in settings.items()},
-               "game_id": g["game_id"], "replay_id": g["replay_id"], "ended": g["ended"],
-               "started": _time(g["started"]), "finished": _time(g["finished"]),
+        base = {**who(g["pid"]), "kind": g["kind"], "trial_index": g["trial_index"],
+                **_condition(study, g["condition"], json.loads(g["settings"])), "attempt": g["attempt"]}
+        row = {**base, "page_step": g["step"], "game_id": g["game_id"], "replay_id": g["replay_id"],
+               "ended": g["ended"], "started": _time(g["started"]), "finished": _time(g["finished"]),
                "team_score": scores.get("team"), "leader_score": scores.get(AGENTS[LEADER]),
                "follower_score": scores.get(AGENTS[FOLLOWER])}
         path = replays_dir / f"{g['replay_id']}.replay.json" if g["replay_id"] else None
@@ -80,7 +105,6 @@ def tables(study: Study, db: Path, replays_dir: Path) -> dict[str, pd.DataFrame]
                        "viewport": json.dumps((replay.meta.get("client") or {}).get("viewport")),
                        "user_agent": (replay.meta.get("client") or {}).get("user_agent")})
         states = replay_states(replay, path)
-        base = {"participant": g["pid"], "trial_index": g["trial_index"], "kind": g["kind"], "attempt": g["attempt"]}
         for t in range(replay.num_steps):
             pos = states[t].agent_pos[0]
             step = {**base, "t": t, "goal": replay.goal[t], "goal_switched": bool(replay.goal_switched[t]),
@@ -101,23 +125,38 @@ def tables(study: Study, db: Path, replays_dir: Path) -> dict[str, pd.DataFrame]
         for e in replay.meta.get("page_events", []):
             focus.append({**base, "event": e["event"], "visible": e.get("visible"), "step": e.get("step"),
                           "t_client_ms": e.get("t_client"), "t_server_ms": e.get("t_server")})
-    answers = [{"participant": a["pid"], "page": a["page"], "trial_index": a["trial_index"], "question": a["question"],
-                "value": json.loads(a["value"]) if a["value"] is not None else None, "answered": _time(a["answered"])}
-               for a in sorted(data["answers"], key=lambda a: (a["pid"], a["step"], a["question"]))]
-    for a in answers:  # one column type: numbers as text where a questionnaire mixes kinds
-        a["value"] = None if a["value"] is None else str(a["value"])
-    return {"participants": participants, "trials": pd.DataFrame(trials), "steps": pd.DataFrame(steps),
-            "keys": pd.DataFrame(keys), "answers": pd.DataFrame(answers), "focus": pd.DataFrame(focus)}
+    questions = {(page, q["id"]): q for page, qs in questions_metadata(study).items() for q in qs}
+    answers = []
+    for a in sorted(data["answers"], key=lambda a: (a["pid"], a["step"], a["question"])):
+        q = questions.get((a["page"], a["question"]), {})
+        value = json.loads(a["value"]) if a["value"] is not None else None
+        kind = q.get("kind")
+        if a["trial_index"] is not None and a["pid"] in people:
+            condition = json.loads(people[a["pid"]]["conditions"])[a["trial_index"]]
+        else:
+            condition = own_condition(a["pid"])
+        answers.append({**who(a["pid"]), "page": a["page"], "trial_index": a["trial_index"],
+                        **_condition(study, condition), "question": a["question"], "question_kind": kind,
+                        "likert": value if kind == "likert" else None, "scale": q["scale"] if kind == "likert" else None,
+                        "choice": value if kind == "choice" else None, "text": value if kind == "text" else None,
+                        "answered": _time(a["answered"])})
+    schema = export_schema(study)
+    rows = {"participants": participants, "trials": trials, "steps": steps, "keys": keys, "answers": answers,
+            "focus": focus}
+    return {name: conform(rows[name], schema[name]) for name in TABLES}
 
 
 def write_tables(study: Study, db: Path, replays_dir: Path, out: Path) -> dict[str, int]:
-    """Write every table as ``out/NAME.parquet`` and ``out/NAME.csv``; returns the row counts."""
+    """Write every table as ``out/NAME.parquet`` (its types in its schema) and ``out/NAME.csv`` (its types in
+    ``out/schema.json``, read back by ``server.study.schema.read_csv``); returns the row counts."""
     if not db.is_file():
         raise FileNotFoundError(f"{db}: no study database (has the study run? see --replays-dir)")
     out.mkdir(parents=True, exist_ok=True)
+    schema = export_schema(study)
     counts = {}
     for name, frame in tables(study, db, replays_dir).items():
-        frame.to_parquet(out / f"{name}.parquet", index=False)
+        write_parquet(frame, study, schema[name], out / f"{name}.parquet")
         frame.to_csv(out / f"{name}.csv", index=False)
         counts[name] = len(frame)
+    (out / SCHEMA_FILE).write_text(json.dumps(sidecar(study), indent=1, ensure_ascii=False) + "\n", encoding="utf-8")
     return counts

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 
 from markdown_it import MarkdownIt
 
-from server.study.assign import arms, choose_arm, trial_order
+from server.study.assign import arm_labels, arms, choose_arm, trial_order
 from server.study.config import ID_ALLOWED, ID_PATTERN, GameSettings, Page, Question, Study
 from server.study.store import StudyStore
 
@@ -262,8 +262,7 @@ class StudyService:
     # ---------------------------------------------------------------- the admin's view
     def summary(self, live_games: int) -> dict:
         rows = self.store.rows("SELECT pid, arm, status, step, started, completed, updated FROM participants")
-        labels = [" → ".join(f"C{c + 1}" for c in arm) if self.study.design.assignment == "within"
-                  else f"C{arm[0] + 1}" for arm in self.arms]
+        labels = arm_labels(self.study)
         by_arm = [{"arm": a, "label": labels[a], "active": 0, "completed": 0} for a in range(len(self.arms))]
         for r in rows:
             if 0 <= r["arm"] < len(by_arm):
