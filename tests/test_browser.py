@@ -433,3 +433,170 @@ def test_the_api_docs_render_without_internet(server, browser):
     page.wait_for_load_state("networkidle")
     assert outside == []
     page.close()
+
+
+RING = "#ffb000"  # the ring around this person's disc (web/room.js markYou, .you-badge in web/style.css)
+
+
+def ringed(page, cell_index: int, width: int = 32) -> bool:
+    """Whether the disc in ``cell_index`` has the "you" ring (a pixel just outside the disc)."""
+    size = (520 - 8) // width
+    r, c = divmod(cell_index, width)
+    return pixel(page, 4 + c * size + size // 2 + size // 2 + 1, 4 + r * size + size // 2) == RING
+
+
+def rows_apart(page) -> bool:
+    """No agent's words run into its score: each row's two parts side by side, apart."""
+    return page.locator("#agent-scores .row").evaluate_all("""rows => rows.every(row => {
+        const [who, score] = [...row.children].map(e => e.getBoundingClientRect());
+        return who.right <= score.left && who.top < score.bottom && score.top < who.bottom; })""")
+
+
+def test_the_play_page_says_which_disc_is_yours_and_which_your_ai_partners(server, browser):
+    page = browser.new_page()
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(server.url + "/")
+    look = server.get("/api/options")[0]["look"]
+    leader, follower = look["agents"]
+    intro = page.locator("#who-is-who")
+    expect(intro).to_contain_text("You are the disc L")
+    expect(intro).to_contain_text("Your AI partner, the disc F")
+    for agent in (leader, follower):  # the legend's discs in the board's colors
+        badge = intro.locator(f"[data-symbol='{agent['name']}'] .agent-badge")
+        expect(badge).to_have_css("background-color", css_rgb(agent["body"]))
+        expect(badge).to_have_css("color", css_rgb(agent["ink"]))
+    assert intro.locator(".you-badge").all_text_contents() == ["L"], "yours is ringed, as on the board"
+    # no empty bullet in how to play (the team's line is for teams)
+    assert all(t.strip() for t in page.locator("#how-to li:visible").all_text_contents())
+    expect(page.locator("#team-help")).to_be_hidden()
+    page.select_option("#team", "1:2")
+    expect(page.locator("#team-help")).to_be_visible()
+    page.select_option("#team", "1:1")
+    page.select_option("#follower", "bayes-people")
+    page.select_option("#mode", "turn")
+    page.fill("#horizon", "4")
+    page.click("#start")
+    board = page.locator("#board")
+    expect(board).to_have_attribute("data-step", "0")
+    aside = page.locator("#game aside")
+    width = aside.bounding_box()["width"]
+    assert page.locator("#agent-scores .row").all_inner_texts() == ["L you\t0", "F your AI partner\t0"] or \
+        [r.split()[:4] for r in page.locator("#agent-scores .row").all_inner_texts()] == \
+        [["L", "you", "0"], ["F", "your", "AI", "partner"]]
+    expect(page.locator("#you")).to_have_text("L")
+    expect(page.locator("#you")).to_have_css("background-color", css_rgb(leader["body"]))
+    expect(page.locator("#partner-note")).to_have_text("your AI partner: Bayesian assistant for people")
+    expect(page.locator("#belief-whose")).to_have_text("your AI partner believes")
+    assert rows_apart(page)
+    assert not re.search(r"\b(leader|follower)\b", aside.inner_text()), "people are you and your AI partner"
+    assert ringed(page, int(board.get_attribute("data-leader")))
+    assert not ringed(page, int(board.get_attribute("data-follower")))
+    for t, key in enumerate(["ArrowUp", "ArrowLeft", "ArrowDown"]):
+        page.keyboard.press(key)
+        expect(board).to_have_attribute("data-step", str(t + 1))
+        assert aside.bounding_box()["width"] == width, "the panel keeps its width as its text changes"
+        assert ringed(page, int(board.get_attribute("data-leader")))
+    page.keyboard.press("ArrowRight")
+    expect(page.locator("#over")).to_be_visible()
+    expect(page.locator("#over-scores")).to_contain_text(re.compile(r"\(you [+-]?\d+, your AI partner [+-]?\d+\)"))
+    assert aside.bounding_box()["width"] == width
+    expect(page.locator("#status")).to_have_text("Game over.")
+    page.click("#again")
+    expect(page.locator("#status")).to_have_text("")  # the last game's end is not shown over the next
+    page.click("#start")
+    expect(board).to_have_attribute("data-step", "0")
+    expect(page.locator("#events")).to_have_text("")
+    expect(page.locator("#status")).not_to_contain_text("Game over")
+    page.click("#quit")
+    expect(page.locator("#over")).to_be_visible()
+    assert errors == []
+    page.close()
+
+
+def test_in_a_room_each_person_is_you_in_their_own_seat_and_only_the_opener_shares_the_link(server, browser):
+    contexts = [browser.new_context() for _ in range(2)]
+    opener, guest = [c.new_page() for c in contexts]
+    opener.goto(server.url + "/")
+    opener.select_option("#team", "2:1")
+    opener.select_option("#mode", "turn")
+    opener.fill("#horizon", "5")
+    opener.click("#start")
+    expect(opener.locator("#room")).to_be_visible()
+    expect(opener.locator("#share")).to_be_visible()
+    expect(opener.locator("#status")).to_contain_text("send the link")
+    guest.goto(server.url + "/")
+    guest.fill("#join-code", opener.locator("#room-code").text_content())
+    guest.click("#join")
+    expect(guest.locator("#room")).to_be_visible()
+    expect(guest.locator("#share")).to_be_hidden()
+    expect(guest.locator("#joined")).to_be_visible()
+    expect(guest.locator("#status")).not_to_contain_text("send the link")
+    assert "Send this link" not in guest.locator("#room").inner_text()
+    expect(opener.locator("#room-seats li")).to_have_count(2)
+    expect(opener.locator("#share")).to_be_visible()  # still the opener's, once the guest is in
+    for page in (opener, guest):
+        page.click("#ready")
+    for page, you, other in ((opener, "L1", "L2"), (guest, "L2", "L1")):
+        expect(page.locator("#board")).to_have_attribute("data-step", "0")
+        expect(page.locator("#you")).to_have_text(you)
+        rows = page.locator("#agent-scores .row")
+        expect(rows.filter(has_text=you)).to_contain_text("you")
+        expect(rows.filter(has_text=other)).to_contain_text("the other person")
+        expect(rows.filter(has_text="F1")).to_contain_text("your AI partner")
+        assert rows_apart(page)
+        board = page.locator("#board")
+        seat = {"L1": "leader_0", "L2": "leader_1"}
+        assert ringed(page, int(board.get_attribute(f"data-{seat[you]}")))
+        assert not ringed(page, int(board.get_attribute(f"data-{seat[other]}")))
+    for page in (opener, guest):
+        page.click("#quit")
+    for context in contexts:
+        context.close()
+
+
+def set_visibility(page, visible: bool) -> None:
+    """The tab hidden or shown again, as the browser reports it to the page."""
+    page.evaluate("""visible => {
+        Object.defineProperty(document, "visibilityState", { value: visible ? "visible" : "hidden", configurable: true });
+        Object.defineProperty(document, "hidden", { value: !visible, configurable: true });
+        document.dispatchEvent(new Event("visibilitychange"));
+    }""", visible)
+
+
+def test_a_real_time_game_goes_on_through_the_tab_hidden_and_shown_again(server, browser):
+    from colorgrid.replay import load
+
+    page = browser.new_page()
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(server.url + "/")
+    page.select_option("#follower", "copy")
+    page.select_option("#mode", "realtime")
+    page.fill("#horizon", "60")  # 3 s at the test server's 20 steps/s
+    page.click("#start")
+    countdown, board = page.locator("#countdown"), page.locator("#board")
+    expect(countdown).to_have_text("3")
+    set_visibility(page, False)  # hidden during the countdown
+    expect(countdown).to_have_text("2")
+    set_visibility(page, True)
+    expect(page.locator("#game")).to_be_visible()
+    expect(board).not_to_have_attribute("data-step", "0")
+    set_visibility(page, False)  # and during the game: the world goes on
+    step = int(board.get_attribute("data-step"))
+    page.wait_for_function(f"() => Number(document.getElementById('board').dataset.step) > {step + 5}")
+    set_visibility(page, True)
+    before = board.get_attribute("data-leader")
+    for _ in range(3):
+        page.keyboard.press("ArrowDown" if int(before) < 32 * 16 else "ArrowUp")
+        page.wait_for_timeout(60)
+    page.wait_for_function(f"() => document.getElementById('board').dataset.leader !== '{before}'")
+    expect(page.locator("#over")).to_be_visible(timeout=15_000)
+    expect(page.locator("#status")).to_have_text("Game over.")
+    expect(countdown).to_be_hidden()
+    replay = load(server.replays_dir / f"{page.locator('#replay-link').get_attribute('href').split('id=')[1]}.replay.json")
+    changes = [e["visible"] for e in replay.meta["page_events"] if e["event"] == "visibilitychange"]
+    assert changes == [False, True], "the game's hiding and showing are recorded (the countdown's are before it)"
+    assert any(e["status"] == "applied" for e in replay.key_events), "keys move the leader after the tab is back"
+    assert errors == []
+    page.close()

@@ -1,6 +1,6 @@
 // Draws a ColorGrid board on a canvas, by the same rules as colorgrid/render.py: floor, colored blocks,
 // each agent of the team as a disc in its role's colors with its label (1:1: L, F; other teams: L1, L2, F1, ...),
-// a frame in the goal color. The colors and the agents are the server's (`look`: /api/options, the welcome
+// a frame in the goal color; `agentBadge` draws a disc beside text. The colors and the agents are the server's (`look`: /api/options, the welcome
 // message, a replay's timeline), set once with `setLook`. `describeBoard` says the same in words.
 let look = null;
 
@@ -55,6 +55,16 @@ function drawAgent(ctx, border, cell, width, index, agent) {
   ctx.textAlign = "center";
   ctx.textBaseline = "middle";
   ctx.fillText(agent.symbol, x, y + 1);
+}
+
+export function agentBadge(agent) {
+  // An agent's disc in words' size: its label on its role's colors, as the board draws it (legends, scores).
+  const badge = document.createElement("span");
+  badge.className = "agent-badge";
+  badge.textContent = agent.symbol;
+  badge.style.background = agent.body;
+  badge.style.color = agent.ink;
+  return badge;
 }
 
 export function describeBoard(board, colors) {

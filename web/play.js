@@ -1,13 +1,13 @@
 // The play page: the server owns the game; this page draws states and sends keys. What it offers and
 // how it draws (followers, presets, modes, teams, keys, colors, agents) all come from the server. A team of
 // several people meets in a room first (web/room.js draws it).
-import { drawBoard, drawBelief, setLook } from "./board.js";
+import { agentBadge, drawBoard, drawBelief, setLook } from "./board.js";
 import { countdown } from "./countdown.js";
 import { playSocket } from "./socket.js";
 import { plainEnding, plainError, stepsMessage } from "./messages.js";
 import { queryParam } from "./params.js";
-import { LEFT_ENDING, drawBeliefs, markYou, plainRoomClosed, plainRoomError, showRoom, showSeats, showTeam,
-         showTeamScores } from "./room.js";
+import { LEFT_ENDING, drawBeliefs, markYou, openedRoom, plainRoomClosed, plainRoomError, showAgents, showRoom,
+         showScores, showSeats, whoIs } from "./room.js";
 
 const $ = (id) => document.getElementById(id);
 const ARROWS = { ArrowUp: "↑", ArrowDown: "↓", ArrowLeft: "←", ArrowRight: "→" };
@@ -21,8 +21,12 @@ async function loadOptions() {
   fill($("preset"), options.presets.map((v) => ({ value: v, label: v })), options.default_preset);
   fill($("mode"), options.modes, options.modes[0].value);
   $("horizon").max = options.horizon.max;
-  for (const agent of options.look.agents) {
-    for (const el of document.querySelectorAll(`[data-symbol="${agent.name}"]`)) el.textContent = agent.symbol;
+  for (const agent of options.look.agents) {  // the discs as the board draws them: yours ringed, as on the board
+    for (const el of document.querySelectorAll(`[data-symbol="${agent.name}"]`)) {
+      const badge = agentBadge(agent);
+      if (agent.role === "leader") badge.classList.add("you-badge");
+      el.replaceChildren(badge);
+    }
   }
   $("move-keys").textContent = moveKeys(options.keys);
   showTeamChoice();
@@ -58,7 +62,8 @@ function showTeamChoice() {
       `(${team.ai_followers === 1 ? "one AI follower" : `${team.ai_followers} AI followers`}): create a room, ` +
       "send its link, and the game starts when everyone is ready. In turn-based play the world steps once " +
       "every person has moved."
-    : team.ai_followers > 1 ? `${team.ai_followers} AI followers assist you; each forms its own belief.` : "";
+    : team.ai_followers > 1 ? `${team.ai_followers} AI partners assist you; each forms its own belief.` : "";
+  $("team-help").hidden = !$("team-help").textContent;  // no empty bullet
 }
 
 function followerInfo(name) {
@@ -130,7 +135,9 @@ function onRoom(msg) {
     $("countdown").hidden = true;  // a countdown under way stopped: someone left
   }
   if (msg.starting_in_s != null) status("everyone is ready: the game starts...");
-  else status(first ? "room open: send the link to the person you lead with" : "");
+  else if (!first) status("");
+  else status(openedRoom(msg) ? "room open: send the link to the person you lead with"
+    : "you joined the room: press Ready when you are");
 }
 
 function backToSetup(clearLink = true) {  // out of a room (or a game that was not made), back to the choices
@@ -148,8 +155,11 @@ function onMessage(msg) {
     backToSetup();
     status(plainRoomClosed(msg), "error", `room_closed: ${msg.reason}: ${msg.message}`);
   } else if (msg.type === "welcome") {
-    game = { ...msg, over: false };
+    // "you": the agent this person plays (a team's welcome names it; in 1:1 the leader)
+    game = { ...msg, over: false, agent: msg.agent ?? msg.look.agents.find((a) => a.role === "leader").name };
     room = null;
+    lastState = null;
+    $("events").textContent = "";
     if (location.search) history.replaceState(null, "", "/");  // a reload rejoins the game, not the room
     setLook(msg.look);
     sessionStorage.setItem("colorgrid-game", JSON.stringify({ game_id: msg.game_id, token: msg.token }));
@@ -167,13 +177,12 @@ function onMessage(msg) {
     $("mode-label").textContent = msg.tick_hz ? `${mode}, ${msg.tick_hz} steps/s`
       : `${mode}: the world moves when ${together ? "everyone has moved" : "you do"}`;
     const follower = followerInfo(msg.follower);
+    const followers = game.look.agents.filter((a) => a.role === "follower").length;
     $("follower-label").textContent = follower.label;
     $("follower-label").title = follower.description;
-    $("solo-scores").hidden = Boolean(msg.team);
-    $("team-scores").hidden = !msg.team;
-    if (msg.team) showTeam(game, follower.label);
-    const followers = game.look.agents.filter((a) => a.role === "follower").length;
-    $("belief-whose").textContent = followers > 1 ? "followers believe" : "follower believes";
+    $("partner-note").firstChild.textContent = followers > 1 ? "your AI partners: " : "your AI partner: ";
+    showAgents(game);
+    $("belief-whose").textContent = followers > 1 ? "your AI partners believe" : "your AI partner believes";
     $("belief-panel").hidden = !(msg.show_belief && follower.has_belief);
     status(`your move: ${moveKeys(options.keys)}`);
   } else if (msg.type === "state") {
@@ -181,7 +190,7 @@ function onMessage(msg) {
     render(msg);
     if (game.team && game.mode === "turn") status(`your move: ${moveKeys(options.keys)}`);
   } else if (msg.type === "seats") {
-    showSeats(game, msg.seats, followerInfo(game.follower).label);
+    showSeats(game, msg.seats);
   } else if (msg.type === "game_over") {
     game.over = true;
     sessionStorage.removeItem("colorgrid-game");
@@ -195,6 +204,7 @@ function onMessage(msg) {
   } else if (msg.type === "error" || msg.type === "full") {
     const detail = msg.type === "full" ? `full: ${msg.message}` : `${msg.code}: ${msg.message}`;
     console.info(detail);
+    if (game?.over) return;  // about a key on its way when the game ended: the game's end stays on screen
     const roomWords = plainRoomError(msg);
     if (!game && (!room || roomWords)) {  // the game or room was not made (or could not be resumed): back to the setup
       sessionStorage.removeItem("colorgrid-game");
@@ -209,14 +219,15 @@ function onMessage(msg) {
 
 const fmt = (x) => (x > 0 ? "+" : "") + x;
 
+function named(name) {
+  // "you", "your AI partner" (1:1); in a team with its label too: "L2 (the other person)", "F1 (your AI partner)"
+  const symbol = game.look.agents.find((a) => a.name === name)?.symbol ?? name;
+  return game.team ? `${symbol} (${whoIs(game, name)})` : whoIs(game, name);
+}
+
 function agentScores(scores) {
-  // "you +1, follower +2" (1:1, in index order: the leader, who plays, then the follower); a team's by symbol
-  if (!game.team) {
-    const [you, partner] = game.look.agents;
-    return `you ${fmt(scores[you.name])}, ${partner.name} ${fmt(scores[partner.name])}`;
-  }
-  return game.look.agents.map((a) => `${a.symbol}${a.name === game.agent ? " (you)" : ""} ${fmt(scores[a.name])}`)
-    .join(", ");
+  // "you +1, your AI partner +2", in index order
+  return game.look.agents.map((a) => `${named(a.name)} ${fmt(scores[a.name])}`).join(", ");
 }
 
 function render(state) {
@@ -224,12 +235,9 @@ function render(state) {
   const cell = drawBoard(canvas, { height: game.height, width: game.width, ...state });
   for (const agent of game.look.agents) {
     canvas.dataset[agent.name] = state[agent.name];  // agents' cells, for assistive tools and tests
-    if (!game.team) $(`score-${agent.name}`).textContent = fmt(state.scores[agent.name]);
   }
-  if (game.team) {
-    markYou(canvas, cell, game.width, state[game.agent]);
-    showTeamScores(game, state.scores, fmt);
-  }
+  markYou(canvas, cell, game.width, state[game.agent]);
+  showScores(game, state.scores, fmt);
   canvas.dataset.step = state.step;
   $("step").textContent = `${state.step} / ${state.horizon}`;
   $("left").textContent = `${state.horizon - state.step} steps left`;
@@ -238,14 +246,30 @@ function render(state) {
   $("goal-name").textContent = game.colors[state.goal];
   if (game.team) drawBeliefs($("belief"), beliefHidden ? null : state.beliefs, game, drawBelief);
   else drawBelief($("belief"), beliefHidden ? null : state.belief, game.colors);
-  const named = (name) => (game.team ? game.look.agents.find((a) => a.name === name)?.symbol ?? name : name);
   const events = state.events.map((e) => e.switch !== undefined ? `goal switched to ${game.colors[e.switch]}`
     : `${named(e.agent)} took ${game.colors[e.color]} (${e.goal ? "+" : "-"})`);
   if (events.length) $("events").textContent = events.join("; ");
 }
 
+function playing() {
+  // a game this page plays, before its last step (a key after it moves nothing)
+  return game && !game.over && !game.replaced && socket?.readyState === WebSocket.OPEN
+    && !(lastState && lastState.step >= lastState.horizon);
+}
+
+function pageEvent(event) {
+  // the page hidden or shown, its window left or back: recorded in the replay (meta.page_events)
+  if (!playing()) return;
+  socket.send(JSON.stringify({ type: "page_event", event, visible: document.visibilityState === "visible",
+                               t_client: performance.timeOrigin + performance.now() }));
+}
+
+window.addEventListener("blur", () => pageEvent("blur"));
+window.addEventListener("focus", () => pageEvent("focus"));
+document.addEventListener("visibilitychange", () => pageEvent("visibilitychange"));
+
 document.addEventListener("keydown", (event) => {
-  if (!game || game.over || !socket || socket.readyState !== WebSocket.OPEN || !Object.hasOwn(options.keys, event.key)) return;
+  if (!playing() || !Object.hasOwn(options.keys, event.key)) return;
   event.preventDefault();
   socket.send(JSON.stringify({ type: "key", key: event.key, seq: seq++, t_client: performance.timeOrigin + performance.now() }));
   if (game.team && game.mode === "turn" && game.seats.filter((s) => s.status !== "left").length > 1) {
@@ -295,7 +319,13 @@ $("team").addEventListener("change", showTeamChoice);
 $("follower").addEventListener("change", showFollower);
 $("preset").addEventListener("change", showPreset);
 $("mode").addEventListener("change", showMode);
-$("again").addEventListener("click", () => { $("over").hidden = true; $("game").hidden = true; $("setup").hidden = false; game = null; });
+$("again").addEventListener("click", () => {
+  $("over").hidden = true;
+  $("game").hidden = true;
+  $("setup").hidden = false;
+  game = null;
+  status("");  // the last game's end is not this one's
+});
 $("quit").addEventListener("click", () => socket && socket.send(JSON.stringify({ type: "quit" })));
 $("belief-toggle").addEventListener("change", (event) => {
   beliefHidden = !event.target.checked;

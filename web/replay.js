@@ -4,7 +4,7 @@
 // Colors and agents come with the timeline (`data.look`, agents in index order: the leaders first). Every
 // agent is drawn with its label and listed with its score; each follower that logged beliefs gets belief
 // bars and, in teams other than 1:1, its own episode chart (1:1: the one chart, as ever).
-import { describeBoard, drawBoard, drawBelief, setLook } from "./board.js";
+import { agentBadge, describeBoard, drawBoard, drawBelief, setLook } from "./board.js";
 import { setupBranch, showBranch } from "./branch.js";
 import { drawChart, followerNames, stepAt } from "./chart.js";
 import { queryParam } from "./params.js";
@@ -70,14 +70,7 @@ function buildAgentRows() {
     row.className = "row";
     row.dataset.agent = agent.name;
     const who = document.createElement("span");
-    if (!oneToOne) {
-      const badge = document.createElement("span");
-      badge.className = "agent-badge";
-      badge.textContent = agent.symbol;
-      badge.style.background = agent.body;
-      badge.style.color = agent.ink;
-      who.append(badge, " ");
-    }
+    if (!oneToOne) who.append(agentBadge(agent), " ");
     const policy = document.createElement("span");
     policy.id = `${agent.name}-label`;
     policy.textContent = data.agents[agent.name]?.policy ?? "?";

@@ -1,14 +1,22 @@
-// Teams on the play page: the room card (its code, the link to share, the seats, Ready), the team's rows
-// beside the board (every agent with its label, "you" marked), and the server's room words as sentences.
-// The server says who sits where (`room`, `welcome`, `seats` messages); this module only draws it.
-// See docs/SERVER_PROTOCOL.md.
+// Who is who on the play page: the room card (its code, the link to share, the seats, Ready), the rows beside
+// the board (every agent's disc with who plays it: "you", "your AI partner", "the other person"), and the
+// server's room words as sentences. The server says who sits where (`room`, `welcome`, `seats` messages);
+// this module only draws it. See docs/SERVER_PROTOCOL.md.
+import { agentBadge } from "./board.js";
 
 const $ = (id) => document.getElementById(id);
 const SEAT_WORDS = { open: "waiting for a person", joined: "joined", ready: "ready", playing: "playing",
                      reconnecting: "reconnecting...", left: "left: a scripted leader plays on" };
 
+// Whether this page opened the room (the opener sits in the first seat): only they are asked to share its link.
+export function openedRoom(msg) {
+  return msg.seats[0]?.agent === msg.you;
+}
+
 // The room card for a `room` message; returns whether this page's seat is ready.
 export function showRoom(msg, options) {
+  $("share").hidden = !openedRoom(msg);
+  $("joined").hidden = openedRoom(msg);
   $("room-code").textContent = msg.code;
   const link = new URL(msg.link, location.origin).href;
   $("room-link").href = link;
@@ -16,7 +24,7 @@ export function showRoom(msg, options) {
   const mode = options.modes.find((m) => m.value === msg.mode)?.label ?? msg.mode;
   const follower = options.follower_info.find((f) => f.value === msg.follower)?.label ?? msg.follower;
   $("room-settings").textContent = `${msg.team}: ${mode}, ${msg.horizon} steps, setting ${msg.preset}, ` +
-    `AI follower: ${follower}`;
+    `AI partner: ${follower}`;
   $("room-seats").replaceChildren(...msg.seats.map((seat) => {
     const item = document.createElement("li");
     item.dataset.status = seat.status;
@@ -31,43 +39,54 @@ export function showRoom(msg, options) {
   return ready;
 }
 
-// The rows beside the board in a team game: one per agent (its symbol, who plays it, its score holder).
-export function showTeam(game, followerLabel) {
-  const you = game.look.agents.find((a) => a.name === game.agent);
-  $("you").textContent = you.symbol;
+// The rows beside the board: one per agent (its disc, who plays it, its score holder); this person's disc is
+// ringed as on the board and has the id "you".
+export function showAgents(game) {
   $("agent-scores").replaceChildren(...game.look.agents.map((agent) => {
     const row = document.createElement("div");
     row.className = "row agent";
     row.dataset.agent = agent.name;
     const who = document.createElement("span");
-    who.className = agent.name === game.agent ? "you" : "";
+    const badge = agentBadge(agent);
+    if (agent.name === game.agent) {
+      badge.id = "you";
+      badge.classList.add("you-badge");
+    }
+    const words = document.createElement("span");
+    words.className = "who";
+    who.append(badge, " ", words);
     const score = document.createElement("span");
     score.className = "score";
     row.append(who, score);
     return row;
   }));
-  showSeats(game, game.seats, followerLabel);
+  showSeats(game, game.seats ?? []);
 }
 
-// Who plays each agent now (a `seats` message, or the welcome's seats).
-export function showSeats(game, seats, followerLabel) {
+// Who an agent is to this page's person: "you", "the other person", "a scripted leader" (in the seat of a
+// person who left) or "your AI partner" (every AI follower of the team).
+export function whoIs(game, name) {
+  if (name === game.agent) return "you";
+  const seat = game.seats?.find((s) => s.agent === name);
+  if (seat) return seat.status === "left" ? "a scripted leader" : "the other person";
+  return game.look.agents.find((a) => a.name === name)?.role === "leader" ? "the other person" : "your AI partner";
+}
+
+// Who plays each agent now (a `seats` message, or the welcome's seats; none in a game of one person).
+export function showSeats(game, seats) {
   game.seats = seats;
   const notes = [];
   for (const agent of game.look.agents) {
     const seat = seats.find((s) => s.agent === agent.name);
-    let who = followerLabel;
-    if (seat) {
-      who = agent.name === game.agent ? "you" : seat.status === "left" ? "scripted leader" : "the other person";
-      if (seat.status !== "playing" && agent.name !== game.agent) {
-        notes.push(`${agent.symbol} ${SEAT_WORDS[seat.status]}`);
-      }
+    if (seat && seat.status !== "playing" && agent.name !== game.agent) {
+      notes.push(`${agent.symbol} ${SEAT_WORDS[seat.status]}`);
     }
-    document.querySelector(`#agent-scores [data-agent="${agent.name}"] span`).textContent = `${agent.symbol} (${who})`;
+    document.querySelector(`#agent-scores [data-agent="${agent.name}"] .who`).textContent = whoIs(game, agent.name);
   }
   $("seats-note").textContent = notes.join("; ");
 }
 
-export function showTeamScores(game, scores, fmt) {
+export function showScores(game, scores, fmt) {
   for (const agent of game.look.agents) {
     document.querySelector(`#agent-scores [data-agent="${agent.name}"] .score`).textContent = fmt(scores[agent.name]);
   }
@@ -84,7 +103,7 @@ export function drawBeliefs(container, beliefs, game, drawBelief) {
     block.dataset.agent = agent.name;
     const title = document.createElement("div");
     title.className = "belief-title";
-    title.textContent = agent.symbol;
+    title.append(agentBadge(agent), ` ${whoIs(game, agent.name)}`);
     const bars = document.createElement("div");
     block.append(title, bars);
     container.appendChild(block);
@@ -92,7 +111,8 @@ export function drawBeliefs(container, beliefs, game, drawBelief) {
   }
 }
 
-// A ring around this page's own agent on the board (drawn as web/board.js draws agents: a disc per cell).
+// A ring around this page's own agent on the board (drawn as web/board.js draws agents: a disc per cell), in the
+// color of the ring around "you" in the legend (.you-badge in web/style.css).
 export function markYou(canvas, cell, width, index) {
   const ctx = canvas.getContext("2d");
   const border = 4, r = Math.floor(index / width), c = index % width;
