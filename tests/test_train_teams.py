@@ -262,3 +262,23 @@ def test_one_to_one_checkpoints_keep_their_layout(tmp_path):
     assert "agents" not in ckpt["agents"]["follower"] and ckpt["agents"]["follower"]["agent_index"] == 1
     assert list(ckpt["trainer_state"]["learners"]) == ["follower"]
     assert list(ckpt["trainer_state"]["partners"]) == ["leader"]
+
+
+def test_a_team_followers_card_compares_it_with_the_baselines_in_its_team(tmp_path):
+    """The card of a 1:2 shared follower network: a row per baseline and one for the checkpoint, every figure
+    the same as ``colorgrid eval`` gives in that team on the same seeds, and the command that reproduces them."""
+    from colorgrid_apps.evaluate import evaluate
+    from train.card import TEAM_BASELINES, model_card
+
+    changes = merge(RUNS["1L2F_shared"], {"total_steps": 64})
+    Trainer(tiny(changes), tmp_path, progress=False, tensorboard=False).train()
+    ckpt = str(tmp_path / "checkpoints" / "latest.pt")
+    text, data = model_card(ckpt, "follower", str(tmp_path), "colorgrid train --preset team_1L2F", episodes=3)
+    assert data["followers"] == [*TEAM_BASELINES, ckpt]
+    config = EnvConfig.from_dict(load_checkpoint(ckpt)["env_config"])
+    again = evaluate(config, "astar", ckpt, 3, 0)["roles"]["follower"]["net_pickups"]
+    table = [line for line in text.splitlines() if line.startswith("| `")]
+    assert [line.split("`")[1] for line in table] == [*TEAM_BASELINES, "latest.pt"]
+    assert f"{again['mean']:+.2f} ± {again['ci95']:.2f}" in table[-1]
+    assert "one network shared by the followers" in text
+    assert f"colorgrid eval --team 1:2 --leader astar --compare copy bayes-people oracle {ckpt}" in text
