@@ -257,9 +257,15 @@ def test_a_participant_goes_through_the_api_and_the_data_is_recorded(study_serve
     view = post(study_server, "/api/study/advance", {**who, "step": 3})[1]
     assert view["kind"] == "questions"
     status, body = post(study_server, "/api/study/advance", {**who, "step": 4, "answers": {"helpful": 9}})
-    assert status == 409 and body["detail"] == "helpful: a whole number in 1..7"
+    assert status == 422 and body["detail"]["problems"] == [  # every problem at once, in the question's words
+        {"question": "helpful", "prompt": "How helpful was your AI partner in this game?",
+         "problem": "Choose one of the points from 1 to 7."},
+        {"question": "understood", "prompt": "How well did your AI partner understand the goal?",
+         "problem": "Please answer this question."}]
     status, body = post(study_server, "/api/study/advance", {**who, "step": 4, "answers": {"helpful": 5}})
-    assert status == 409 and body["detail"] == "understood: an answer is required"
+    assert status == 422 and [p["question"] for p in body["detail"]["problems"]] == ["understood"]
+    status, body = post(study_server, "/api/study/advance", {**who, "step": 4, "answers": {"nope": 5}})
+    assert status == 409 and "unknown question(s) ['nope']" in body["detail"]
     view = post(study_server, "/api/study/advance", {**who, "step": 4, "answers": {"helpful": 5, "understood": 6}})[1]
     assert view["kind"] == "trial" and view["trial_index"] == 1
     replay_path = next(study_server.replays_dir.glob(f"*{over['welcome']['game_id']}.replay.json"))
@@ -305,7 +311,7 @@ def test_two_participants_in_chromium_one_reloading_mid_trial(study_server, brow
             page.click("#next")
             page.locator("fieldset[data-id=helpful] input[value='6']").check()
             page.click("#next")
-            expect(page.locator("#status")).to_have_text("understood: an answer is required")
+            expect(page.locator("fieldset[data-id=understood] .problem")).to_have_text("Please answer this question.")
             page.locator("fieldset[data-id=understood] input[value='5']").check()
             page.click("#next")
         expect(page.locator("#page-title")).to_have_text("A few last questions")

@@ -104,17 +104,19 @@ class Question:
         check_int(self, "max_length", 1, 100_000, allowed="a whole number in 1..100000")
 
     def problem(self, value: Any) -> str | None:
-        """What is wrong with ``value`` as an answer (None: it is a valid answer, or a skipped optional one)."""
+        """What is wrong with ``value`` as an answer, in words for the participant (None: it is a valid answer,
+        or a skipped optional one)."""
         if value is None or value == "":
-            return "an answer is required" if self.required else None
+            return "Please answer this question." if self.required else None
         if self.kind == "likert":
             ok = isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= self.scale
-            return None if ok else f"a whole number in 1..{self.scale}"
+            return None if ok else f"Choose one of the points from 1 to {self.scale}."
         if self.kind == "choice":
-            return None if value in self.options else f"one of {list(self.options)}"
+            return None if value in self.options else "Choose one of the options."
         if not isinstance(value, str):
-            return "text"
-        return None if len(value) <= self.max_length else f"at most {self.max_length} characters"
+            return "Write your answer as text."
+        return None if len(value) <= self.max_length else \
+            f"Keep your answer to {self.max_length} characters (it has {len(value)})."
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from fastapi.responses import FileResponse, JSONResponse, RedirectResponse
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.background import BackgroundTask
 
-from server.study.service import Invalid, Refused, StudyService
+from server.study.service import AnswerProblems, Invalid, Refused, StudyService
 
 NOT_SERVED = ("/replays", "/replay", "/api/replays")
 
@@ -78,6 +78,9 @@ def mount_study(app: FastAPI, service: StudyService, admin_token: str, web_dir: 
             return fn(*args)
         except Refused as err:
             raise HTTPException(403, str(err)) from None
+        except AnswerProblems as err:  # every problem, for the page to show beside each question
+            raise HTTPException(422, {"message": f"{len(err.problems)} answer(s) need attention",
+                                      "problems": err.problems}) from None
         except Invalid as err:
             raise HTTPException(409, str(err)) from None
 
@@ -108,7 +111,9 @@ def mount_study(app: FastAPI, service: StudyService, admin_token: str, web_dir: 
 
     @app.post("/api/study/advance", tags=["study"])
     def advance(body: Advance) -> dict:
-        """Finish the current page (consent agreed, answers, a game over) and get the next one."""
+        """Finish the current page (consent agreed, answers, a game over) and get the next one. Answers that
+        cannot be taken answer 422 with ``detail: {message, problems: [{question, prompt, problem}]}``, every
+        problem at once; other refusals 409 with a sentence."""
         return run(service.advance, body.pid, body.session, body.step, body.answers, body.agree)
 
     def admin(authorization: str | None):

@@ -20,6 +20,9 @@ from dataclasses import dataclass
 
 from markdown_it import MarkdownIt
 
+from colorgrid.presets import env_config
+from colorgrid.render import look
+
 from server.study.assign import arm_labels, arms, choose_arm, trial_order
 from server.study.config import ID_ALLOWED, ID_PATTERN, GameSettings, Page, Question, Study
 from server.study.store import StudyStore
@@ -35,6 +38,15 @@ class Refused(Exception):
 
 class Invalid(Exception):
     """The request does not fit the participant's current step; the message names the problem."""
+
+
+class AnswerProblems(Invalid):
+    """Answers that cannot be taken: every problem at once, each ``{question, prompt, problem}`` (its id, its
+    text as the participant reads it, what is wrong in words for them)."""
+
+    def __init__(self, problems: list[dict]):
+        self.problems = problems
+        super().__init__("; ".join(f"{p['question']}: {p['problem']}" for p in problems))
 
 
 @dataclass(frozen=True)
@@ -151,8 +163,11 @@ class StudyService:
                "trial_index": step.trial_index, "trials": trials}
         if step.questions:
             out["questions"] = [dataclasses.asdict(q) for q in step.questions]
+        settings = self.game_settings(step) if step.has_game else self.study.defaults
+        config = env_config(settings.preset)
+        out["look"] = look(config)  # who is who: the page's legend draws each disc as the board will
+        out["agent"] = config.agent_names[config.leaders[0]]  # the participant's (a study game is 1:1)
         if step.has_game:
-            settings = self.game_settings(step)
             out["game"] = {"mode": settings.mode, "show_belief": settings.show_belief, "horizon": settings.horizon,
                            "tick_hz": settings.tick_hz}
             last = self.last_game(pid, row["step"])
@@ -191,11 +206,11 @@ class StudyService:
             unknown = sorted(set(answers) - {q.id for q in step.questions})
             if unknown:
                 raise Invalid(f"answers: unknown question(s) {unknown}")
-            for q in step.questions:
-                problem = q.problem(answers.get(q.id))
-                if problem:
-                    raise Invalid(f"{q.id}: {problem}")
-                clean[q.id] = answers.get(q.id) if answers.get(q.id) != "" else None
+            problems = [{"question": q.id, "prompt": q.prompt, "problem": q.problem(answers.get(q.id))}
+                        for q in step.questions if q.problem(answers.get(q.id))]
+            if problems:
+                raise AnswerProblems(problems)
+            clean = {q.id: answers.get(q.id) if answers.get(q.id) != "" else None for q in step.questions}
         if step.has_game:
             last = self.last_game(pid, step_index)
             if last is None or not last["ended"] or last["ended"] in LOST:
