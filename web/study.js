@@ -5,6 +5,7 @@ import { drawBoard, drawBelief, setLook } from "./board.js";
 import { countdown } from "./countdown.js";
 import { playSocket } from "./socket.js";
 import { plainEnding } from "./messages.js";
+import { describe, disc, drawLegend } from "./study_people.js";
 
 const $ = (id) => document.getElementById(id);
 const params = Object.fromEntries(new URLSearchParams(location.search));
@@ -20,7 +21,12 @@ async function api(path, body) {
     method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body),
   });
   const data = await response.json();
-  if (!response.ok) throw new Error(typeof data.detail === "string" ? data.detail : "the request was refused");
+  if (!response.ok) {  // a sentence; answers that cannot be taken: every problem, by question (422)
+    const detail = data.detail;
+    const err = new Error(typeof detail === "string" ? detail : detail?.message ?? "the request was refused");
+    err.problems = detail?.problems ?? null;
+    throw err;
+  }
   return data;
 }
 
@@ -51,6 +57,8 @@ function show(next) {
   $("page-text").innerHTML = view.html;  // rendered by the server from the study file (raw HTML is escaped)
   $("progress").textContent = `page ${view.step + 1} of ${view.steps}`;
   $("questions").replaceChildren(...(view.questions ?? []).map(questionField));
+  $("legend").hidden = !["instructions", "practice", "trial"].includes(view.kind);  // who is who, before each game
+  drawLegend($("legend"), view.look, view.agent);
   $("completion").hidden = view.kind !== "debrief";
   if (view.kind === "debrief") {
     $("completion-code").textContent = view.completion_code;
@@ -61,8 +69,16 @@ function show(next) {
   $("play").hidden = !gamePage || Boolean(view.done);
   $("next").hidden = view.kind === "debrief" || (gamePage && !view.done);
   $("next").textContent = view.kind === "consent" ? "I agree" : "Continue";
-  status(view.done ? `game over: ${plainEnding(view.done.ended)}` : "");
+  status(view.done ? ending(view) : "");
   if (view.live) connect({ type: "rejoin", game_id: view.live.game_id, token: view.live.token });
+}
+
+function ending(page) {
+  // The game just played, in words: how it ended and the team's score (a practice game's does not count).
+  const score = page.done.scores?.team;
+  const points = score == null ? "" : ` Your team scored ${score > 0 ? "+" : ""}${score}`;
+  if (page.kind === "practice") return `Practice over.${points ? `${points}, which does not count.` : ""}`;
+  return `${plainEnding(page.done.ended)}${points ? `${points}.` : ""}`;
 }
 
 function questionField(q) {
@@ -70,7 +86,8 @@ function questionField(q) {
   box.className = "question";
   box.dataset.id = q.id;
   const legend = document.createElement("legend");
-  legend.textContent = q.prompt + (q.required ? "" : " (optional)");
+  legend.textContent = q.prompt;
+  if (!q.required && !/\(optional\)/i.test(q.prompt)) legend.append(span("(optional)", "optional"));
   box.append(legend);
   if (q.kind === "text") {
     const area = document.createElement("textarea");
@@ -115,10 +132,39 @@ async function next() {
   try {
     const body = { ...who, step: view.step, agree: view.kind === "consent" };
     if (view.questions) body.answers = answers();
+    showProblems([]);
     show(await api("advance", body));
   } catch (err) {
-    status(err.message, "error");
+    if (err.problems) {
+      showProblems(err.problems);
+    } else {
+      status(err.message, "error");
+    }
   }
+}
+
+function showProblems(problems) {
+  // The server's problems with the answers, each beside its question; the status line names the questions.
+  for (const box of $("questions").querySelectorAll("fieldset.question")) {
+    const problem = problems.find((p) => p.question === box.dataset.id);
+    box.querySelector(".problem")?.remove();
+    box.removeAttribute("aria-invalid");
+    if (!problem) continue;
+    const note = document.createElement("p");
+    note.className = "problem";
+    note.id = `problem-${box.dataset.id}`;
+    note.textContent = problem.problem;
+    box.setAttribute("aria-invalid", "true");
+    box.setAttribute("aria-describedby", note.id);
+    box.append(note);
+  }
+  if (!problems.length) return;
+  const list = document.createElement("ul");
+  list.replaceChildren(...problems.map((p) => Object.assign(document.createElement("li"), { textContent: p.prompt })));
+  $("status").replaceChildren(problems.length === 1 ? "Please look again at this question:"
+    : `Please look again at these ${problems.length} questions:`, list);
+  $("status").className = "error";
+  $("questions").querySelector("fieldset[aria-invalid=true] input, fieldset[aria-invalid=true] textarea")?.focus();
 }
 
 // ------------------------------------------------------------------ games
@@ -137,7 +183,10 @@ function onMessage(msg) {
     setLook(msg.look);
     $("page").hidden = true;
     $("game").hidden = false;
-    $("belief-panel").hidden = !msg.show_belief;
+    $("belief-panel").hidden = true;  // shown once the follower has a belief to show: some have none
+    drawLegend($("game-legend"), msg.look, view.agent);
+    firstGameNote(msg.look);
+    $("score-label").textContent = view.kind === "practice" ? "practice score (does not count)" : "team score";
     if (!$("countdown").hidden) setTimeout(() => { $("countdown").hidden = true; }, 700);
     status("");
     $("board").focus();
@@ -166,7 +215,23 @@ function render(state) {
   $("score-team").textContent = (state.scores.team > 0 ? "+" : "") + state.scores.team;
   $("goal-swatch").style.background = game.look.palette[state.goal];
   $("goal-name").textContent = game.colors[state.goal];
-  if (game.show_belief) drawBelief($("belief"), state.belief, game.colors);
+  $("board").setAttribute("aria-label", describe({ height: game.height, width: game.width, ...state }, game.look,
+                                                 view.agent, game.colors));
+  if (game.show_belief && state.belief) {
+    $("belief-panel").hidden = false;
+    drawBelief($("belief"), state.belief, game.colors);
+  }
+}
+
+function firstGameNote(lookValue) {
+  // On the practice game and the first trial: which disc is the participant's, in a sentence.
+  const first = view.kind === "practice" || (view.kind === "trial" && view.trial_index === 0);
+  $("first-game-note").hidden = !first;
+  if (!first) return;
+  const you = lookValue.agents.find((a) => a.name === view.agent);
+  const partners = lookValue.agents.filter((a) => a.name !== view.agent);
+  $("first-game-note").replaceChildren("You are ", disc(you), ". Your AI partner is ",
+                                       ...partners.flatMap((a, i) => (i ? [" and ", disc(a)] : [disc(a)])), ".");
 }
 
 async function play() {
