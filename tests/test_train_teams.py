@@ -282,3 +282,17 @@ def test_a_team_followers_card_compares_it_with_the_baselines_in_its_team(tmp_pa
     assert f"{again['mean']:+.2f} ± {again['ci95']:.2f}" in table[-1]
     assert "one network shared by the followers" in text
     assert f"colorgrid eval --team 1:2 --leader astar --compare copy bayes-people oracle {ckpt}" in text
+
+
+def test_each_policy_says_which_teams_it_plays(tmp_path):
+    """Scripted policies play any team; a trained network the team it was trained in; a population what all its
+    members play (``people#training`` holds the 1:1 IPPO leader)."""
+    from colorgrid.policies import policy_teams
+
+    changes = merge(RUNS["1L2F_shared"], {"total_steps": 64})
+    Trainer(tiny(changes), tmp_path, progress=False, tensorboard=False).train()
+    assert policy_teams(str(tmp_path / "checkpoints" / "latest.pt")) == ("1:2",)
+    assert policy_teams("ippo") == policy_teams("ippo-cautious:temperature=0") == ("1:1",)
+    assert policy_teams("astar") is None and policy_teams("person:slip=0.1") is None
+    assert policy_teams("population:people#training") == ("1:1",)
+    assert policy_teams("population:people#held_out") is None

@@ -13,10 +13,12 @@ from train.model_cache import ModelCache
 
 CHECKPOINTS_DIR = shipped("checkpoints")
 SHIPPED = {"ippo": "follower.pt", "ippo-people": "follower_people.pt", "ippo-cautious": "follower_cautious.pt",
-           "ippo-leader": "leader.pt"}
+           "ippo-leader": "leader.pt", "ippo-1L2F": "follower_1L2F.pt", "ippo-2L1F": "follower_2L1F.pt"}
 """Trained agents that ship in ``checkpoints/``, by name: the IPPO follower (trained beside A*), the same follower
 trained further beside a population of person-like leaders, that one trained further to take fewer wrong blocks,
-and the IPPO leader (see their model cards)."""
+the IPPO leader, and the followers of the 1:2 and 2:1 teams (see their model cards)."""
+SHIPPED_TEAMS = {"ippo-1L2F": "1:2", "ippo-2L1F": "2:1"}
+"""The team each shipped agent plays (the rest: 1:1)."""
 
 
 def shipped_policy(name: str, role: str | None, cache: ModelCache | None = None, **acting):
@@ -37,13 +39,28 @@ def checkpoint_policy(path: str, role: str | None, cache: ModelCache | None = No
     return load_policy(path, role=role, cache=cache, **acting)
 
 
+def checkpoint_teams(path: str) -> tuple[str, ...] | None:
+    """The team a checkpoint file was trained in (``("1:2",)``), from its env config; None if it cannot be read
+    (loading it will say why)."""
+    try:
+        import torch
+
+        env = torch.load(path, map_location="cpu", weights_only=False)["env_config"]
+    except Exception:  # not there, not a checkpoint, or no torch: make_policy reports it
+        return None
+    return (f"{env.get('num_leaders', 1)}:{env.get('num_followers', 1)}",)
+
+
 def register_policies() -> None:
-    """The ``colorgrid.policies`` entry point: the loaders it registers share one ``ModelCache``."""
+    """The ``colorgrid.policies`` entry point: the loaders it registers share one ``ModelCache``. Shipped agents
+    whose file is missing (a team follower not yet trained) are not offered."""
     from colorgrid.policies.registry import register_loader, register_policy
 
     cache = ModelCache()
-    for name in SHIPPED:
+    for name, file in SHIPPED.items():
+        if not (CHECKPOINTS_DIR / file).is_file():
+            continue
         register_policy(name, lambda role, name=name, **params: shipped_policy(name, role, cache, **params),
-                        params=tuple(ACTING))
+                        params=tuple(ACTING), teams=(SHIPPED_TEAMS.get(name, "1:1"),))
     register_loader(".pt", lambda path, role, **params: checkpoint_policy(path, role, cache, **params),
-                    "a checkpoint path ending in .pt", params=tuple(ACTING))
+                    "a checkpoint path ending in .pt", params=tuple(ACTING), teams=checkpoint_teams)

@@ -79,6 +79,21 @@ def parse_params(kind, text: str, name: str):
     return dataclasses.replace(default, **values) if default is not None else params(**values)
 
 
+def policy_teams(name: str) -> tuple[str, ...] | None:
+    """The teams (``"LEADERS:FOLLOWERS"``) that the policy ``name`` plays: None for any team (the scripted
+    policies play any agent of any team), those its package registered for a trained network (``ippo``:
+    ``("1:1",)``), and for a population those every member plays."""
+    if name.startswith("population:") or name.endswith(".json") or ".json#" in name:
+        teams = None
+        for member in load_population(name.removeprefix("population:")).values():
+            found = policy_teams(member)
+            if found is not None:
+                teams = found if teams is None else tuple(t for t in teams if t in found)
+        return teams
+    base = name.partition(":")[0]
+    return None if base in SCRIPTED else registry.teams_of(base if base in registry.registered_names() else name)
+
+
 _OPENING: list[str] = []  # populations being built, innermost last (one naming itself would never end)
 
 
@@ -97,4 +112,4 @@ def make_population(spec: str, role: str | None = None) -> PopulationPolicy:
 
 __all__ = ["SCRIPTED", "AgentInput", "AStarLeader", "BayesConfig", "BayesFollower", "CopyFollower", "IdleFollower",
            "OracleFollower", "PersonLeader", "PersonStyle", "Policy", "PolicyOutput", "PopulationPolicy", "RandomPolicy",
-           "make_policy"]
+           "make_policy", "policy_teams"]

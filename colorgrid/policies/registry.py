@@ -17,22 +17,45 @@ Factory = Callable[..., Policy]
 the name gave (``NAME:key=value,...``), each one the factory declared."""
 Loader = Callable[..., Policy]
 """``loader(path, role, **params) -> Policy`` for a file of a registered suffix."""
+Teams = Callable[[str], "tuple[str, ...] | None"]
+"""``teams(path) -> ("1:1",)``: the teams (``"LEADERS:FOLLOWERS"``) a file's policy plays, None for any."""
 
 _NAMED: dict[str, tuple[Factory, tuple[str, ...]]] = {}
 _LOADERS: dict[str, tuple[Loader, str, tuple[str, ...]]] = {}
+_TEAMS: dict[str, "tuple[str, ...] | Teams"] = {}  # by name or suffix; absent: any team
 _discovered = False
 
 
-def register_policy(name: str, factory: Factory, params: tuple[str, ...] = ()) -> None:
+def register_policy(name: str, factory: Factory, params: tuple[str, ...] = (),
+                    teams: tuple[str, ...] | None = None) -> None:
     """Make ``name`` usable anywhere a policy name is (``colorgrid eval``, training partners, the server);
-    ``params`` are the keyword parameters it takes in the name (``NAME:key=value``)."""
+    ``params`` are the keyword parameters it takes in the name (``NAME:key=value``); ``teams`` the teams it
+    plays (``("1:2",)``: a network trained in that team), None for any."""
     _NAMED[name] = (factory, tuple(params))
+    if teams is not None:
+        _TEAMS[name] = tuple(teams)
 
 
-def register_loader(suffix: str, loader: Loader, what: str, params: tuple[str, ...] = ()) -> None:
+def register_loader(suffix: str, loader: Loader, what: str, params: tuple[str, ...] = (),
+                    teams: Teams | None = None) -> None:
     """Load files ending in ``suffix`` (e.g. ``".pt"``) as policies; ``what`` names them in errors
-    (e.g. ``"a checkpoint path ending in .pt"``); ``params`` as for ``register_policy``."""
+    (e.g. ``"a checkpoint path ending in .pt"``); ``params`` as for ``register_policy``; ``teams(path)`` says
+    which teams a file's policy plays."""
     _LOADERS[suffix] = (loader, what, tuple(params))
+    if teams is not None:
+        _TEAMS[suffix] = teams
+
+
+def teams_of(name: str) -> tuple[str, ...] | None:
+    """The teams the registered policy ``name`` (or file) plays, None for any team or an unregistered name."""
+    discover()
+    if name in _NAMED:
+        found = _TEAMS.get(name)
+        return found if not callable(found) else None
+    for suffix, found in _TEAMS.items():
+        if name.endswith(suffix) and callable(found):
+            return found(name)
+    return None
 
 
 def discover() -> None:
