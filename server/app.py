@@ -242,7 +242,7 @@ def create_app(settings: ServerSettings | None = None, study=None) -> FastAPI:
 
     @app.get("/api/replays")
     async def list_replays(source: str | None = None, follower: str | None = None, collection: str | None = None,
-                           setting: str | None = None,
+                           setting: str | None = None, branch_of: str | None = Query(None, max_length=200),
                            sort: str = Query("created", pattern="^(created|team_score)$"),
                            order: str = Query("desc", pattern="^(asc|desc)$"),
                            offset: int = Query(0, ge=0), limit: int = Query(50, ge=1, le=500)):
@@ -250,6 +250,8 @@ def create_app(settings: ServerSettings | None = None, study=None) -> FastAPI:
         items = [e.summary for e in (await entries()).values()]
         if source:
             items = [i for i in items if i.get("source") == source]
+        if branch_of:  # the branches of a replay: a part of the parent's id, any case
+            items = [i for i in items if i.get("branch_of") and branch_of.lower() in str(i["branch_of"]["parent"]).lower()]
         if follower:  # a part of the follower's name, any case ("ippo" finds ippo and ippo@3000)
             items = [i for i in items if follower.lower() in str(i.get("follower") or "").lower()]
         if collection:

@@ -96,6 +96,23 @@ def role_policies(replay, role: str) -> str | None:
     return "+".join(distinct) if distinct else None
 
 
+BRANCH_SOURCE = "branch"
+"""The list's ``source`` of a branch (its file keeps its parent's ``source``: see ``branch_origin``)."""
+
+
+def branch_origin(replay) -> dict | None:
+    """Where a branch leaves its parent (``meta.branch_of`` and ``meta.branch``, docs/REPLAY_FORMAT.md): ``parent``
+    (the parent's replay id, or its file name for a branch made by ``colorgrid replay branch``), ``step`` (the first
+    step the new follower acts in), the ``follower`` and ``leader`` that play on, and ``parent_source``; None for a
+    replay that is not a branch."""
+    origin, made = replay.meta.get("branch_of"), replay.meta.get("branch")
+    if not isinstance(origin, dict):
+        return None
+    made = made if isinstance(made, dict) else {}
+    return {"parent": origin.get("file"), "step": origin.get("step", made.get("step")),
+            "follower": made.get("follower"), "leader": made.get("leader", "recorded"), "parent_source": replay.source}
+
+
 def summarize(path: Path, replay_id: str, collection: str, max_bytes: int | None = None) -> dict:
     """What the list shows for one file; a file that does not load is listed with its error."""
     base = {"id": replay_id, "collection": collection, "file": path.name}
@@ -104,9 +121,13 @@ def summarize(path: Path, replay_id: str, collection: str, max_bytes: int | None
     except ReplayError as err:
         return {**base, "error": err.problem}
     cfg = replay.config
+    origin = branch_origin(replay)
+    policies = {role: role_policies(replay, role) for role in ROLES}
+    if origin is not None and origin["leader"] == "recorded":  # nobody played it: the parent's leader moves, replayed
+        policies["leader"] = f"{policies['leader']} (replayed)"
     return {
-        **base, "source": replay.source, "created": replay.created, "kind": replay.kind, "ended": replay.ended,
-        "steps": replay.num_steps, **{role: role_policies(replay, role) for role in ROLES},
+        **base, "source": BRANCH_SOURCE if origin else replay.source, "branch_of": origin, "created": replay.created,
+        "kind": replay.kind, "ended": replay.ended, "steps": replay.num_steps, **policies,
         "team": cfg.team,
         "final": replay.final(),
         "config": {"asymmetric": cfg.asymmetric, "goal_reward": cfg.goal_reward, "wrong_penalty": cfg.wrong_penalty,

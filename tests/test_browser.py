@@ -123,7 +123,7 @@ def test_replay_player_scrubs_plays_links_and_downloads(server, browser, tmp_pat
     expect(page.locator("#list tbody tr")).to_have_count(6)
     page.fill("#follower", "bayes")
     expect(page.locator("#list tbody tr")).to_have_count(2)
-    assert page.locator("#list tbody tr td:nth-child(5)").all_text_contents() == ["bayes", "bayes"]
+    assert page.locator("#list tbody tr td:nth-child(6)").all_text_contents() == ["bayes", "bayes"]
     first = page.locator("#list tbody tr a.open").first
     replay_id = first.text_content()
     first.click()
@@ -204,7 +204,7 @@ def test_a_replay_that_fails_verification_is_shown_as_such(server, browser):
         assert page.locator("body").get_attribute("data-verified") == "false"
     page.goto(server.url + "/replays?id=garbled")
     page.select_option("#collection", "recorded")
-    expect(page.locator("tr[data-id='garbled'] td").nth(7)).to_contain_text("invalid")
+    expect(page.locator("tr[data-id='garbled'] td").nth(8)).to_contain_text("invalid")
     page.close()
 
 
@@ -481,9 +481,8 @@ def test_the_play_page_says_which_disc_is_yours_and_which_your_ai_partners(serve
     expect(board).to_have_attribute("data-step", "0")
     aside = page.locator("#game aside")
     width = aside.bounding_box()["width"]
-    assert page.locator("#agent-scores .row").all_inner_texts() == ["L you\t0", "F your AI partner\t0"] or \
-        [r.split()[:4] for r in page.locator("#agent-scores .row").all_inner_texts()] == \
-        [["L", "you", "0"], ["F", "your", "AI", "partner"]]
+    assert page.locator("#agent-scores .agent-badge").all_text_contents() == ["L", "F"]
+    assert page.locator("#agent-scores .who").all_text_contents() == ["you", "your AI partner"]
     expect(page.locator("#you")).to_have_text("L")
     expect(page.locator("#you")).to_have_css("background-color", css_rgb(leader["body"]))
     expect(page.locator("#partner-note")).to_have_text("your AI partner: Bayesian assistant for people")
@@ -600,3 +599,45 @@ def test_a_real_time_game_goes_on_through_the_tab_hidden_and_shown_again(server,
     assert any(e["status"] == "applied" for e in replay.key_events), "keys move the leader after the tab is back"
     assert errors == []
     page.close()
+
+
+def test_the_replay_list_shows_a_branch_with_its_parent_and_step_and_filters_by_them(server, browser):
+    from tests.test_server import post_json
+
+    parent_id = "released--default--astar+bayes_seed2026"
+    answer, status = post_json(server, f"/api/replays/{parent_id}/branch", {"step": 12, "follower": "copy"})
+    assert status == 200
+    page = browser.new_page()
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(server.url + f"/replays?branch_of={quote(parent_id)}")
+    row = page.locator(f"tr[data-id='{answer['id']}']")
+    expect(row).to_be_visible()
+    expect(page.locator("#branch_of")).to_have_value(parent_id)
+    cells = row.locator("td")
+    expect(cells.nth(1)).to_have_text("branch")
+    expect(cells.nth(3)).to_have_text(f"{parent_id} from step 12")
+    expect(cells.nth(4)).to_have_text("astar (replayed)")
+    # filters: a source of its own; the parent is no branch
+    page.fill("#branch_of", "")
+    page.select_option("#source", "branch")
+    expect(row).to_be_visible()
+    expect(page.locator(f"tr[data-id='{parent_id}']")).to_have_count(0)
+    assert set(page.locator("#list tbody tr td:nth-child(2)").all_text_contents()) == {"branch"}
+    page.select_option("#source", "eval")
+    expect(row).to_have_count(0)
+    page.select_option("#source", "branch")
+    # the parent's link opens the parent at the branch step; the branch's player says what it is
+    row.locator("a.parent").click()
+    expect(page.locator("#board")).to_have_attribute("data-step", "12", timeout=60_000)
+    assert queryless(page.url) == f"{server.url}/replay"
+    page.goto(server.url + f"/replay?id={quote(answer['id'])}")
+    expect(page.locator("#facts")).to_contain_text("branch replay", timeout=60_000)
+    expect(page.locator("#facts")).to_contain_text(f"a branch of {parent_id} from step 12: copy plays on")
+    expect(page.locator("#parent-link")).to_have_attribute("href", f"/replay?id={quote(parent_id, safe='')}&step=12")
+    assert errors == []
+    page.close()
+
+
+def queryless(url: str) -> str:
+    return url.split("?")[0]

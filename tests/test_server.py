@@ -385,3 +385,27 @@ def test_branches_are_named_apart_and_a_branch_is_not_branched_again(server):
     assert status == 200, first
     again, status = post_json(server, f"/api/replays/{first['id']}/branch", {"step": 6, "follower": "copy"})
     assert status == 422 and "cannot be branched again" in again["detail"]
+
+
+def test_a_branch_of_a_played_game_is_listed_as_a_branch_of_its_parent(server):
+    client = Client(server)
+    client.new_game(mode="turn", horizon=8, follower="bayes")
+    for t in range(8):
+        client.key(MOVES[t % 4])
+    over = client.recv("game_over")
+    client.close()
+    parent_id = over["replay_id"]
+    answer, status = post_json(server, f"/api/replays/{parent_id}/branch", {"step": 3, "follower": "copy"})
+    assert status == 200
+    time.sleep(1.1)  # the catalogue's scan is reused for a second
+    listed = {i["id"]: i for i in server.get("/api/replays?limit=500")[0]["items"]}
+    parent, child = listed[parent_id], listed[answer["id"]]
+    assert parent["source"] == "play" and parent["leader"] == "human" and parent["branch_of"] is None
+    assert child["source"] == "branch", "not a game someone played"
+    assert child["leader"] == "human (replayed)" and child["follower"] == "copy"
+    assert child["branch_of"] == {"parent": parent_id, "step": 3, "follower": "copy", "leader": "recorded",
+                                  "parent_source": "play"}
+    ids = lambda query: {i["id"] for i in server.get(f"/api/replays?limit=500&{query}")[0]["items"]}  # noqa: E731
+    assert answer["id"] in ids("source=branch") and answer["id"] not in ids("source=play")
+    assert parent_id in ids("source=play") and parent_id not in ids("source=branch")
+    assert ids(f"branch_of={parent_id[-12:].upper()}") == {answer["id"]}, "the branches of one replay, by part of its id"

@@ -49,8 +49,18 @@ async function main() {
   $("gif").download = `${id}.gif`;
   $("mp4").download = `${id}.mp4`;
   const shape = oneToOne ? "" : `${count("leader")} leader(s) and ${count("follower")} follower(s), `;
-  $("facts").textContent = `${shape}${data.source} replay, ${data.steps} steps, ${data.ended}` +
+  const origin = data.meta?.branch_of;  // a branch: where it leaves its parent (docs/REPLAY_FORMAT.md)
+  $("facts").textContent = `${shape}${origin ? "branch" : data.source} replay, ${data.steps} steps, ${data.ended}` +
     (data.seed != null ? `, seed ${data.seed}` : "") + `, created ${data.created}`;
+  if (origin) {
+    const parent = document.createElement("a");
+    parent.id = "parent-link";
+    parent.href = `/replay?id=${encodeURIComponent(origin.file)}&step=${origin.step}`;
+    parent.textContent = origin.file;
+    const made = data.meta.branch ?? {};
+    $("facts").append("; a branch of ", parent, ` from step ${origin.step}: ${made.follower ?? "another follower"} ` +
+      `plays on${(made.leader ?? "recorded") === "recorded" ? " beside the leader's recorded moves" : ""}`);
+  }
   $("scrub").max = data.steps;
   buildKeyLog();
   const wanted = Number.parseInt(queryParam("step") ?? "0", 10);

@@ -1,4 +1,5 @@
-// The replay list: filters, sorting and pages over /api/replays.
+// The replay list: filters, sorting and pages over /api/replays. A branch (a replay continued from a step with
+// another follower) is listed as a branch, with its parent and the step where it leaves it.
 import { queryParam } from "./params.js";
 
 const $ = (id) => document.getElementById(id);
@@ -7,7 +8,7 @@ let offset = 0;
 
 async function load() {
   const params = new URLSearchParams({ sort: $("sort").value, order: $("order").value, offset, limit: PAGE });
-  for (const name of ["source", "follower", "collection", "setting"]) {
+  for (const name of ["source", "follower", "collection", "setting", "branch_of"]) {
     if ($(name).value) params.set(name, $(name).value);
   }
   const data = await (await fetch(`/api/replays?${params}`)).json();
@@ -31,17 +32,13 @@ function row(item, highlight) {
   tr.dataset.id = item.id;
   if (highlight) tr.className = "highlight";
   const cells = item.error
-    ? [item.id, "-", "-", "-", "-", "-", "-", `invalid: ${item.error}`]
-    : [item.id, item.source, item.setting ?? "", item.leader, item.follower, item.steps, item.final.team_score, item.ended];
+    ? [item.id, "-", "-", "-", "-", "-", "-", "-", `invalid: ${item.error}`]
+    : [item.id, item.source, item.setting ?? "", branchOf(item.branch_of), item.leader, item.follower, item.steps,
+       item.final.team_score, item.ended];
   cells.forEach((value, i) => {
     const td = document.createElement("td");
-    if (i === 0) {
-      const a = document.createElement("a");
-      a.href = `/replay?id=${encodeURIComponent(item.id)}`;
-      a.className = "open";
-      a.textContent = value;
-      td.appendChild(a);
-    } else td.textContent = value;
+    if (i === 0) td.appendChild(link(value, "open"));
+    else td.append(value);
     tr.appendChild(td);
   });
   const files = document.createElement("td");
@@ -51,8 +48,30 @@ function row(item, highlight) {
   return tr;
 }
 
+function link(replayId, className = "", step = null) {
+  const a = document.createElement("a");
+  a.href = `/replay?id=${encodeURIComponent(replayId)}` + (step != null ? `&step=${step}` : "");
+  a.className = className;
+  a.textContent = replayId;
+  return a;
+}
+
+function branchOf(origin) {
+  // "PARENT from step T": the parent (a link to it at that step when it is a replay id; a branch made from a file
+  // names the file)
+  const cell = document.createElement("span");
+  if (!origin) return cell;
+  cell.className = "branch-of";
+  cell.dataset.parent = origin.parent ?? "";
+  cell.dataset.step = origin.step ?? "";
+  const isId = origin.parent && !origin.parent.endsWith(".json") && !origin.parent.includes("/");
+  cell.append(isId ? link(origin.parent, "parent", origin.step) : origin.parent ?? "?", ` from step ${origin.step}`);
+  return cell;
+}
+
 for (const id of ["source", "sort", "order", "collection", "setting"]) $(id).addEventListener("change", () => { offset = 0; load(); });
-$("follower").addEventListener("input", () => { offset = 0; load(); });
+for (const id of ["follower", "branch_of"]) $(id).addEventListener("input", () => { offset = 0; load(); });
+$("branch_of").value = queryParam("branch_of") ?? "";  // /replays?branch_of=ID: the branches of one replay
 $("prev").addEventListener("click", () => { offset = Math.max(0, offset - PAGE); load(); });
 $("next").addEventListener("click", () => { offset += PAGE; load(); });
 loadSettings();
