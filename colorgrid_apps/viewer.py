@@ -4,14 +4,15 @@ A viser server on 127.0.0.1 shows a replay's grid as batched meshes (floor, one 
 cubes per block color, every agent of the team in its role's color with a label, ``L (leader)``
 in the 1:1 team, ``L1 (leader_0)``, ``F2 (follower_1)``, ... in others), with a per-tab panel: a
 dropdown of the replays in a folder, a step slider, play/pause and speed, step/scores/goal, and one
-uPlot chart of goal probabilities per follower that logged them (x in steps, a marker at the
-current step). The team comes from the replay (its timeline's ``look``), never from constants.
+uPlot chart of goal probabilities per follower that logged them (x in steps, a cursor at the
+current step: a vertical line labelled with the step, drawn by an axis of its own, not a series). The team comes from the replay (its timeline's ``look``), never from constants.
 Each tab gets its own scene, controls and camera, which opens framing the whole board.
 
 ``standalone_html`` records a replay into an offline HTML file (the viser client with the
 scene embedded). A recording holds scene messages only, never GUI ones, so the export draws
 the panel and the charts into the scene beside the board (``ScenePanel``), and plays one
-recording second per step: its playback slider and clock count steps. The export button
+recording second per step: its playback slider counts steps, and a counter of whole steps stands
+in for viser's clock, which reads tenths of a second (``STEP_COUNTER``). The export button
 sends that file to the browser; ``export_html`` writes it for ``--export``. viser is pinned in
 ``pyproject.toml``: client and server must match.
 """
@@ -45,6 +46,7 @@ WORLD_UP = np.array([0.0, 0.0, 1.0])  # viser's scene up direction (+z)
 SQUARE = 1.0  # canvas aspect assumed before a tab reports its own: wider canvases see more
 EXPORT_ASPECT = 4.0 / 3.0  # the export fills the window (no side panel), so it is rarely narrower
 INK = (60, 60, 60)  # the scene chart's frame, ticks and cursor
+CURSOR = "#202020"  # the live chart's cursor: darker and wider than any curve, and never in the legend
 
 
 def unit_cube() -> tuple[np.ndarray, np.ndarray]:
@@ -266,26 +268,31 @@ def beliefs(data: dict, name: str) -> np.ndarray | None:
     return np.asarray(probs, dtype=np.float64) if probs else None
 
 
-def belief_series(data: dict, t: int, name: str) -> tuple[tuple[np.ndarray, ...] | None, tuple]:
-    """uPlot data and series of ``name``'s belief chart at step ``t``; ``(None, ())`` if it has no beliefs.
+def belief_series(data: dict, name: str) -> tuple[tuple[np.ndarray, ...] | None, tuple]:
+    """uPlot data and series of ``name``'s belief chart; ``(None, ())`` if it has no beliefs.
 
-    x is every step ``0..steps``; then a "now" spike (1 at ``t``, 0 elsewhere, filled) that marks the
-    current step; then one probability curve per color, NaN past the last action (no belief there).
+    x is every step ``0..steps``; then one probability curve per color, NaN past the last action (no belief
+    there). The current step is not data: ``belief_axes`` draws it.
     """
     probs = beliefs(data, name)
     if probs is None:
         return None, ()
     x = np.arange(data["steps"] + 1, dtype=np.float64)
-    now = np.zeros_like(x)
-    now[t] = 1.0
     curves = np.full((len(x), probs.shape[1]), np.nan)
     curves[: len(probs)] = probs
     series = (viser.uplot.Series(label="step"),
-              viser.uplot.Series(label="now", stroke="rgba(90, 90, 90, 0.6)", fill="rgba(90, 90, 90, 0.3)", width=1,
-                                 points=viser.uplot.Series_Points(show=False)),
               *(viser.uplot.Series(label=name, stroke=data["look"]["palette"][k], width=2)
                 for k, name in enumerate(data["colors"])))
-    return (x, now, *curves.T), series
+    return (x, *curves.T), series
+
+
+def belief_axes(t: int) -> tuple[dict, ...]:
+    """The belief chart's axes at step ``t``: x in steps (below), y a probability, and the cursor: an axis on the
+    x scale above the plot whose one tick, labelled ``step t``, draws its grid line across the plot at ``t``."""
+    cursor = viser.uplot.Axis(scale="x", side=0, splits=(float(t),), values=(f"step {t}",), stroke=CURSOR, size=24,
+                              grid=viser.uplot.Axis_Grid(show=True, stroke=CURSOR, width=2.0),
+                              ticks=viser.uplot.Axis_Ticks(show=True, stroke=CURSOR, width=2.0, size=6))
+    return {"label": "step"}, {}, cursor
 
 
 def belief_scales(data: dict) -> dict[str, viser.uplot.Scale]:
@@ -418,9 +425,9 @@ class TabView:
         self.frame_board()
         self.slider.max = data["steps"]
         for name in believers(data):
-            series_data, series = belief_series(data, 0, name)
+            series_data, series = belief_series(data, name)
             self.charts[name] = self.target.gui.add_uplot(series_data, series, title=chart_title(data, name),
-                                                          scales=belief_scales(data), axes=({"label": "step"}, {}),
+                                                          scales=belief_scales(data), axes=belief_axes(0),
                                                           aspect=2.0, padding=(10, 24, 0, 0))
         self.slider.value = 0
         self.show(0)
@@ -447,8 +454,8 @@ class TabView:
         t = max(0, min(self.data["steps"], t))
         self.grid.show(t)
         self.info.content = "  \n".join([f"**{self.name}**", *step_summary(self.data, t, strong=lambda s: f"**{s}**")])
-        for name, chart in self.charts.items():
-            chart.data = belief_series(self.data, t, name)[0]
+        for chart in self.charts.values():
+            chart.axes = belief_axes(t)  # the cursor moves; the curves stay
         self.step = t
 
     def toggle(self) -> None:
@@ -560,6 +567,33 @@ def quiet_viser():
             console.quiet = was
 
 
+STEP_COUNTER = """<style>.mantine-NumberInput-root { visibility: hidden; }
+#colorgrid-step { position: fixed; z-index: 10; display: flex; align-items: center; justify-content: center;
+  font: 12px ui-monospace, monospace; pointer-events: none; }</style>
+<script>
+// The export's step counter, over viser's playback clock (which reads seconds to a tenth, one step being
+// STEP_SECONDS of them): the whole step the scene shows, read from the playback slider.
+(() => {
+  const stepSeconds = __STEP_SECONDS__, steps = __STEPS__;
+  const counter = document.createElement("span");
+  counter.id = "colorgrid-step";
+  setInterval(() => {
+    const clock = document.querySelector(".mantine-NumberInput-root");
+    const slider = document.querySelector("[role=slider][aria-valuenow]");
+    if (!clock || !slider) return;
+    if (!counter.isConnected) document.body.append(counter);
+    const box = clock.getBoundingClientRect();
+    Object.assign(counter.style, { left: `${box.left}px`, top: `${box.top}px`, width: `${box.width}px`,
+                                   height: `${box.height}px` });
+    const step = Math.min(steps, Math.floor(Number(slider.getAttribute("aria-valuenow")) / stepSeconds + 1e-6));
+    counter.textContent = String(step);
+    counter.title = `step ${step} of ${steps}`;
+  }, 50);
+})();
+</script>"""
+"""Put into the standalone page: a counter of whole steps where viser's clock was (its slider runs on)."""
+
+
 def standalone_html(data: dict, name: str) -> str:
     """A standalone, offline HTML page playing the replay in 3D, one recording second per step.
 
@@ -580,6 +614,8 @@ def standalone_html(data: dict, name: str) -> str:
             page = recorder.as_html()
         finally:
             server.stop()
+    counter = STEP_COUNTER.replace("__STEP_SECONDS__", repr(STEP_SECONDS)).replace("__STEPS__", str(data["steps"]))
+    page = page.replace("</body>", f"{counter}\n</body>", 1)
     return page.replace("<title>Viser</title>", f"<title>ColorGrid replay: {html.escape(name)}</title>", 1)
 
 

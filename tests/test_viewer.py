@@ -12,6 +12,7 @@ import msgspec
 import numpy as np
 import pytest
 import zstandard
+from playwright.sync_api import expect
 
 from colorgrid.replay import load, save
 from colorgrid.replay.timeline import timeline
@@ -89,11 +90,13 @@ def test_scene_follows_the_slider_and_the_chart_holds_the_beliefs(viewer):
             assert sorted(cells) == [i for i, ch in enumerate(board["blocks"]) if ch == str(k)]
         assert f"step **{t}** / 128" in tab.info.content
     assert tab.chart is not None
-    assert [s["label"] for s in tab.chart.series] == ["step", "now", "red", "green", "blue"]
+    assert [s["label"] for s in tab.chart.series] == ["step", "red", "green", "blue"], "the cursor is no series"
     assert tab.chart.scales["x"]["time"] is False  # uPlot reads x as unix time otherwise: "1/1/70 12:00am"
-    x, now, *curves = tab.chart.data
+    x, *curves = tab.chart.data
     assert np.array_equal(x, np.arange(129)) and len(curves) == 3
-    assert np.flatnonzero(now).tolist() == [128]  # the marker follows the slider
+    cursor = tab.chart.axes[2]  # an axis on x whose one grid line is the cursor
+    assert cursor["scale"] == "x" and cursor["splits"] == (128.0,) and cursor["values"] == ("step 128",)
+    assert cursor["grid"]["show"] is True  # the cursor follows the slider
     probs = np.asarray(data["goal_probs"]["follower"])
     for k, curve in enumerate(curves):
         assert np.allclose(curve[:128], probs[:, k]) and np.isnan(curve[128])  # no belief after the last action
@@ -184,7 +187,22 @@ def test_standalone_html_export_carries_the_panel_and_chart_and_counts_steps(tmp
     page.on("request", lambda r: requests.append(r.url))
     page.goto(out.as_uri())
     page.wait_for_selector("canvas", timeout=30000)
-    page.wait_for_timeout(500)
+    counter = page.locator("#colorgrid-step")
+    counter.wait_for(timeout=30000)  # whole steps where viser's clock shows tenths of a second
+    expect(page.locator(".mantine-NumberInput-root")).to_be_hidden()
+    slider = page.locator(".mantine-Slider-root")
+    area = slider.bounding_box()
+    seen = set()
+    for fraction in (0.3, 0.62):  # seeking pauses playback at a time between two steps
+        slider.click(position={"x": area["width"] * fraction, "y": area["height"] / 2})
+        page.wait_for_timeout(400)
+        shown, clock = page.evaluate("""() => [document.getElementById("colorgrid-step").textContent,
+            Number(document.querySelector("[role=slider]").getAttribute("aria-valuenow"))]""")
+        assert shown == str(int(clock // STEP_SECONDS)), (shown, clock)  # whole steps, the one on screen
+        seen.add(shown)
+    assert len(seen) == 2
+    box, clock_box = counter.bounding_box(), page.locator(".mantine-NumberInput-root").bounding_box()
+    assert box == clock_box, "in the clock's place"
     assert all(u.startswith(("file:", "data:", "blob:")) for u in requests), requests
     page.close()
 
@@ -235,7 +253,18 @@ def test_a_browser_tab_opens_on_the_whole_board_with_a_step_chart(viewer, browse
         view = viewer.views[clients[0].client_id]
         view.slider.value = 60
         chart = "Object.values(window.__viserTestpoints.uplots)[0].chart"
-        page.wait_for_function(f"() => {chart}.data[1][60] === 1", timeout=30000)  # the marker moved to step 60
+        cursor = f"{chart}.axes[2]"
+        page.wait_for_function(f"() => {cursor}.splits({chart}, 2, 0, 128)[0] === 60", timeout=30000)  # it moved
+        assert page.evaluate(f"() => {chart}.series.map(s => s.label)") == ["step", "red", "green", "blue"]
+        legend = page.locator(".u-legend .u-series").all_inner_texts()
+        assert not any("now" in row or "step 60" in row for row in legend), legend  # the legend lists curves only
+        page.wait_for_timeout(300)  # drawn: a dark vertical line across the plot at step 60, whatever the curves
+        line = page.evaluate(f"""() => {{
+            const u = {chart}, x = Math.round(u.valToPos(60, "x", true)), top = u.bbox.top, height = u.bbox.height;
+            const ctx = u.ctx;
+            return [0.1, 0.3, 0.5, 0.7, 0.9].map(f => [...ctx.getImageData(x, Math.round(top + f * height), 1, 1).data]);
+        }}""")
+        assert all(max(rgba[:3]) < 80 and rgba[3] > 200 for rgba in line), line
         ticks = f"{chart}.axes[0].values({chart}, [0, 64, 128], 0, 50, 64)"  # the x axis's label formatter
         time_scale, ticks = page.evaluate(f"() => [{chart}.scales.x.time, {ticks}]")
         assert time_scale is False and ticks == ["0", "64", "128"], ticks  # x labels are steps, not "1/1/70 12:00am"
