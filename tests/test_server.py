@@ -395,9 +395,10 @@ def test_a_branch_of_a_played_game_is_listed_as_a_branch_of_its_parent(server):
     over = client.recv("game_over")
     client.close()
     parent_id = over["replay_id"]
+    time.sleep(1.1)  # the catalogue's scan is reused for a second
     answer, status = post_json(server, f"/api/replays/{parent_id}/branch", {"step": 3, "follower": "copy"})
     assert status == 200
-    time.sleep(1.1)  # the catalogue's scan is reused for a second
+    time.sleep(1.1)
     listed = {i["id"]: i for i in server.get("/api/replays?limit=500")[0]["items"]}
     parent, child = listed[parent_id], listed[answer["id"]]
     assert parent["source"] == "play" and parent["leader"] == "human" and parent["branch_of"] is None
