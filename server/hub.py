@@ -26,8 +26,9 @@ from server.settings import ServerSettings
 log = logging.getLogger("colorgrid.server")
 POOL_IDLE_S = 120.0  # a follower pool with no game for this long is freed (the default follower's stay)
 LATE_KEYS_S = 0.3
-"""After a game's last step, how long its keys still on their way are taken (logged ``unapplied``) before it is saved
-and its people told ``game_over``: a held key repeats every ~33 ms, and a page learns of the end a network trip late."""
+"""After a real-time game's last step, how long its keys still on their way are taken (logged ``unapplied``) before it
+is saved and its people told ``game_over``: a held key repeats every ~33 ms, and a page learns of the end a network
+trip late. (A turn-based game ends on a key of its own: it is saved at once.)"""
 
 
 class Client(Protocol):
@@ -460,12 +461,14 @@ class GameHub:
                 g.apply(moves[g.game_id])
             for g in games:
                 await self._send(g, g.state_message())
-                if g.finished:
+                if g.finished and g.mode == Mode.REALTIME:
                     self._end_after_late_keys(g)
+                elif g.finished:
+                    await self.finish(g, "complete")  # never raises: one game's failure is its own
 
     def _end_after_late_keys(self, game: Game) -> None:
-        """``game`` made its last step: keys still on their way are logged ``unapplied`` for ``LATE_KEYS_S``, then
-        it is saved and its people told ``game_over`` (off the tick: no other game waits for it)."""
+        """Real-time ``game`` made its last step: keys still on their way are logged ``unapplied`` for ``LATE_KEYS_S``,
+        then it is saved and its people told ``game_over`` (off the tick: no other game waits for it)."""
         self.games.pop(game.game_id, None)
         self.ending[game.game_id] = game
 
