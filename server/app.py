@@ -600,6 +600,8 @@ class Connection:
         if msg.team != Team.ONE_TO_ONE:
             raise ValueError("a study's games are one person with one AI follower (team 1:1); the study file sets "
                              "everything else")
+        from server.study.service import Invalid as StudyInvalid, Refused as StudyRefused
+
         try:
             game, meta = await asyncio.get_running_loop().run_in_executor(
                 None, self.study.game_for, msg.study.participant, msg.study.session)

@@ -219,6 +219,14 @@ def test_free_play_and_replays_are_closed_while_a_study_runs(study_server):
         assert reply["code"] == "rejected" and "games start from the study page" in reply["message"]
 
 
+def test_a_game_the_study_refuses_gets_the_studys_reason(study_server):
+    with connect(study_server.ws_url, open_timeout=20) as ws:
+        ws.send(json.dumps({"type": "new_game", "study": {"participant": "nobody", "session": "none"}}))
+        reply = json.loads(ws.recv(timeout=20))
+        assert reply["type"] == "error" and reply["code"] == "rejected", reply
+        assert "unknown participant or session" in reply["message"]
+
+
 def play_turns(ws, study_ref: dict, keys: int = 4) -> dict:
     ws.send(json.dumps({"type": "new_game", "study": study_ref, "viewport": [1280, 800]}))
     welcome = json.loads(ws.recv(timeout=30))
