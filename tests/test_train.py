@@ -71,6 +71,42 @@ def test_paper_architecture_parameter_count():
     assert count_parameters(model) == 8_484_360
 
 
+def test_the_paper_codes_fusion_joins_the_goal_after_the_projection():
+    """``projected``: 43264 -> 192 (Tanh), then 192 + goal -> 192 -> 192, as the paper's code builds it; the
+    goal reaches the features only through the second layer's last columns."""
+    model = ActorCritic(NetConfig(arch="paper", goal_fusion="projected"), EnvConfig(), 0)
+    shapes = {k: tuple(v.shape) for k, v in model.state_dict().items() if k.startswith("encoder.")}
+    assert shapes["encoder.projection.0.weight"] == (192, 43264) and shapes["encoder.mlp.0.weight"] == (192, 195)
+    assert shapes["encoder.mlp.2.weight"] == (192, 192) and "encoder.mlp.4.weight" not in shapes
+    assert count_parameters(model) == 8_484_360
+    obs = torch.randint(0, 2, (1, 2, 5, 32, 32), dtype=torch.uint8)
+    view = model.prepare(obs, torch.zeros(1, 2, 2, dtype=torch.long))
+    goals = torch.eye(3)[[0, 2]][None]
+    logits, *_ = model(view, goals, torch.zeros(1, 2, 0), torch.zeros(1, 2, dtype=torch.bool), None)
+    with torch.no_grad():
+        model.encoder.mlp[0].weight[:, 192:] = 0  # without the goal's columns, the goal changes nothing
+        blind, *_ = model(view, goals, torch.zeros(1, 2, 0), torch.zeros(1, 2, dtype=torch.bool), None)
+        same, *_ = model(view, goals.flip(2), torch.zeros(1, 2, 0), torch.zeros(1, 2, dtype=torch.bool), None)
+    assert not torch.allclose(logits, blind) and torch.equal(blind, same)
+
+
+def test_old_fusion_names_still_load_as_what_they_did():
+    assert NetConfig(goal_fusion="early").goal_fusion == "flat"
+    assert NetConfig(arch="paper", goal_fusion="late").goal_fusion == "heads"
+    early, flat = (ActorCritic(NetConfig(arch="paper", goal_fusion=f), EnvConfig(), 0) for f in ("early", "flat"))
+    late = ActorCritic(NetConfig(goal_fusion="late"), EnvConfig(), 0)
+    assert {k: v.shape for k, v in early.state_dict().items()} == {k: v.shape for k, v in flat.state_dict().items()}
+    assert late.policy[0].in_features == 128 + 3  # the goal joins at the heads
+    # the shipped leader's checkpoint names its idle partner's network "early"
+    saved = load_checkpoint(Path(__file__).resolve().parents[1] / "checkpoints" / "leader.pt")
+    assert saved["config"]["follower"]["net"]["goal_fusion"] == "early"
+    assert TrainConfig.from_dict(saved["config"]).follower.net.goal_fusion == "flat"
+    with pytest.raises(ValueError, match="'projected' joins the goal after the paper network's"):
+        NetConfig(goal_fusion="projected")
+    assert all(from_dict(load_preset(name)).section(role).net.goal_fusion == "projected"
+               for name in preset_names() if name.startswith("paper_") for role in ("leader", "follower"))
+
+
 def test_egocentric_window_centres_the_agent_and_marks_walls():
     obs = torch.zeros(1, 5, 8, 8, dtype=torch.uint8)
     obs[0, 0, 0, 1] = 1  # a red block at (0, 1)

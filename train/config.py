@@ -24,7 +24,10 @@ from colorgrid.policies import SCRIPTED, registry
 
 PRESETS_DIR = Path(__file__).parent / "presets"
 ARCHS = ("fast", "paper")
-GOAL_FUSIONS = ("early", "late", "planes")
+GOAL_FUSIONS = ("flat", "projected", "heads", "planes")
+GOAL_FUSION_ALIASES = {"early": "flat", "late": "heads"}
+"""Earlier names of two fusions, still read (checkpoints and presets saved with them load unchanged). The old
+``late`` is ``heads``, not the paper's "late", which is ``projected``."""
 DEVICES = ("auto", "cpu", "cuda")
 
 
@@ -56,10 +59,14 @@ class NetConfig:
     lstm_size: int = 128
     hidden: int = 128
     """Width of the fast net's trunk (the paper net is fixed at 192)."""
-    goal_fusion: str = "early"
-    """Where the goal joins: ``early`` (one-hot with the conv features), ``late`` (before the heads) or
-    ``planes`` (the block planes are split into goal-colored blocks and the rest, as two extra input planes;
-    with ``belief_input`` the split uses the agent's own belief, from an LSTM over the last-step inputs)."""
+    goal_fusion: str = "flat"
+    """Where the goal one-hot joins: ``flat`` (with the flattened conv features, at the trunk's first layer: the
+    paper's text and its "early"), ``projected`` (``paper`` only: after the 43264->192 projection, as the paper's
+    code builds it and its "late"), ``heads`` (with the trunk's output, before the heads) or ``planes`` (the block
+    planes are split into goal-colored blocks and the rest, as two extra input planes; with ``belief_input`` the
+    split uses the agent's own belief, from an LSTM over the last-step inputs). The other side inputs
+    (``extra_inputs``, a shared network's identity) join where ``flat`` or ``projected`` joins the goal. Earlier
+    names: ``early`` is ``flat``, ``late`` is ``heads``."""
     extra_inputs: bool = False
     """Also feed last step's team reward, both agents' actions and the colors they collected."""
     belief_input: bool = False
@@ -71,7 +78,12 @@ class NetConfig:
 
     def __post_init__(self):
         check_choice(self, "arch", ARCHS, f"choose one of {list(ARCHS)}")
+        if self.goal_fusion in GOAL_FUSION_ALIASES:  # a name from before the paper code's fusion was added
+            object.__setattr__(self, "goal_fusion", GOAL_FUSION_ALIASES[self.goal_fusion])
         check_choice(self, "goal_fusion", GOAL_FUSIONS, f"choose one of {list(GOAL_FUSIONS)}")
+        if self.goal_fusion == "projected" and self.arch != "paper":
+            fail(self, "goal_fusion", "'projected' joins the goal after the paper network's 43264->192 projection: "
+                 "set net.arch='paper' too, or choose 'flat', 'heads' or 'planes'")
         for name in ("lstm_size", "hidden"):
             check_int(self, name, 1, 4096)
         for name in ("lstm", "extra_inputs", "belief_input", "leader_progress"):

@@ -58,9 +58,15 @@ def goal_planes(blocks: torch.Tensor, g: torch.Tensor) -> torch.Tensor:
 
 
 class PaperEncoder(nn.Module):
-    """conv 5->32->64->64 (3x3, stride 1, no padding, LeakyReLU) then 192-192-192 Tanh."""
+    """conv 5->32->64->64 (3x3, stride 1, no padding, LeakyReLU), then three Tanh layers of 192.
 
-    def __init__(self, env: EnvConfig, goal_in: int, planes: bool = False):
+    The side inputs (the goal one-hot, extras, a shared network's identity) join either the flattened conv
+    features (``projected=False``: 43264 + side -> 192 -> 192 -> 192, as the paper's text lists it) or the
+    first layer's output (``projected=True``: a ``projection`` 43264 -> 192, then 192 + side -> 192 -> 192,
+    as the paper's code builds it: ``feature_linear(cat(projection_linear(flatten(conv(obs))), goal))``).
+    """
+
+    def __init__(self, env: EnvConfig, goal_in: int, planes: bool = False, projected: bool = False):
         super().__init__()
         P = env.num_colors + env.num_agents
         self.C, self.planes = env.num_colors, planes
@@ -68,8 +74,13 @@ class PaperEncoder(nn.Module):
             nn.Conv2d(P + (2 if planes else 0), 32, 3), nn.LeakyReLU(), nn.Conv2d(32, 64, 3), nn.LeakyReLU(),
             nn.Conv2d(64, 64, 3), nn.LeakyReLU(), nn.Flatten())
         flat = 64 * (env.height - 6) * (env.width - 6)
-        self.mlp = nn.Sequential(nn.Linear(flat + goal_in, 192), nn.Tanh(), nn.Linear(192, 192), nn.Tanh(),
-                                 nn.Linear(192, 192), nn.Tanh())
+        if projected:
+            self.projection = nn.Sequential(nn.Linear(flat, 192), nn.Tanh())
+            self.mlp = nn.Sequential(nn.Linear(192 + goal_in, 192), nn.Tanh(), nn.Linear(192, 192), nn.Tanh())
+        else:
+            self.projection = None
+            self.mlp = nn.Sequential(nn.Linear(flat + goal_in, 192), nn.Tanh(), nn.Linear(192, 192), nn.Tanh(),
+                                     nn.Linear(192, 192), nn.Tanh())
         self.out_size = 192
 
     def prepare(self, obs: torch.Tensor, me: torch.Tensor) -> dict[str, torch.Tensor]:
@@ -79,7 +90,10 @@ class PaperEncoder(nn.Module):
         x = view["obs"].float()
         if self.planes:
             x = torch.cat([x, goal_planes(x[:, :self.C], g)], dim=1)
-        return layers(self.mlp, torch.cat([self.convs(x), side], dim=1))
+        x = self.convs(x)
+        if self.projection is not None:
+            x = layers(self.projection, x)
+        return layers(self.mlp, torch.cat([x, side], dim=1))
 
 
 class FastEncoder(nn.Module):
@@ -228,10 +242,10 @@ class ActorCritic(nn.Module):
         C = env.num_colors
         planes = net.goal_fusion == "planes"
         self.belief_core = planes and net.belief_input
-        side = ((C if net.goal_fusion == "early" else 0) + (extra_size(env) if net.extra_inputs else 0)
+        side = ((C if self.goal_in_trunk else 0) + (extra_size(env) if net.extra_inputs else 0)
                 + (len(self.agents) if self.shared else 0))
-        self.encoder = (PaperEncoder(env, side, planes) if net.arch == "paper"
-                        else FastEncoder(env, side, net.hidden, planes))
+        self.encoder = (PaperEncoder(env, side, planes, projected=net.goal_fusion == "projected")
+                        if net.arch == "paper" else FastEncoder(env, side, net.hidden, planes))
         core = self.encoder.out_size
         self.lstm = None
         if net.lstm:
@@ -240,10 +254,15 @@ class ActorCritic(nn.Module):
         aux_in = net.lstm_size if net.lstm else core
         if net.lstm and not self.belief_core:
             core = net.lstm_size
-        head_in = core + (C if net.goal_fusion == "late" else 0) + (C if net.belief_input else 0)
+        head_in = core + (C if net.goal_fusion == "heads" else 0) + (C if net.belief_input else 0)
         self.policy = _head(head_in, env.num_actions, 0.01)
         self.value = _head(head_in, 1, 1.0)
         self.aux = nn.Sequential(nn.Linear(aux_in, 64), nn.Tanh(), nn.Linear(64, C))
+
+    @property
+    def goal_in_trunk(self) -> bool:
+        """Whether the goal one-hot joins the encoder's side inputs (``flat`` or ``projected`` fusion)."""
+        return self.net.goal_fusion in ("flat", "projected")
 
     @property
     def agent_index(self) -> int:
@@ -298,7 +317,7 @@ class ActorCritic(nn.Module):
         """
         T, B = goal.shape[:2]
         side = []
-        if self.net.goal_fusion == "early":
+        if self.goal_in_trunk:
             side.append(goal)
         if self.net.extra_inputs:  # with leader_progress, the extras' tail is the belief core's alone
             side.append(extras[..., :extra_size(self.env)] if self.net.leader_progress else extras)
@@ -317,7 +336,7 @@ class ActorCritic(nn.Module):
         if goal_logits is None:
             goal_logits = layers(self.aux, x)
         heads = [x]
-        if self.net.goal_fusion == "late":
+        if self.net.goal_fusion == "heads":
             heads.append(goal)
         if self.net.belief_input:
             heads.append(torch.softmax(goal_logits, dim=2).detach())
