@@ -7,6 +7,7 @@ import json
 import time
 from pathlib import Path
 
+from colorgrid.config import ROLES
 from colorgrid.files import JSONFileError, read_json_object
 from train.config import TrainConfig, from_dict, load_preset, merge, parse_override, preset_names
 
@@ -27,9 +28,15 @@ def add_train_commands(sub) -> None:
     train.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
     train.set_defaults(func=cmd_train)
 
-    ck = sub.add_parser("checkpoint", help="inspect a checkpoint or export one agent as a small policy file")
-    ck.add_argument("action", choices=["info", "export", "card"])
-    ck.add_argument("path", help="a checkpoint .pt")
+    ck = sub.add_parser("checkpoint", help="inspect a checkpoint, export one agent as a small policy file, or import "
+                                           "one from the paper's code",
+                        description="info, export, card: a checkpoint .pt of this trainer. import-paper: a state "
+                                    "dict saved by the paper's run_ppo.py (leader_iteration=N.pth, "
+                                    "follower_iteration=N.pth) to a checkpoint every command takes, with a model card "
+                                    "beside it. Example: colorgrid checkpoint import-paper follower_iteration=100.pth "
+                                    "--role follower --asymmetric --out paper_follower.pt")
+    ck.add_argument("action", choices=["info", "export", "card", "import-paper"])
+    ck.add_argument("path", help="a checkpoint .pt (import-paper: the paper's .pth)")
     ck.add_argument("--agent", help="export, card: which network: leader or follower (1:1 team), an agent's name "
                                     "(leader_1, follower_0) or the role whose agents share one network")
     ck.add_argument("--out", help="export: destination .pt; card: destination .md (a .json of the reports beside it)")
@@ -40,6 +47,12 @@ def add_train_commands(sub) -> None:
     ck.add_argument("--min-belief", type=float,
                     help="export: the least belief in a block's color at which the network may step onto it, "
                          "wherever the file is loaded without one of its own (0: every move; default: the source's)")
+    ck.add_argument("--role", choices=ROLES, help="import-paper: the role the paper's network played")
+    side = ck.add_mutually_exclusive_group()
+    side.add_argument("--asymmetric", dest="asymmetric", action="store_true", default=None,
+                      help="import-paper: it was trained with the goal hidden from the follower (needed for a follower)")
+    side.add_argument("--symmetric", dest="asymmetric", action="store_false",
+                      help="import-paper: it was trained with the goal shown to both (the default for a leader)")
     ck.add_argument("--command", dest="train_command", default="",  # not "command": that names the sub-command
                     help="card: the command that trained it")
     ck.set_defaults(func=cmd_checkpoint)
@@ -117,6 +130,8 @@ def cmd_checkpoint(args: argparse.Namespace) -> int:
     from train.acting import ACTING
     from train.checkpoint import export_agent, load_checkpoint
 
+    if args.action == "import-paper":
+        return cmd_import_paper(args)
     if args.action == "info":
         ckpt = load_checkpoint(args.path)
         agents = {k: (v["net"] if v else None) for k, v in ckpt["agents"].items()}
@@ -135,6 +150,18 @@ def cmd_checkpoint(args: argparse.Namespace) -> int:
         return 0
     path = export_agent(args.path, args.agent, args.out, args.temperature, args.min_belief)
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB)")
+    return 0
+
+
+def cmd_import_paper(args: argparse.Namespace) -> int:
+    from train.paper_code import import_paper_checkpoint
+
+    if not args.role or not args.out:
+        raise ValueError("needs --role leader|follower (the role the paper's network played) and --out PATH.pt")
+    if args.asymmetric is None and args.role == "follower":
+        raise ValueError("say how the follower was trained: --asymmetric (it never saw the goal) or --symmetric")
+    path = import_paper_checkpoint(args.path, args.role, args.out, asymmetric=bool(args.asymmetric))
+    print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB) and its model card {path.with_suffix('.md')}")
     return 0
 
 

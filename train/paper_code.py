@@ -1,0 +1,287 @@
+"""The paper's released code (``run_ppo.py``, ``color_maze.py``) and this project: its conventions, mapped once.
+
+The paper's code holds a board as planes ``[RED, BLUE, GREEN, leader, follower]``, each indexed
+``[x, y]``; its actions are ``UP`` (y + 1), ``DOWN`` (y - 1), ``LEFT`` (x - 1), ``RIGHT`` (x + 1); its
+goal one-hot and auxiliary head list the colors in plane order. Its own picture of a board
+(``ColorMaze.render``: ``np.flipud(grid.T)``) draws x to the right and y upward. This project's planes
+are ``[red, green, blue, leader, follower]``, each indexed ``[row, col]`` with row 0 at the top, and its
+actions move up, down, left, right on the screen. So a paper cell ``(x, y)`` is our ``(H - 1 - y, x)``:
+a board turns by ``np.rot90`` (paper ``[x, y]`` -> our ``[row, col]``), the paper's actions keep their
+names, and colors and planes are reordered by name.
+
+Everything that converts between the two lives here: observations, goals, cells and actions from the
+paper's dumps, and the paper model's weights (``state_dict_from_paper``), which are permuted so that the
+imported network computes exactly the paper model's function on our observations.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import pickle
+import re
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from colorgrid.config import COLOR_NAMES, ROLES, EnvConfig
+from colorgrid.env import ACTION_NAMES
+
+PAPER_PLANES = ("red", "blue", "green", "leader", "follower")
+"""The paper code's planes (``color_maze.IDs``), in its order; its goal one-hot and auxiliary head list the
+first three."""
+PAPER_ACTIONS = ("up", "down", "left", "right")
+"""The paper code's actions (``color_maze.Moves``: y + 1, y - 1, x - 1, x + 1), named as its picture shows them."""
+COMPILED_PREFIX = "_orig_mod."
+"""What ``torch.compile`` puts before every key of a compiled model's state dict."""
+HIDDEN = 192
+"""The paper network's width (projection, feature layers and LSTM)."""
+PAPER_SOURCE = "andreyrisukhin/ColorGrid (run_ppo.py)"
+
+PAPER_COLORS = PAPER_PLANES[:3]
+OUR_PLANES = (*COLOR_NAMES[:len(PAPER_COLORS)], "leader", "follower")
+PLANES_FROM_PAPER = [PAPER_PLANES.index(name) for name in OUR_PLANES]
+"""Our plane ``k`` is the paper's plane ``PLANES_FROM_PAPER[k]``."""
+COLORS_FROM_PAPER = PLANES_FROM_PAPER[:len(PAPER_COLORS)]
+"""Our color ``k`` (goal one-hot column, auxiliary output) is the paper's color ``COLORS_FROM_PAPER[k]``."""
+ACTIONS_FROM_PAPER = [PAPER_ACTIONS.index(name) for name in ACTION_NAMES[:len(PAPER_ACTIONS)]]
+"""Our action ``a`` is the paper's action ``ACTIONS_FROM_PAPER[a]``."""
+
+
+def board_from_paper(planes: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
+    """Boards indexed ``[..., x, y]`` to ``[..., row, col]``: ``ours[..., r, c] = paper[..., c, Y - 1 - r]``."""
+    if isinstance(planes, torch.Tensor):
+        return torch.rot90(planes, 1, dims=(-2, -1))
+    return np.rot90(planes, 1, axes=(-2, -1))
+
+
+def observation_from_paper(planes: np.ndarray) -> np.ndarray:
+    """The paper's observations ``[..., 5, X, Y]`` (0/1, any dtype) as ours, ``[..., 5, H, W]`` uint8."""
+    planes = np.asarray(planes)
+    if planes.shape[-3] != len(PAPER_PLANES):
+        raise ValueError(f"the paper's observations have {len(PAPER_PLANES)} planes {list(PAPER_PLANES)}, "
+                         f"got shape {list(planes.shape)}")
+    return np.ascontiguousarray(board_from_paper(planes[..., PLANES_FROM_PAPER, :, :])).astype(np.uint8)
+
+
+def colors_from_paper(values: np.ndarray) -> np.ndarray:
+    """Anything with one column per color in the paper's order (goal one-hots, auxiliary logits), ``[..., 3]``,
+    in ours."""
+    return np.asarray(values)[..., COLORS_FROM_PAPER]
+
+
+def action_values_from_paper(values: np.ndarray) -> np.ndarray:
+    """One column per action in the paper's order (its logits), ``[..., 4]``, in ours."""
+    return np.asarray(values)[..., ACTIONS_FROM_PAPER]
+
+
+def actions_from_paper(actions: np.ndarray) -> np.ndarray:
+    """The paper's action indices as ours (the same moves)."""
+    return np.argsort(ACTIONS_FROM_PAPER)[np.asarray(actions)]
+
+
+def cells_from_paper(xy: np.ndarray, height: int) -> np.ndarray:
+    """Positions ``[..., 2]`` as the paper's env holds them, ``(x, y)``, to our ``(row, col)``."""
+    xy = np.asarray(xy)
+    return np.stack([height - 1 - xy[..., 1], xy[..., 0]], axis=-1)
+
+
+# The paper model's weights ------------------------------------------------------------------------
+
+def paper_shapes(lstm: bool, env: EnvConfig = EnvConfig()) -> dict[str, tuple[int, ...]]:
+    """The keys and shapes of the state dict of the paper code's ``ActorCritic`` (``use_lstm``: ``lstm``)."""
+    C, P = len(PAPER_COLORS), len(PAPER_PLANES)
+    flat = 64 * (env.height - 6) * (env.width - 6)
+    layers = {"conv_network.0": (32, P, 3, 3), "conv_network.2": (64, 32, 3, 3), "conv_network.4": (64, 64, 3, 3),
+              "projection_linear.0": (HIDDEN, flat), "feature_linear.0": (HIDDEN, HIDDEN + C),
+              "feature_linear.2": (HIDDEN, HIDDEN), "policy_network.0": (64, HIDDEN), "policy_network.2": (64, 64),
+              "policy_network.4": (len(PAPER_ACTIONS), 64), "value_network.0": (64, HIDDEN),
+              "value_network.2": (64, 64), "value_network.4": (1, 64), "auxiliary_goalinfo_network.0": (64, HIDDEN),
+              "auxiliary_goalinfo_network.2": (C, 64)}
+    shapes = {}
+    for name, shape in layers.items():
+        shapes[f"{name}.weight"], shapes[f"{name}.bias"] = shape, shape[:1]
+    if lstm:
+        shapes.update({"lstm.weight_ih_l0": (4 * HIDDEN, HIDDEN), "lstm.weight_hh_l0": (4 * HIDDEN, HIDDEN),
+                       "lstm.bias_ih_l0": (4 * HIDDEN,), "lstm.bias_hh_l0": (4 * HIDDEN,)})
+    return shapes
+
+
+OUR_KEYS = {"conv_network.": "encoder.convs.", "projection_linear.": "encoder.projection.",
+            "feature_linear.": "encoder.mlp.", "policy_network.": "policy.", "value_network.": "value.",
+            "auxiliary_goalinfo_network.": "aux.", "lstm.": "lstm."}
+"""Each paper module's keys' prefix, and ours (``train.nets.ActorCritic`` with ``arch='paper'``,
+``goal_fusion='projected'``)."""
+
+
+def net_config(lstm: bool):
+    """Our ``NetConfig`` of the paper code's network (with its LSTM: ``lstm``)."""
+    from train.config import NetConfig
+
+    return NetConfig(arch="paper", goal_fusion="projected", lstm=lstm, lstm_size=HIDDEN)
+
+
+@dataclasses.dataclass(frozen=True)
+class PaperWeights:
+    """A paper model's state dict, checked, in the paper's layout."""
+
+    state: dict[str, torch.Tensor]
+    """Its tensors, keyed as the paper's ``ActorCritic`` names them (without the compile prefix)."""
+    lstm: bool
+    """Whether it has the LSTM (``use_lstm=True``)."""
+    compiled: bool
+    """Whether it was saved from a ``torch.compile``d model (every key prefixed ``_orig_mod.``)."""
+
+
+def check_paper_state_dict(state: object, what: str, role: str) -> PaperWeights:
+    """``state`` as ``PaperWeights``; anything else raises one line that says what ``state`` is and what was
+    expected."""
+    expected = (f"expected the model state dict that the paper's run_ppo.py saves as {role}_iteration=N.pth "
+                f"(keys conv_network.*, projection_linear.0.*, feature_linear.*, policy_network.*, value_network.*, "
+                f"auxiliary_goalinfo_network.*, and lstm.* with use_lstm)")
+    if not isinstance(state, dict):
+        raise ValueError(f"{what} holds a {type(state).__name__}, not a state dict; {expected}")
+    if {"state", "param_groups"} <= set(state):
+        raise ValueError(f"{what} is an optimizer's state (keys 'state', 'param_groups': run_ppo.py writes it as "
+                         f"{role}_optimizer_iteration=N.pth), not a model; {expected}")
+    if state.get("format") == "colorgrid-ippo":
+        raise ValueError(f"{what} is already a ColorGrid checkpoint: load it as it is (colorgrid eval --{role} ...)")
+    if not state or not all(isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state.items()):
+        raise ValueError(f"{what} is not a state dict of tensors (keys {sorted(map(str, state))[:4]}); {expected}")
+    compiled = all(k.startswith(COMPILED_PREFIX) for k in state)
+    if compiled:
+        state = {k[len(COMPILED_PREFIX):]: v for k, v in state.items()}
+    lstm = any(k.startswith("lstm.") for k in state)
+    shapes = paper_shapes(lstm)
+    missing, extra = sorted(set(shapes) - set(state)), sorted(set(state) - set(shapes))
+    if missing or extra:
+        raise ValueError(f"{what} is not the paper's ActorCritic: missing {missing[:4]}, unexpected {extra[:4]} "
+                         f"({len(missing)} missing, {len(extra)} unexpected); {expected}")
+    goal_key = "feature_linear.0.weight"
+    goal_columns = state[goal_key].shape[-1] - HIDDEN if state[goal_key].dim() == 2 else None
+    if goal_columns is not None and goal_columns != len(PAPER_COLORS):
+        raise ValueError(f"{what}: {goal_key} takes a {goal_columns}-wide goal input ({tuple(state[goal_key].shape)}); "
+                         f"the {role} of the paper's env takes its {len(PAPER_COLORS)}-color goal one-hot (zeros for an "
+                         f"asymmetric follower) after the {HIDDEN} projected features: {shapes[goal_key]}")
+    wrong = [f"{k} {tuple(state[k].shape)} (expected {shape})" for k, shape in shapes.items()
+             if tuple(state[k].shape) != shape]
+    if wrong:
+        raise ValueError(f"{what} has the paper's keys but not its shapes: {', '.join(wrong[:3])}"
+                         f"{f' and {len(wrong) - 3} more' if len(wrong) > 3 else ''}; the paper's network is for its "
+                         f"32x32 board, 5 planes, 4 actions and 3 colors")
+    return PaperWeights(state, lstm, compiled)
+
+
+def state_dict_from_paper(state: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """The paper model's weights (checked by ``check_paper_state_dict``) as ours, permuted so that our network
+    computes the paper model's function on our observations: the board turns (``board_from_paper``), so every
+    conv kernel and the projection's input columns (64 x 26 x 26 features) turn with it; the first conv's input
+    channels, the goal columns, the policy's output rows and the auxiliary head's rows are reordered."""
+    ours = {}
+    for key, value in state.items():
+        prefix = next(p for p in OUR_KEYS if key.startswith(p))
+        ours[OUR_KEYS[prefix] + key[len(prefix):]] = value.detach().to(torch.float32).clone()
+    for i in (0, 2, 4):  # a cross-correlation of a turned board with turned kernels is the turned result
+        ours[f"encoder.convs.{i}.weight"] = board_from_paper(ours[f"encoder.convs.{i}.weight"])
+    ours["encoder.convs.0.weight"] = ours["encoder.convs.0.weight"][:, PLANES_FROM_PAPER]
+    projection = ours["encoder.projection.0.weight"]
+    side = int(round((projection.shape[1] / 64) ** 0.5))
+    ours["encoder.projection.0.weight"] = board_from_paper(projection.reshape(-1, 64, side, side)).reshape(
+        projection.shape[0], -1)
+    goal = ours["encoder.mlp.0.weight"]
+    ours["encoder.mlp.0.weight"] = torch.cat([goal[:, :HIDDEN], goal[:, HIDDEN:][:, COLORS_FROM_PAPER]], dim=1)
+    for key in ("policy.4.weight", "policy.4.bias"):
+        ours[key] = ours[key][ACTIONS_FROM_PAPER]
+    for key in ("aux.2.weight", "aux.2.bias"):
+        ours[key] = ours[key][COLORS_FROM_PAPER]
+    return {k: v.contiguous() for k, v in ours.items()}
+
+
+def read_paper_state_dict(path: str | Path, role: str) -> PaperWeights:
+    """A paper checkpoint file, checked (``check_paper_state_dict``); a file torch cannot read safely raises
+    one line."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path} does not exist" if not path.exists() else f"{path} is not a file")
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises many types for a file it cannot read
+        if path.stat().st_size == 0:
+            why = "the file is empty"
+        elif not zipfile.is_zipfile(path):
+            why = "it is not a file written by torch.save (a compressed .gz? gunzip it first)"
+        elif isinstance(err, pickle.UnpicklingError):
+            why = "it holds objects other than tensors and plain containers (a whole pickled model?)"
+        else:
+            why = f"{type(err).__name__}: {str(err).strip().splitlines()[0][:160] if str(err).strip() else ''}"
+        raise ValueError(f"{path} is not a readable paper checkpoint: {why}") from None
+    return check_paper_state_dict(state, str(path), role)
+
+
+def import_paper_checkpoint(src: str | Path, role: str, out: str | Path, asymmetric: bool) -> Path:
+    """Turn a state dict saved by the paper's ``run_ppo.py`` into a ColorGrid checkpoint at ``out`` that plays
+    ``role`` (``leader`` or ``follower``) in the 1:1 team, with a model card (``out`` with ``.md``) beside it.
+    ``asymmetric``: the env it was trained in (the follower saw no goal), recorded in the checkpoint's env."""
+    from train.checkpoint import load_weights, save_checkpoint
+    from train.config import AgentConfig, TrainConfig
+    from train.nets import ActorCritic
+
+    if role not in ROLES:
+        raise ValueError(f"--role {role!r}: the paper's team has a {' and a '.join(ROLES)}; choose one")
+    src, out = Path(src), Path(out)
+    if out.suffix != ".pt":
+        raise ValueError(f"--out {out}: a checkpoint path ending in .pt (where every command loads it)")
+    weights = read_paper_state_dict(src, role)
+    env = EnvConfig(asymmetric=asymmetric)
+    net = net_config(weights.lstm)
+    agent = env.index(role)
+    with torch.random.fork_rng(devices=[]):  # every weight is overwritten
+        model = ActorCritic(net, env, agent)
+    load_weights(model, state_dict_from_paper(weights.state), str(src))
+    partner = {"leader": "idle", "follower": "astar"}[role]
+    agents = {name: AgentConfig(net=net) if name == role else AgentConfig(policy=partner) for name in ROLES}
+    config = TrainConfig(env=env, **agents)
+    iteration = re.search(r"iteration=(\d+)", src.name)
+    source = {"file": src.name, "sha256": hashlib.sha256(src.read_bytes()).hexdigest(), "code": PAPER_SOURCE,
+              "role": role, "lstm": weights.lstm, "compiled": weights.compiled,
+              "iteration": int(iteration.group(1)) if iteration else None}
+    entry = {"net": dataclasses.asdict(net), "agent_index": agent,
+             "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()}, "optimizer": None}
+    path = save_checkpoint(out, {"config": config.to_dict(), "env_config": env.to_dict(), "step": 0,
+                                 "iteration": source["iteration"], "agents": {name: entry if name == role else None
+                                                                              for name in ROLES},
+                                 "trainer_state": None, "imported_from": source})
+    out.with_suffix(".md").write_text(model_card(path, source, net, env))
+    return path
+
+
+def model_card(path: Path, source: dict, net, env: EnvConfig) -> str:
+    """The card of an imported checkpoint: where it came from, what was mapped, how to run it."""
+    role = source["role"]
+    iteration = f", iteration {source['iteration']} of its run" if source["iteration"] is not None else ""
+    lines = [
+        f"# Model card: `{path.name}` (the {role}, imported from the paper's code)",
+        "",
+        f"- **Source**: `{source['file']}` (sha256 `{source['sha256']}`), a state dict saved by the paper's "
+        f"{source['code']}{iteration}; {'saved after torch.compile (keys prefixed _orig_mod.); ' if source['compiled'] else ''}"
+        f"{'with' if source['lstm'] else 'without'} its LSTM.",
+        "- **Imported with**: `colorgrid checkpoint import-paper "
+        f"{source['file']} --role {role} --out {path.name} --{'asymmetric' if env.asymmetric else 'symmetric'}`",
+        "- **Training**: not recorded in the file (steps, PPO settings, partner); this checkpoint's step is 0.",
+        f"- **Network**: {json.dumps(dataclasses.asdict(net))}: the paper code's network exactly, the goal one-hot "
+        "joined after the 43264->192 projection.",
+        "- **Mapped** (train/paper_code.py): planes RED, BLUE, GREEN -> red, green, blue; boards indexed [x, y] "
+        "(y up) -> [row, col] (row 0 at the top); actions UP (y+1), DOWN, LEFT, RIGHT -> up, down, left, right; "
+        "goal one-hot and auxiliary head in our color order. The weights are permuted so that the network computes "
+        "the paper model's function on this project's observations.",
+        f"- **Environment recorded**: {json.dumps(env.to_dict())}. The paper's env differs from this one in a few "
+        "rules (docs/PAPER_CODE.md).",
+        "",
+        "Run it: " + (f"`colorgrid eval --leader {path.name} --follower bayes`" if role == "leader" else
+                      f"`colorgrid eval --leader astar --follower {path.name}`; `colorgrid play --follower "
+                      f"{path.name}`") + " (any command that takes a checkpoint .pt takes it).",
+    ]
+    return "\n".join(lines) + "\n"
