@@ -61,6 +61,10 @@ FOLLOWER_INFO = {
                                                                      "further to take fewer wrong blocks and to read "
                                                                      "where your moves lead; it leaves a block it "
                                                                      "is unsure of", True),
+    "ippo-1L2F": ("Trained assistant for two (IPPO, 1:2)", "trained as one of two AI followers beside a scripted "
+                  "leader; plays only in the 1:2 team", True),
+    "ippo-2L1F": ("Trained assistant for two leaders (IPPO, 2:1)", "trained beside two scripted leaders; plays "
+                  "only in the 2:1 team", True),
     "ippo-leader": ("Trained leader (IPPO)", "the trained leader playing the follower's part: for researchers", True),
     "bayes": ("Bayesian assistant", "works out the goal from your moves and pickups, and collects once it is sure",
               True),
@@ -200,7 +204,7 @@ def create_app(settings: ServerSettings | None = None, study=None) -> FastAPI:
         their rewards, modes, teams, the horizon's limit) and the defaults, plus what the page needs to draw and
         play: the look of boards and the move keys."""
         presets = {name: env_config(name) for name in sorted(PRESETS)}
-        team_followers = hub.team_followers()
+        team_followers = {t: hub.team_followers(t) for t in Team}
         return {"followers": list(settings.follower_choices), "default_follower": settings.follower,
                 "follower_info": [follower_info(name) for name in settings.follower_choices],
                 "presets": list(presets), "default_preset": settings.preset,
@@ -209,8 +213,8 @@ def create_app(settings: ServerSettings | None = None, study=None) -> FastAPI:
                 "modes": [{"value": m.value, "label": m.label} for m in Mode],
                 "teams": [{"value": t.value, "label": t.label, "people": t.people, "ai_followers": t.num_followers,
                            "room": t.room,
-                           "followers": list(settings.follower_choices) if t == Team.ONE_TO_ONE else team_followers}
-                          for t in Team if t == Team.ONE_TO_ONE or team_followers],
+                           "followers": team_followers[t]}
+                          for t in Team if team_followers[t]],
                 "room_code_length": ROOM_CODE_LENGTH,
                 "horizon": {"default": presets[settings.preset].horizon, "max": MAX_HORIZON},
                 "keys": KEY_ACTIONS, "look": look(),
@@ -594,7 +598,7 @@ class Connection:
             if msg.study is not None:
                 raise ValueError("this server runs no study")
             return await hub.new_game(msg.follower, msg.preset, msg.mode, msg.horizon, msg.show_belief, self,
-                                      client_info=client_info, team=msg.team)
+                                      client_info=client_info, team=msg.team, followers=msg.followers)
         if msg.study is None:
             raise ValueError("this server runs a study: games start from the study page")
         if msg.team != Team.ONE_TO_ONE:

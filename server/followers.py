@@ -8,17 +8,28 @@ import time
 import numpy as np
 
 from colorgrid.config import FOLLOWER, EnvConfig
-from colorgrid.policies import SCRIPTED, IdleFollower, make_policy
+from colorgrid.policies import SCRIPTED, IdleFollower, make_policy, policy_teams
 from colorgrid.policies.base import AgentInput
 from colorgrid.step_inputs import StepInputs
 from server.inference import InferenceWorker, RemotePolicy
 
 
 def is_scripted(name: str) -> bool:
-    """A scripted follower: cheap to build, and it plays at any agent index of any team, so it is the only kind
-    offered beyond 1:1; not a trained network or checkpoint (which reads the 1:1 team's observation and takes
-    a while to load)."""
+    """A scripted follower: cheap to build, and it plays at any agent index of any team; not a trained network
+    or checkpoint (which takes a while to load: the server keeps those warm)."""
     return name.partition(":")[0] in SCRIPTED
+
+
+def plays(name: str, team) -> bool:
+    """Whether follower ``name`` plays in ``team`` (a ``Team``): a scripted one in any, a trained network in the
+    team it was trained in (``policy_teams``)."""
+    teams = policy_teams(name)
+    return teams is None or team.value in teams
+
+
+def follower_label(followers: tuple[str, ...]) -> str:
+    """One name for a game's AI followers: the name when they are all the same kind, else ``"a + b"``."""
+    return followers[0] if len(set(followers)) == 1 else " + ".join(followers)
 
 
 class FollowerPool:

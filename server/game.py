@@ -78,7 +78,7 @@ class Game:
 
     config: EnvConfig
     mode: Mode  # a plain string is taken too ("turn", "realtime")
-    follower: str
+    follower: str  # the AI followers' name (``follower_label``)
     preset: str
     seed: int
     show_belief: bool
@@ -88,6 +88,7 @@ class Game:
     tick_hz: float = 5.0  # real time: steps a second
     study: dict | None = None  # a study's game: participant, condition, trial index... (recorded in the replay)
     room: str | None = None  # the room's code, for a game of several people
+    follower_kinds: tuple[str, ...] = ()  # each AI follower's kind, in agent order (all ``follower`` if empty)
 
     def __post_init__(self) -> None:
         self.mode = Mode(self.mode)
@@ -276,6 +277,9 @@ class Game:
         }
         if not self.solo:
             message.update(team=self.config.team, agent=seat.name, seats=self.seats_view(), room=self.room)
+        if self.config.num_followers > 1:  # each AI follower's kind, by agent name
+            kinds = self.follower_kinds or (self.follower,) * self.config.num_followers
+            message["followers"] = dict(zip((cfg.agent_names[i] for i in cfg.followers), kinds))
         return message
 
     def state_message(self) -> dict:

@@ -16,7 +16,8 @@ from colorgrid.presets import env_config
 from colorgrid.replay import save
 from colorgrid.replay.format import describe_agent
 from colorgrid.roles import scores
-from server.followers import FollowerPool, is_scripted
+from colorgrid.policies import policy_teams
+from server.followers import FollowerPool, follower_label, is_scripted, plays
 from server.inference import InferenceLost, InferenceWorker
 from server.game import STAND_IN, Game, Seat
 from server.protocol import ROOM_COUNTDOWN_S, Mode, Team
@@ -76,6 +77,7 @@ class GameHub:
         self._seed_counter = int(time.time())
         self.stopped = False
         # pools never freed: the default's, and the trained followers' (building one would stall the inference thread)
+        self._offered: dict[Team, list[str]] | None = None  # team_followers, by team
         self.keep_warm = {settings.follower, *(f for f in settings.follower_choices if not is_scripted(f))}
 
     # ------------------------------------------------------------ lifecycle
@@ -89,10 +91,14 @@ class GameHub:
         waits on it: a trained network's first call pays for loading torch and the weights, and a pool is
         built on the inference thread, where games must not wait for it."""
         for follower in sorted(self.keep_warm, key=lambda f: f != self.settings.follower):  # the default first
-            for mode in Mode:
+            # a trained follower in each team it plays (every AI seat of it); a scripted default in 1:1
+            teams = [Team.ONE_TO_ONE] if is_scripted(follower) else [t for t in Team if plays(follower, t)]
+            for team, mode in ((team, mode) for team in teams for mode in Mode):
+                config = self.make_config(self.settings.preset, mode, None, team)
                 try:
-                    pool = await self.pool_for(follower, self.make_config(self.settings.preset, mode, None))
-                    await asyncio.get_running_loop().run_in_executor(self.executor, pool.warm_up)
+                    for agent in config.followers:
+                        pool = await self.pool_for(follower, config, agent)
+                        await asyncio.get_running_loop().run_in_executor(self.executor, pool.warm_up)
                 except Exception:  # a bad follower is reported when a game asks for it
                     log.exception("could not warm up follower %s", follower)
         gc.freeze()  # what start-up loaded (torch, the networks) is left out of later collections
@@ -165,24 +171,34 @@ class GameHub:
             self._clocks[tick_hz] = asyncio.create_task(self._tick_loop(tick_hz))
             self._tasks.append(self._clocks[tick_hz])
 
-    def team_followers(self) -> list[str]:
-        """The offered followers that play in teams other than 1:1 (the default first, if it does)."""
-        return [f for f in self.settings.follower_choices if is_scripted(f)]
+    def team_followers(self, team: Team = Team.TWO_FOLLOWERS) -> list[str]:
+        """The offered followers that play in ``team`` (a trained network only in the team it was trained in),
+        the default first if it does."""
+        if self._offered is None:  # once: a checkpoint file is read to know its team
+            self._offered = {t: [f for f in self.settings.follower_choices if plays(f, t)] for t in Team}
+        return self._offered[team]
 
-    def choose(self, team: Team, follower: str | None, preset: str | None, mode: Mode,
-               horizon: int | None) -> tuple[str, str, EnvConfig]:
-        """The follower, preset and config of a new game or room; what is not offered raises ``ValueError``."""
-        if team == Team.ONE_TO_ONE:
-            follower = follower or self.settings.follower
-        else:
-            follower = follower or next(iter(self.team_followers()), self.settings.follower)
-        if follower not in self.settings.follower_choices:
-            raise ValueError(f"unknown follower {follower!r}; choose one of {list(self.settings.follower_choices)}")
-        if team != Team.ONE_TO_ONE and not is_scripted(follower):
-            raise ValueError(f"follower {follower!r} plays only in 1:1 teams (a trained network reads the 1:1 "
-                             f"board); for team {team.value} choose one of {self.team_followers()}")
+    def choose(self, team: Team, follower: str | None, preset: str | None, mode: Mode, horizon: int | None,
+               followers: list[str] | None = None) -> tuple[tuple[str, ...], str, EnvConfig]:
+        """The followers (one per AI seat, in agent order), preset and config of a new game or room: every seat
+        ``follower``, or each its own of ``followers``; what is not offered raises ``ValueError``."""
+        if followers is not None and follower is not None:
+            raise ValueError("give either follower (every AI seat) or followers (one per AI seat), not both")
+        if followers is not None and len(followers) != team.num_followers:
+            raise ValueError(f"followers: team {team.value} has {team.num_followers} AI follower(s); give one name "
+                             f"each, got {len(followers)}")
+        offered = self.team_followers(team)
+        default = self.settings.follower if self.settings.follower in offered else next(iter(offered), None)
+        chosen = tuple(followers) if followers is not None else (follower or default,) * team.num_followers
+        for name in chosen:
+            if name not in self.settings.follower_choices:
+                raise ValueError(f"unknown follower {name!r}; choose one of {list(self.settings.follower_choices)}")
+            if name not in offered:
+                raise ValueError(f"follower {name!r} does not play in team {team.value} (a trained network plays the "
+                                 f"team it was trained in: {'/'.join(policy_teams(name) or ())}); for team "
+                                 f"{team.value} choose one of {offered}")
         preset = preset or self.settings.preset
-        return follower, preset, self.make_config(preset, mode, horizon, team)
+        return chosen, preset, self.make_config(preset, mode, horizon, team)
 
     def check_capacity(self) -> None:
         """Refuse a new game or room past ``max_sessions`` (games, games being made and waiting rooms)."""
@@ -197,31 +213,34 @@ class GameHub:
 
     async def new_game(self, follower: str | None, preset: str | None, mode: Mode, horizon: int | None,
                        show_belief: bool, client: Client, tick_hz: float | None = None, study: dict | None = None,
-                       client_info: dict | None = None, team: Team = Team.ONE_TO_ONE) -> Game:
+                       client_info: dict | None = None, team: Team = Team.ONE_TO_ONE,
+                       followers: list[str] | None = None) -> Game:
         """Start a game for ``client``, the team's one person. ``tick_hz`` (default: the server's) sets a
         real-time game's clock; ``study`` is what a study's game records about itself (``meta.study``)."""
         team = Team(team)
         if team.room:
             raise ValueError(f"team {team.value} has {team.people} people: they meet in a room (create_room, "
                              "then share its code)")
-        follower, preset, config = self.choose(team, follower, preset, Mode(mode), horizon)
-        return await self._open_game(config, Mode(mode), follower, preset, show_belief, [(client, client_info or {})],
+        chosen, preset, config = self.choose(team, follower, preset, Mode(mode), horizon, followers)
+        return await self._open_game(config, Mode(mode), chosen, preset, show_belief, [(client, client_info or {})],
                                      tick_hz=tick_hz, study=study)
 
-    async def _open_game(self, config: EnvConfig, mode: Mode, follower: str, preset: str, show_belief: bool,
-                         people: list[tuple[Client, dict]], tick_hz: float | None = None,
+    async def _open_game(self, config: EnvConfig, mode: Mode, followers: tuple[str, ...], preset: str,
+                         show_belief: bool, people: list[tuple[Client, dict]], tick_hz: float | None = None,
                          study: dict | None = None, room: str | None = None) -> Game:
         """Make a game for ``people`` (connection and page info, one per leader, in agent order), with a slot in
-        the follower's pool for each follower; send each person their ``welcome`` and the first ``state``."""
+        each AI follower's pool (``followers``: one kind per follower, in agent order); send each person their
+        ``welcome`` and the first ``state``."""
         # The session is counted before the first await, so concurrent requests never overshoot the limit.
         self.check_capacity()
         self.reserved += 1
         try:
-            pools = [await self.pool_for(follower, config, i) for i in config.followers]
+            pools = [await self.pool_for(kind, config, i) for kind, i in zip(followers, config.followers)]
             if self.stopped:
                 raise ServerFull("the server is shutting down; try again in a minute")
             self._seed_counter += 1
-            game = Game(config=config, mode=mode, follower=follower, preset=preset, seed=self._seed_counter,
+            game = Game(config=config, mode=mode, follower=follower_label(followers), follower_kinds=tuple(followers),
+                        preset=preset, seed=self._seed_counter,
                         show_belief=show_belief and self.settings.show_belief, max_key_log=self.settings.max_key_log,
                         tick_hz=tick_hz or self.settings.tick_hz, study=study, room=room)
             for seat, (client, client_info) in zip(game.seats, people):
@@ -334,9 +353,9 @@ class GameHub:
         if not team.room:
             raise ValueError(f"team {team.value} has one person: start it with new_game (rooms are for teams of "
                              "several people)")
-        follower, preset, config = self.choose(team, follower, preset, mode, horizon)
+        chosen, preset, config = self.choose(team, follower, preset, mode, horizon)
         self.check_capacity()
-        room = Room(code=new_code(self.rooms), team=team, config=config, follower=follower, preset=preset, mode=mode,
+        room = Room(code=new_code(self.rooms), team=team, config=config, followers=chosen, preset=preset, mode=mode,
                     show_belief=show_belief, tick_hz=self.settings.tick_hz)
         room.join(client, client_info or {})
         self.rooms[room.code] = room
@@ -401,7 +420,7 @@ class GameHub:
         room.opening = True
         people = [(m.client, m.client_info) for m in room.members]
         try:
-            game = await self._open_game(room.config, room.mode, room.follower, room.preset, room.show_belief,
+            game = await self._open_game(room.config, room.mode, room.followers, room.preset, room.show_belief,
                                          people, tick_hz=room.tick_hz, room=room.code)
         except Exception as err:  # ServerFull while stopping, a follower that does not load
             log.exception("could not start the game of room %s", room.code)
@@ -595,8 +614,8 @@ class GameHub:
     async def _save(self, game: Game, reason: str) -> None:
         stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime(game.created))
         replay_id = f"play-{stamp}-{game.game_id}"
-        checkpoint = game.follower if game.follower.endswith(".pt") else None
-        descriptions = {player.agent: describe_agent(player.pool.policy.describe(), checkpoint)
+        descriptions = {player.agent: describe_agent(player.pool.policy.describe(),
+                                                     player.pool.name if player.pool.name.endswith(".pt") else None)
                         for player in game.followers()}
         replay = game.to_replay("complete" if reason == "complete" else reason, descriptions)
         # Written (atomically, fsynced) on a worker thread so saving never stalls the tick.

@@ -104,6 +104,9 @@ class NewGame(_Message):
 
     type: Literal["new_game"]
     follower: str | None = None
+    """Every AI follower's kind (default: the server's, or the first offered for the team)."""
+    followers: list[str] | None = Field(default=None, min_length=1, max_length=8)
+    """Instead of ``follower``: one kind per AI follower, in agent order (``["ippo-1L2F", "bayes-people"]`` in 1:2)."""
     preset: str | None = None
     mode: Mode = Mode.TURN
     horizon: int | None = Field(default=None, ge=1, le=MAX_HORIZON)

@@ -12,6 +12,7 @@ import time
 from dataclasses import dataclass, field
 
 from colorgrid.config import EnvConfig
+from server.followers import follower_label
 from server.protocol import ROOM_CODE_ALPHABET, ROOM_CODE_LENGTH, Mode, Team, normalise_room_code
 
 
@@ -39,7 +40,7 @@ class Room:
     code: str
     team: Team
     config: EnvConfig  # the game's config (its team, preset, mode and horizon applied)
-    follower: str
+    followers: tuple[str, ...]  # one kind per AI follower, in agent order
     preset: str
     mode: Mode
     show_belief: bool
@@ -91,7 +92,7 @@ class Room:
     def message(self, seat: int) -> dict:
         """The ``room`` message for the person in ``seat``."""
         return {"type": "room", "code": self.code, "link": f"/?room={self.code}", "team": self.team.value,
-                "mode": self.mode.value, "preset": self.preset, "follower": self.follower,
+                "mode": self.mode.value, "preset": self.preset, "follower": follower_label(self.followers),
                 "horizon": self.config.horizon, "seats": self.members_view(), "you": self.config.agent_names[seat],
                 "starting_in_s": self.starting_in_s}
 

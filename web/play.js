@@ -55,6 +55,11 @@ function showTeamChoice() {
   const team = chosenTeam(), current = $("follower").value;
   const offered = options.follower_info.filter((f) => team.followers.includes(f.value));
   fill($("follower"), offered, team.followers.includes(current) ? current : team.followers[0]);
+  // one person with several AI followers may give the second its own kind
+  const mixed = team.ai_followers > 1 && !team.room;
+  $("second-follower").hidden = !mixed;
+  $("follower-heading").textContent = mixed ? "First AI partner" : "Your AI partner";
+  if (mixed) fill($("follower-2"), [{ value: "", label: "the same kind" }, ...offered], "");
   showFollower();
   $("start").textContent = team.room ? "Create a room" : "Start";
   $("team-help").textContent = team.room
@@ -71,7 +76,15 @@ function followerInfo(name) {
 }
 
 function showFollower() {
-  $("follower-description").textContent = followerInfo($("follower").value).description;
+  const second = $("second-follower").hidden ? "" : $("follower-2").value;
+  $("follower-description").textContent = [$("follower").value, second].filter(Boolean)
+    .map((name) => followerInfo(name).description).join(" ");
+}
+
+function chosenFollowers() {
+  // what a request names: every AI follower's kind, or one kind each when the second differs
+  const second = $("second-follower").hidden ? "" : $("follower-2").value;
+  return second ? { followers: [$("follower").value, second] } : { follower: $("follower").value };
 }
 
 function showPreset() {
@@ -176,7 +189,9 @@ function onMessage(msg) {
     const together = msg.seats?.length > 1;  // turn-based with other people: a step once everyone has moved
     $("mode-label").textContent = msg.tick_hz ? `${mode}, ${msg.tick_hz} steps/s`
       : `${mode}: the world moves when ${together ? "everyone has moved" : "you do"}`;
-    const follower = followerInfo(msg.follower);
+    const kinds = [...new Set(Object.values(msg.followers ?? { follower: msg.follower }))].map(followerInfo);
+    const follower = { label: kinds.map((k) => k.label).join(" + "), description: kinds.map((k) => k.description).join(" "),
+                       has_belief: kinds.some((k) => k.has_belief) };
     const followers = game.look.agents.filter((a) => a.role === "follower").length;
     $("follower-label").textContent = follower.label;
     $("follower-label").title = follower.description;
@@ -283,7 +298,7 @@ $("start").addEventListener("click", async () => {
     return;
   }
   const team = chosenTeam();
-  const request = { type: team.room ? "create_room" : "new_game", team: team.value, follower: $("follower").value,
+  const request = { type: team.room ? "create_room" : "new_game", team: team.value, ...chosenFollowers(),
                     preset: $("preset").value, mode: $("mode").value,
                     horizon: $("horizon").value ? Number($("horizon").value) : null, show_belief: true,
                     viewport: [window.innerWidth, window.innerHeight] };
@@ -317,6 +332,7 @@ $("leave-room").addEventListener("click", () => {
 $("copy-link").addEventListener("click", () => navigator.clipboard?.writeText($("room-link").href));
 $("team").addEventListener("change", showTeamChoice);
 $("follower").addEventListener("change", showFollower);
+$("follower-2").addEventListener("change", showFollower);
 $("preset").addEventListener("change", showPreset);
 $("mode").addEventListener("change", showMode);
 $("again").addEventListener("click", () => {
