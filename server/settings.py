@@ -25,9 +25,9 @@ class ServerSettings:
     follower: str = "bayes-people"
     """Default follower: the best assistant for people on the held-out population (docs/EVALUATION.md); a
     policy name or a checkpoint path. Players may pick another allowed one."""
-    followers: tuple[str, ...] = ("bayes-people", "ippo-cautious", "ippo-people", "ippo", "bayes", "copy", "oracle",
-                                  "idle", "random")
-    """Followers a player may choose from (the default is always allowed)."""
+    followers: tuple[str, ...] = ("bayes-people", "ippo-cautious", "ippo-people", "ippo", "ippo-1L2F", "ippo-2L1F",
+                                  "bayes", "copy", "oracle", "idle", "random")
+    """Followers a player may choose from (the default is always allowed); each team offers those that play it."""
     preset: str = "default"
     """Default environment preset (see ``colorgrid.presets.PRESETS``)."""
     tick_hz: float = 5.0
