@@ -29,7 +29,9 @@ def test_play_a_short_game_in_the_browser(server, browser):
     page.on("pageerror", lambda e: errors.append(str(e)))
     page.goto(server.url + "/")
     options = server.get("/api/options")[0]
-    expect(page.locator("#follower option")).to_have_count(len(options["followers"]))
+    solo = next(t for t in options["teams"] if t["value"] == "1:1")["followers"]  # the team shown first
+    expect(page.locator("#follower option")).to_have_count(len(solo))
+    assert len(solo) < len(options["followers"])  # the team followers are offered in their own teams only
     expect(page.locator("#follower")).to_have_value(options["default_follower"])
     # the setup form is the server's: its modes, the horizon's limits, the chosen preset's rewards, the letters
     assert page.locator("#mode option").all_text_contents() == [m["label"] for m in options["modes"]]
@@ -332,7 +334,8 @@ def test_a_newcomer_reads_how_to_play_and_what_each_follower_does_before_startin
     page.select_option("#mode", "realtime")
     expect(page.locator("#mode-help")).to_contain_text("countdown")
     info = {f["value"]: f for f in options["follower_info"]}
-    assert page.locator("#follower option").all_text_contents() == [f["label"] for f in options["follower_info"]]
+    solo = next(t for t in options["teams"] if t["value"] == "1:1")["followers"]
+    assert page.locator("#follower option").all_text_contents() == [info[name]["label"] for name in solo]
     expect(page.locator("#follower-description")).to_have_text(info[options["default_follower"]]["description"])
     page.select_option("#follower", "oracle")
     expect(page.locator("#follower-description")).to_have_text(info["oracle"]["description"])
@@ -641,3 +644,21 @@ def test_the_replay_list_shows_a_branch_with_its_parent_and_step_and_filters_by_
 
 def queryless(url: str) -> str:
     return url.split("?")[0]
+
+
+def test_one_person_with_two_ai_partners_may_give_each_its_own_kind(server, browser):
+    page = browser.new_page()
+    page.goto(server.url + "/")
+    options = server.get("/api/options")[0]
+    info = {f["value"]: f for f in options["follower_info"]}
+    expect(page.locator("#second-follower")).to_be_hidden()
+    page.select_option("#team", "1:2")
+    expect(page.locator("#second-follower")).to_be_visible()
+    expect(page.locator("#follower-heading")).to_have_text("First AI partner")
+    assert "ippo" not in page.locator("#follower option").evaluate_all("os => os.map(o => o.value)")
+    page.select_option("#follower", "ippo-1L2F")
+    page.select_option("#follower-2", "copy")
+    page.select_option("#mode", "turn")
+    page.click("#start")
+    expect(page.locator("#follower-label")).to_have_text(f"{info['ippo-1L2F']['label']} + {info['copy']['label']}")
+    page.close()
