@@ -244,8 +244,8 @@ def test_the_viewer_draws_every_agent_in_its_roles_color_with_its_label(team_vie
     assert [chart.title for chart in tab.charts.values()] == ["F1 (follower_0)'s goal probabilities",
                                                              "F2 (follower_1)'s goal probabilities"]
     for name, chart in tab.charts.items():
-        x, now, *curves = chart.data
-        assert np.flatnonzero(now).tolist() == [30]
+        x, *curves = chart.data
+        assert chart.axes[2]["splits"] == (30.0,)  # the cursor: an axis at the slider's step, not a series
         assert np.allclose(np.stack(curves, axis=1)[:30], data["goal_probs"][name])
     scores = data["boards"][30]["scores"]
     assert f"(L1 {scores[0]:+.0f}, L2 {scores[1]:+.0f}, F1 {scores[2]:+.0f}, F2 {scores[3]:+.0f})" in tab.info.content
