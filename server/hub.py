@@ -92,7 +92,8 @@ class GameHub:
         built on the inference thread, where games must not wait for it."""
         for follower in sorted(self.keep_warm, key=lambda f: f != self.settings.follower):  # the default first
             # a trained follower in each team it plays (every AI seat of it); a scripted default in 1:1
-            teams = [Team.ONE_TO_ONE] if is_scripted(follower) else [t for t in Team if plays(follower, t)]
+            teams = ([Team.ONE_TO_ONE] if is_scripted(follower)
+                     else [t for t in Team if follower in self.team_followers(t)])
             for team, mode in ((team, mode) for team in teams for mode in Mode):
                 config = self.make_config(self.settings.preset, mode, None, team)
                 try:

@@ -43,10 +43,10 @@ def checkpoint_teams(path: str) -> tuple[str, ...] | None:
     """The team a checkpoint file was trained in (``("1:2",)``), from its env config; None if it cannot be read
     (loading it will say why)."""
     try:
-        import torch
+        from train.checkpoint import load_checkpoint
 
-        env = torch.load(path, map_location="cpu", weights_only=False)["env_config"]
-    except Exception:  # not there, not a checkpoint, or no torch: make_policy reports it
+        env = load_checkpoint(path)["env_config"]
+    except (ImportError, OSError, ValueError, KeyError):  # no torch, or not a checkpoint: make_policy reports it
         return None
     return (f"{env.get('num_leaders', 1)}:{env.get('num_followers', 1)}",)
 
