@@ -13,6 +13,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
+from colorgrid import paper_format
 from colorgrid.config import AGENTS, LEADER, EnvConfig
 from colorgrid.env import move_table
 from colorgrid.policies.base import AgentInput
@@ -108,11 +109,11 @@ def test_the_reference_forward_is_the_paper_models(paper_state, episode):
 
 def test_imported_leader_gives_the_paper_models_outputs_on_our_observations(imported, episode):
     policy = load_policy(imported["pt"], "leader")
-    planes = paper_code.observation_from_paper(episode["planes"])
-    goal = paper_code.colors_from_paper(episode["goal"])
+    planes = paper_format.observation_from_paper(episode["planes"])
+    goal = paper_format.colors_from_paper(episode["goal"])
     logits, value, aux = our_outputs(policy.model, planes, goal)
-    want_logits = paper_code.action_values_from_paper(episode["logits"])
-    want_aux = paper_code.colors_from_paper(episode["aux"])
+    want_logits = paper_format.action_values_from_paper(episode["logits"])
+    want_aux = paper_format.colors_from_paper(episode["aux"])
     errors = {"logits": np.abs(logits - want_logits).max(), "value": np.abs(value - episode["value"]).max(),
               "aux": np.abs(aux - want_aux).max()}
     assert max(errors.values()) < TOLERANCE, errors
@@ -134,12 +135,12 @@ def test_imported_leader_gives_the_paper_models_outputs_on_our_observations(impo
 
 def test_the_paper_actions_mapped_move_the_leader_through_its_positions(episode):
     config = EnvConfig()
-    planes = paper_code.observation_from_paper(episode["planes"])
-    cells = paper_code.cells_from_paper(episode["leader_xy"], config.height)  # [T, 2] (row, col)
+    planes = paper_format.observation_from_paper(episode["planes"])
+    cells = paper_format.cells_from_paper(episode["leader_xy"], config.height)  # [T, 2] (row, col)
     leader_plane = planes[:, config.num_colors + LEADER].reshape(len(planes), -1)
     flat = cells[:, 0] * config.width + cells[:, 1]
     assert (leader_plane[np.arange(len(planes)), flat] == 1).all() and (leader_plane.sum(axis=1) == 1).all()
-    actions = paper_code.actions_from_paper(episode["action"])
+    actions = paper_format.actions_from_paper(episode["action"])
     moved = move_table(config)[LEADER][flat[:-1], actions[:-1]]  # our rules' moves (walls included)
     np.testing.assert_array_equal(moved, flat[1:])
     assert len(set(flat.tolist())) > 10  # the leader went places
@@ -169,13 +170,13 @@ def test_lstm_follower_imports_with_its_recurrent_core(tmp_path, paper_state, ep
     model = load_policy(out, "follower").model
     assert model.lstm is not None and model.agents == (AGENTS.index("follower"),)
     zeros = np.zeros((len(episode["goal"]), 3), np.float32)  # the asymmetric follower's goal input
-    logits, value, aux = our_outputs(model, paper_code.observation_from_paper(episode["planes"]), zeros)
+    logits, value, aux = our_outputs(model, paper_format.observation_from_paper(episode["planes"]), zeros)
     with torch.no_grad():
         want_logits, want_value, want_aux = (t.numpy() for t in paper_forward(
             state, torch.from_numpy(episode["planes"]), torch.from_numpy(zeros)))
-    assert np.abs(logits - paper_code.action_values_from_paper(want_logits)).max() < TOLERANCE
+    assert np.abs(logits - paper_format.action_values_from_paper(want_logits)).max() < TOLERANCE
     assert np.abs(value - want_value).max() < TOLERANCE
-    assert np.abs(aux - paper_code.colors_from_paper(want_aux)).max() < TOLERANCE
+    assert np.abs(aux - paper_format.colors_from_paper(want_aux)).max() < TOLERANCE
     assert "iteration 7" in out.with_suffix(".md").read_text()
 
 

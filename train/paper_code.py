@@ -1,17 +1,10 @@
-"""The paper's released code (``run_ppo.py``, ``color_maze.py``) and this project: its conventions, mapped once.
+"""The paper's released code (``run_ppo.py``) and this project: its checkpoints, imported.
 
-The paper's code holds a board as planes ``[RED, BLUE, GREEN, leader, follower]``, each indexed
-``[x, y]``; its actions are ``UP`` (y + 1), ``DOWN`` (y - 1), ``LEFT`` (x - 1), ``RIGHT`` (x + 1); its
-goal one-hot and auxiliary head list the colors in plane order. Its own picture of a board
-(``ColorMaze.render``: ``np.flipud(grid.T)``) draws x to the right and y upward. This project's planes
-are ``[red, green, blue, leader, follower]``, each indexed ``[row, col]`` with row 0 at the top, and its
-actions move up, down, left, right on the screen. So a paper cell ``(x, y)`` is our ``(H - 1 - y, x)``:
-a board turns by ``np.rot90`` (paper ``[x, y]`` -> our ``[row, col]``), the paper's actions keep their
-names, and colors and planes are reordered by name.
-
-Everything that converts between the two lives here: observations, goals, cells and actions from the
-paper's dumps, and the paper model's weights (``state_dict_from_paper``), which are permuted so that the
-imported network computes exactly the paper model's function on our observations.
+The paper's conventions (planes ``[RED, BLUE, GREEN, leader, follower]`` indexed ``[x, y]``, its action and
+color order) are mapped once, in the core (``colorgrid.paper_format``), where the replay import of its dumps
+reads them too. Here the paper model's weights are checked and permuted with that mapping
+(``state_dict_from_paper``), so that the imported network computes exactly the paper model's function on our
+observations, and written as a checkpoint of this trainer with a model card.
 """
 
 from __future__ import annotations
@@ -24,75 +17,32 @@ import re
 import zipfile
 from pathlib import Path
 
-import numpy as np
 import torch
 
-from colorgrid.config import COLOR_NAMES, ROLES, EnvConfig
-from colorgrid.env import ACTION_NAMES
+from colorgrid.config import ROLES, EnvConfig
+from colorgrid.paper_format import (
+    ACTIONS_FROM_PAPER,
+    COLORS_FROM_PAPER,
+    PAPER_ACTIONS,
+    PAPER_COLORS,
+    PAPER_PLANES,
+    PAPER_SOURCE,
+    PLANES_FROM_PAPER,
+    board_from_paper,
+)
 
-PAPER_PLANES = ("red", "blue", "green", "leader", "follower")
-"""The paper code's planes (``color_maze.IDs``), in its order; its goal one-hot and auxiliary head list the
-first three."""
-PAPER_ACTIONS = ("up", "down", "left", "right")
-"""The paper code's actions (``color_maze.Moves``: y + 1, y - 1, x - 1, x + 1), named as its picture shows them."""
 COMPILED_PREFIX = "_orig_mod."
 """What ``torch.compile`` puts before every key of a compiled model's state dict."""
 HIDDEN = 192
 """The paper network's width (projection, feature layers and LSTM)."""
-PAPER_SOURCE = "andreyrisukhin/ColorGrid (run_ppo.py)"
-
-PAPER_COLORS = PAPER_PLANES[:3]
-OUR_PLANES = (*COLOR_NAMES[:len(PAPER_COLORS)], "leader", "follower")
-PLANES_FROM_PAPER = [PAPER_PLANES.index(name) for name in OUR_PLANES]
-"""Our plane ``k`` is the paper's plane ``PLANES_FROM_PAPER[k]``."""
-COLORS_FROM_PAPER = PLANES_FROM_PAPER[:len(PAPER_COLORS)]
-"""Our color ``k`` (goal one-hot column, auxiliary output) is the paper's color ``COLORS_FROM_PAPER[k]``."""
-ACTIONS_FROM_PAPER = [PAPER_ACTIONS.index(name) for name in ACTION_NAMES[:len(PAPER_ACTIONS)]]
-"""Our action ``a`` is the paper's action ``ACTIONS_FROM_PAPER[a]``."""
-
-
-def board_from_paper(planes: np.ndarray | torch.Tensor) -> np.ndarray | torch.Tensor:
-    """Boards indexed ``[..., x, y]`` to ``[..., row, col]``: ``ours[..., r, c] = paper[..., c, Y - 1 - r]``."""
-    if isinstance(planes, torch.Tensor):
-        return torch.rot90(planes, 1, dims=(-2, -1))
-    return np.rot90(planes, 1, axes=(-2, -1))
-
-
-def observation_from_paper(planes: np.ndarray) -> np.ndarray:
-    """The paper's observations ``[..., 5, X, Y]`` (0/1, any dtype) as ours, ``[..., 5, H, W]`` uint8."""
-    planes = np.asarray(planes)
-    if planes.shape[-3] != len(PAPER_PLANES):
-        raise ValueError(f"the paper's observations have {len(PAPER_PLANES)} planes {list(PAPER_PLANES)}, "
-                         f"got shape {list(planes.shape)}")
-    return np.ascontiguousarray(board_from_paper(planes[..., PLANES_FROM_PAPER, :, :])).astype(np.uint8)
-
-
-def colors_from_paper(values: np.ndarray) -> np.ndarray:
-    """Anything with one column per color in the paper's order (goal one-hots, auxiliary logits), ``[..., 3]``,
-    in ours."""
-    return np.asarray(values)[..., COLORS_FROM_PAPER]
-
-
-def action_values_from_paper(values: np.ndarray) -> np.ndarray:
-    """One column per action in the paper's order (its logits), ``[..., 4]``, in ours."""
-    return np.asarray(values)[..., ACTIONS_FROM_PAPER]
-
-
-def actions_from_paper(actions: np.ndarray) -> np.ndarray:
-    """The paper's action indices as ours (the same moves)."""
-    return np.argsort(ACTIONS_FROM_PAPER)[np.asarray(actions)]
-
-
-def cells_from_paper(xy: np.ndarray, height: int) -> np.ndarray:
-    """Positions ``[..., 2]`` as the paper's env holds them, ``(x, y)``, to our ``(row, col)``."""
-    xy = np.asarray(xy)
-    return np.stack([height - 1 - xy[..., 1], xy[..., 0]], axis=-1)
 
 
 # The paper model's weights ------------------------------------------------------------------------
 
-def paper_shapes(lstm: bool, env: EnvConfig = EnvConfig()) -> dict[str, tuple[int, ...]]:
-    """The keys and shapes of the state dict of the paper code's ``ActorCritic`` (``use_lstm``: ``lstm``)."""
+def paper_shapes(lstm: bool, env: EnvConfig | None = None) -> dict[str, tuple[int, ...]]:
+    """The keys and shapes of the state dict of the paper code's ``ActorCritic`` (``use_lstm``: ``lstm``) for
+    ``env``'s board (default: the paper's 32x32)."""
+    env = env or EnvConfig()
     C, P = len(PAPER_COLORS), len(PAPER_PLANES)
     flat = 64 * (env.height - 6) * (env.width - 6)
     layers = {"conv_network.0": (32, P, 3, 3), "conv_network.2": (64, 32, 3, 3), "conv_network.4": (64, 64, 3, 3),
@@ -142,8 +92,9 @@ def check_paper_state_dict(state: object, what: str, role: str) -> PaperWeights:
     expected = (f"expected the model state dict that the paper's run_ppo.py saves as {role}_iteration=N.pth "
                 f"(keys conv_network.*, projection_linear.0.*, feature_linear.*, policy_network.*, value_network.*, "
                 f"auxiliary_goalinfo_network.*, and lstm.* with use_lstm)")
-    if not isinstance(state, dict):
-        raise ValueError(f"{what} holds a {type(state).__name__}, not a state dict; {expected}")
+    if not isinstance(state, dict):  # a bad file, for the command's one line (a ValueError), not a bug
+        raise ValueError(  # noqa: TRY004
+            f"{what} holds a {type(state).__name__}, not a state dict; {expected}")
     if {"state", "param_groups"} <= set(state):
         raise ValueError(f"{what} is an optimizer's state (keys 'state', 'param_groups': run_ppo.py writes it as "
                          f"{role}_optimizer_iteration=N.pth), not a model; {expected}")
@@ -188,7 +139,7 @@ def state_dict_from_paper(state: dict[str, torch.Tensor]) -> dict[str, torch.Ten
         ours[f"encoder.convs.{i}.weight"] = board_from_paper(ours[f"encoder.convs.{i}.weight"])
     ours["encoder.convs.0.weight"] = ours["encoder.convs.0.weight"][:, PLANES_FROM_PAPER]
     projection = ours["encoder.projection.0.weight"]
-    side = int(round((projection.shape[1] / 64) ** 0.5))
+    side = round((projection.shape[1] / 64) ** 0.5)
     ours["encoder.projection.0.weight"] = board_from_paper(projection.reshape(-1, 64, side, side)).reshape(
         projection.shape[0], -1)
     goal = ours["encoder.mlp.0.weight"]
@@ -208,7 +159,7 @@ def read_paper_state_dict(path: str | Path, role: str) -> PaperWeights:
         raise FileNotFoundError(f"{path} does not exist" if not path.exists() else f"{path} is not a file")
     try:
         state = torch.load(path, map_location="cpu", weights_only=True)
-    except Exception as err:  # torch raises many types for a file it cannot read
+    except Exception as err:  # noqa: BLE001 (torch raises many types for a file it cannot read)
         if path.stat().st_size == 0:
             why = "the file is empty"
         elif not zipfile.is_zipfile(path):
@@ -265,20 +216,20 @@ def model_card(path: Path, source: dict, net, env: EnvConfig) -> str:
     lines = [
         f"# Model card: `{path.name}` (the {role}, imported from the paper's code)",
         "",
-        f"- **Source**: `{source['file']}` (sha256 `{source['sha256']}`), a state dict saved by the paper's "
-        f"{source['code']}{iteration}; {'saved after torch.compile (keys prefixed _orig_mod.); ' if source['compiled'] else ''}"
-        f"{'with' if source['lstm'] else 'without'} its LSTM.",
-        "- **Imported with**: `colorgrid checkpoint import-paper "
-        f"{source['file']} --role {role} --out {path.name} --{'asymmetric' if env.asymmetric else 'symmetric'}`",
+        (f"- **Source**: `{source['file']}` (sha256 `{source['sha256']}`), a state dict saved by the paper's "
+         f"{source['code']}{iteration}; {'saved after torch.compile (keys prefixed _orig_mod.); ' if source['compiled'] else ''}"
+         f"{'with' if source['lstm'] else 'without'} its LSTM."),
+        ("- **Imported with**: `colorgrid checkpoint import-paper "
+         f"{source['file']} --role {role} --out {path.name} --{'asymmetric' if env.asymmetric else 'symmetric'}`"),
         "- **Training**: not recorded in the file (steps, PPO settings, partner); this checkpoint's step is 0.",
-        f"- **Network**: {json.dumps(dataclasses.asdict(net))}: the paper code's network exactly, the goal one-hot "
-        "joined after the 43264->192 projection.",
-        "- **Mapped** (train/paper_code.py): planes RED, BLUE, GREEN -> red, green, blue; boards indexed [x, y] "
-        "(y up) -> [row, col] (row 0 at the top); actions UP (y+1), DOWN, LEFT, RIGHT -> up, down, left, right; "
-        "goal one-hot and auxiliary head in our color order. The weights are permuted so that the network computes "
-        "the paper model's function on this project's observations.",
-        f"- **Environment recorded**: {json.dumps(env.to_dict())}. The paper's env differs from this one in a few "
-        "rules (docs/PAPER_CODE.md).",
+        (f"- **Network**: {json.dumps(dataclasses.asdict(net))}: the paper code's network exactly, the goal one-hot "
+         "joined after the 43264->192 projection."),
+        ("- **Mapped** (colorgrid/paper_format.py): planes RED, BLUE, GREEN -> red, green, blue; boards indexed [x, y] "
+         "(y up) -> [row, col] (row 0 at the top); actions UP (y+1), DOWN, LEFT, RIGHT -> up, down, left, right; "
+         "goal one-hot and auxiliary head in our color order. The weights are permuted so that the network computes "
+         "the paper model's function on this project's observations."),
+        (f"- **Environment recorded**: {json.dumps(env.to_dict())}. The paper's env differs from this one in a few "
+         "rules (docs/PAPER_CODE.md)."),
         "",
         "Run it: " + (f"`colorgrid eval --leader {path.name} --follower bayes`" if role == "leader" else
                       f"`colorgrid eval --leader astar --follower {path.name}`; `colorgrid play --follower "
