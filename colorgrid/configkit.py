@@ -185,12 +185,20 @@ def parse_override(text: str, flag: str = "--set", example: str = "ppo.lr=3e-4")
     return key.strip().split("."), value
 
 
-def override_dict(text: str, cls=None, **kwargs) -> dict:
+def override_dict(text: str, cls=None, section: str | None = None, **kwargs) -> dict:
     """One ``KEY=VALUE`` as nested plain data; with ``cls`` the keys are checked against its fields, and
-    ``a,b`` becomes a tuple where the field is one."""
+    ``a,b`` becomes a tuple where the field is one. ``section``: the keys are named as a config holding ``cls``
+    in its field ``section`` names them (``env.horizon=64`` for ``EnvConfig`` under ``env``), and a key without
+    it is read as one under it; the data is ``cls``'s own."""
     path, value = parse_override(text, **kwargs)
+    prefix = ""
+    if section is not None and path[0] == section:
+        path, prefix = path[1:], f"{section}."
+        if not path:
+            raise ConfigError(f"{kwargs.get('flag', '--set')} {text!r}: expected {section}.KEY=VALUE, e.g. "
+                              f"{kwargs.get('example', section + '.KEY=1')}")
     if cls is not None:
-        value = _coerce(cls, path, value, text)
+        value = _coerce(cls, path, value, text, prefix)
     out: Any = value
     for part in reversed(path):
         out = {part: out}
@@ -204,18 +212,36 @@ def apply_overrides(data: dict, items, cls=None, **kwargs) -> dict:
     return data
 
 
-def _coerce(cls, path: list[str], value, text: str):
+def _coerce(cls, path: list[str], value, text: str, prefix: str = ""):
     kind = cls
     for i, part in enumerate(path):
         fields = {f.name for f in dataclasses.fields(kind)} if dataclasses.is_dataclass(kind) else set()
         if part not in fields:
             label = getattr(cls, "CONFIG_NAME", "") or cls.__name__
-            raise ConfigError(f"unknown {label} field {'.'.join(path[:i + 1])!r} in {text!r}; allowed: "
-                              f"{sorted(fields)}")
+            nested = keys_named(kind, part, prefix + "".join(f"{p}." for p in path[:i]))
+            hint = f" (did you mean {' or '.join(nested)}?)" if nested else ""
+            raise ConfigError(f"unknown {label} field {prefix + '.'.join(path[:i + 1])!r} in {text!r}{hint}; "
+                              f"allowed: {sorted(fields)}")
         kind = _plain_type(typing.get_type_hints(kind)[part])
     if _is_tuple(kind) and isinstance(value, str):
         return tuple(v for v in value.split(",") if v)
     return value
+
+
+def keys_named(cls, name: str, prefix: str = "") -> list[str]:
+    """The dotted keys of the fields called ``name`` inside the dataclass ``cls``'s nested sections:
+    ``keys_named(TrainConfig, "block_density")`` is ``["env.block_density"]``."""
+    if not dataclasses.is_dataclass(cls):
+        return []
+    found = []
+    hints = typing.get_type_hints(cls)
+    for f in dataclasses.fields(cls):
+        section = _plain_type(hints[f.name])
+        if dataclasses.is_dataclass(section):
+            key = f"{prefix}{f.name}."
+            found += [key + name] if name in {g.name for g in dataclasses.fields(section)} else []
+            found += keys_named(section, name, key)
+    return found
 
 
 # ----------------------------------------------------------------- presets

@@ -1,4 +1,4 @@
-"""EnvConfig on the command line: ``--preset NAME`` or ``--config FILE.json`` plus ``--set key=value``."""
+"""EnvConfig on the command line: ``--preset NAME`` or ``--config FILE.json`` plus ``--set env.KEY=VALUE``."""
 
 from __future__ import annotations
 
@@ -10,21 +10,31 @@ from colorgrid.configkit import apply_overrides
 from colorgrid.files import JSONFileError, read_json_object
 from colorgrid.presets import PRESETS, env_config
 
+ENV_SECTION = "env"
+"""Env settings are named ``env.KEY`` on every command line: ``colorgrid train`` and sweep files hold the env
+under ``env`` in the training config, and ``eval``, ``demo`` and ``replay import`` take the same keys."""
+
+
 def add_config_arguments(parser: argparse.ArgumentParser) -> None:
     group = parser.add_argument_group("environment")
     group.add_argument("--preset", default="default", choices=sorted(PRESETS), help="named setting (default: %(default)s)")
     group.add_argument("--config", type=Path, help="JSON file of EnvConfig fields")
-    group.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                       help="override one EnvConfig field, e.g. --set goal_reward=4 (repeatable)")
+    group.add_argument("--set", action="append", default=[], metavar="env.KEY=VALUE",
+                       help="override one env setting (an EnvConfig field), e.g. --set env.goal_reward=4 "
+                            "(repeatable); named as colorgrid train and sweep files name it (env.KEY; a bare KEY "
+                            "also works here)")
 
 
 def parse_overrides(items: list[str]) -> dict:
-    """``["a=1", "b=true"]`` -> ``{"a": 1, "b": True}``: EnvConfig fields, values parsed as JSON when they can be
-    (the same parser as the trainer's ``--set``; ``distance_penalty_agents=leader,follower`` gives a tuple)."""
-    return apply_overrides({}, items, EnvConfig, example="goal_reward=4")
+    """``["env.a=1", "env.b=true"]`` -> ``{"a": 1, "b": True}``: EnvConfig fields, values parsed as JSON when they
+    can be (the same parser as the trainer's ``--set``; ``env.distance_penalty_agents=leader,follower`` gives a
+    tuple). A key without ``env.`` (``a=1``, as these commands took it before) is read as ``env.a``: only env
+    settings are set here, so it names nothing else."""
+    return apply_overrides({}, items, EnvConfig, section=ENV_SECTION, example="env.goal_reward=4")
 
 
-def config_from_args(args: argparse.Namespace) -> EnvConfig:
+def config_changes(args: argparse.Namespace) -> dict:
+    """The EnvConfig fields that ``--config`` and ``--set`` give (``--set`` last), on top of ``--preset``."""
     changes = {}
     if args.config is not None:
         try:
@@ -32,4 +42,8 @@ def config_from_args(args: argparse.Namespace) -> EnvConfig:
         except JSONFileError as err:
             raise ValueError(f"--config {err}") from None
     changes.update(parse_overrides(args.set))
-    return env_config(args.preset, **changes)
+    return changes
+
+
+def config_from_args(args: argparse.Namespace) -> EnvConfig:
+    return env_config(args.preset, **config_changes(args))

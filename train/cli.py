@@ -20,7 +20,8 @@ def add_train_commands(sub) -> None:
     train.add_argument("--preset", default="default", help=f"one of {preset_names()} or a JSON file")
     train.add_argument("--config", help="a JSON file of settings applied on top of the preset")
     train.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                       help="override one setting, e.g. ppo.lr=3e-4, follower.net.lstm=true, env.asymmetric=false")
+                       help="override one setting, e.g. ppo.lr=3e-4, follower.net.lstm=true, env.asymmetric=false "
+                            "(env settings are env.KEY here, in sweep files, and on eval, demo and replay import)")
     train.add_argument("--out", help="run directory (default runs/<preset>-<time>)")
     train.add_argument("--resume", metavar="RUN_DIR", help="continue a run from RUN_DIR/checkpoints/latest.pt")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
