@@ -55,6 +55,8 @@ def observation_from_paper(planes: np.ndarray) -> np.ndarray:
     if planes.ndim < 3 or planes.shape[-3] != len(PAPER_PLANES):
         raise ValueError(f"the paper's observations have {len(PAPER_PLANES)} planes {list(PAPER_PLANES)}, "
                          f"got shape {list(planes.shape)}")
+    if not np.isin(planes, (0, 1)).all():
+        raise ValueError("the paper's observations hold only 0s and 1s (a cell holds a block or an agent, or not)")
     return np.ascontiguousarray(board_from_paper(planes[..., PLANES_FROM_PAPER, :, :])).astype(np.uint8)
 
 

@@ -6,9 +6,11 @@ import argparse
 import json
 from pathlib import Path
 
+from colorgrid.presets import env_config
 from colorgrid.replay.format import SUFFIX
+from colorgrid.replay.paper_dumps import LAYOUTS
 from colorgrid.resources import find_shipped, shipped, shipped_names
-from colorgrid_apps.cli_env import add_config_arguments, config_from_args
+from colorgrid_apps.cli_env import add_config_arguments, config_changes
 
 
 def _replay_files(target: Path) -> list[Path]:
@@ -81,26 +83,51 @@ def cmd_info(args: argparse.Namespace) -> int:
 
 
 def cmd_import(args: argparse.Namespace) -> int:
-    import numpy as np
+    """One dumped episode to a replay file, or a folder of the paper code's dumps to a folder with an index."""
+    import shlex
 
-    from colorgrid.replay import import_frames, save
+    from colorgrid.replay import save
+    from colorgrid.replay.frames import describe_frames
+    from colorgrid.replay.index import INDEX_NAME
+    from colorgrid.replay.paper_dumps import import_folder, import_trajectory, paper_dump
 
-    config = config_from_args(args)
-    try:
-        planes, goal_info = np.load(args.trajectory), np.load(args.goal_info)
-    except (OSError, ValueError) as err:
-        raise ValueError(f"cannot read the .npy inputs: {err}") from None
-    replay = import_frames(config, planes, goal_info, meta={"imported_from": Path(args.trajectory).name})
-    out = save(replay, args.out)
-    print(f"wrote {out} ({replay.num_steps} steps, frames replay)")
+    changes = config_changes(args)
+    config, fixed_density = env_config(args.preset, **changes), "block_density" in changes
+    source, out = Path(args.trajectory), Path(args.out)
+    if source.is_dir():
+        if args.goal_info is not None or args.layout == "colorgrid":
+            raise ValueError(f"{source} is a folder: its paper-code dumps are paired by name (give no GOAL_INFO "
+                             f"and no --layout colorgrid)")
+        if out.name.endswith(SUFFIX):
+            raise ValueError(f"--out {out}: a folder for the replays and their {INDEX_NAME}, not one replay file")
+        settings = [*(["--preset", args.preset] if args.preset != "default" else []),
+                    *(["--config", str(args.config)] if args.config else []), *(f"--set={s}" for s in args.set)]
+        command = shlex.join(["colorgrid", "replay", "import", str(source), "--out", str(out), *settings])
+        written = import_folder(config, source, out, command, fixed_density)
+        for path, replay in written:
+            print(f"wrote {path} ({describe_frames(replay)})")
+        print(f"wrote {out / INDEX_NAME}: {len(written)} replays of {source}")
+        return 0
+    if not out.name.endswith(SUFFIX):
+        raise ValueError(f"--out {out}: a replay file ending in {SUFFIX} (a folder of dumps writes a folder)")
+    dump = paper_dump(source)
+    layout = args.layout or ("paper" if dump else "colorgrid")
+    if args.goal_info is None and dump is None:
+        raise ValueError(f"{source}: give its goal one-hots (GOAL_INFO) too; only a dump named as the paper's "
+                         f"run_ppo.py names them (trajectory_iteration=I_env=E.npy) finds its own")
+    goal_info = Path(args.goal_info) if args.goal_info is not None else dump.goal_info
+    meta = {"iteration": dump.iteration, "env": dump.env} if dump else {}
+    replay = import_trajectory(config, source, goal_info, layout, fixed_density, meta)
+    save(replay, out)
+    print(f"wrote {out} (frames replay of {layout} layout: {describe_frames(replay)})")
     return 0
 
 
 def cmd_release(args: argparse.Namespace) -> int:
     from colorgrid_apps.release import build_release
 
-    index = build_release(Path(args.out), episodes=args.episodes, gifs=Path(args.gifs) if args.gifs else None)
-    print(f"wrote {len(index['replays'])} replays and {args.out}/index.json")
+    entries = build_release(Path(args.out), episodes=args.episodes, gifs=Path(args.gifs) if args.gifs else None)
+    print(f"wrote {len(entries)} replays and {args.out}/index.json")
     return 0
 
 
@@ -116,8 +143,8 @@ def cmd_list(args: argparse.Namespace) -> int:
 def cmd_export(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from colorgrid_apps.export import default_output, export
     from colorgrid.replay import load
+    from colorgrid_apps.export import default_output, export
 
     files = _replay_files(Path(args.target))
     out = Path(args.out) if args.out else None
@@ -172,10 +199,29 @@ def add_replay_commands(sub) -> None:
     info = rsub.add_parser("info", help="print a replay's header and totals, with one entry per agent (team)")
     info.add_argument("file")
     info.set_defaults(func=cmd_info)
-    imp = rsub.add_parser("import", help="import a frames-only trajectory (observation planes + goal one-hots)")
-    imp.add_argument("trajectory", help=".npy of shape [T+1, C+A, H, W] (or [T+1, A, C+A, H, W]); A agents, 2 in 1:1")
-    imp.add_argument("goal_info", help=".npy of shape [T+1, C]: the leader's one-hot goal per frame")
-    imp.add_argument("--out", required=True, help="replay file to write (*.replay.json)")
+    imp = rsub.add_parser(
+        "import", help="import the paper code's trajectory dumps (a file, or a trajectories/<run> folder) or other "
+                       "observation arrays as frames replays",
+        description="Import observation frames as frames replays (docs/PAPER_CODE.md). A folder of the paper's "
+                    "run_ppo.py dumps (trajectory_iteration=I_env=E.npy with goal_info_iteration=I_env=E.npy) is "
+                    "paired by iteration and env and written to the --out folder as iterationI_envE.replay.json "
+                    "with an index.json; one file is written to --out FILE.replay.json. The paper's planes, "
+                    "[x, y] boards and color order are mapped (its blue stays blue); the block density is read from "
+                    "the frames (17 blocks of each color: 0.05; 34: 0.10). Examples: colorgrid replay import "
+                    "trajectories/run1 --out replays/run1; colorgrid replay import "
+                    "trajectory_iteration=0_env=0.npy --out ep.replay.json")
+    imp.add_argument("trajectory", metavar="TRAJECTORY_OR_DIR",
+                     help="a trajectories/<run> folder of the paper's dumps, or one .npy of frames [T+1, C+A, H, W] "
+                          "(or [T+1, A, C+A, H, W]; A agents, 2 in 1:1)")
+    imp.add_argument("goal_info", metavar="GOAL_INFO", nargs="?",
+                     help="one file's .npy [T+1, C]: the leader's one-hot goal per frame (default for a dump named "
+                          "trajectory_iteration=I_env=E.npy: the goal_info_iteration=I_env=E.npy beside it)")
+    imp.add_argument("--out", required=True, help="the replay file to write (*.replay.json), or for a folder the "
+                                                  "folder to write the replays and index.json into")
+    imp.add_argument("--layout", choices=LAYOUTS,
+                     help="how one file's planes are laid out: paper (run_ppo.py's: RED, BLUE, GREEN, [x, y]) or "
+                          "colorgrid (this project's observations); default: paper for a file named as run_ppo.py "
+                          "names its dumps, else colorgrid")
     add_config_arguments(imp)
     imp.set_defaults(func=cmd_import)
     br = rsub.add_parser("branch", help="continue a replay from step T with another follower (what-if)")

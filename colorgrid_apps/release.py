@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 from colorgrid.policies import make_policy
 from colorgrid.presets import env_config
 from colorgrid.replay import load
+from colorgrid.replay.index import index_entry, write_index
 from colorgrid.rollout import run_episodes
 from colorgrid_apps.evaluate import record_batch
 
@@ -26,8 +26,9 @@ RELEASE_SEED = 2026
 GIF_SETTINGS = ("default", "stationary", "reward_4_1")  # the symmetric episodes look like the default ones
 
 
-def build_release(out: Path, episodes: int = 2, gifs: Path | None = None) -> dict:
-    """Record ``episodes`` episodes of the A* leader with each follower in each setting; write index.json."""
+def build_release(out: Path, episodes: int = 2, gifs: Path | None = None) -> list[dict]:
+    """Record ``episodes`` episodes of the A* leader with each follower in each setting; write index.json and
+    return its entries."""
     out.mkdir(parents=True, exist_ok=True)
     entries = []
     for setting, setting_text in SETTINGS.items():
@@ -39,16 +40,12 @@ def build_release(out: Path, episodes: int = 2, gifs: Path | None = None) -> dic
             paths = record_batch(batch, "astar", follower, leader_policy, follower_policy, folder, "eval",
                                  meta={"setting": setting})
             for path in paths:
-                replay = load(path)
-                entries.append({
-                    "file": str(path.relative_to(out)), "setting": setting, "config": replay.config.to_dict(),
-                    "agents": replay.agents, "seed": replay.seed, "final": replay.final(),
-                    "description": f"A* leader with the {follower} follower ({follower_text}); {setting_text}.",
-                })
+                entries.append(index_entry(load(path), path.relative_to(out).as_posix(), setting=setting,
+                                           description=f"A* leader with the {follower} follower ({follower_text}); "
+                                                       f"{setting_text}."))
             if gifs is not None and follower == "bayes" and setting in GIF_SETTINGS:
                 from colorgrid_apps.export import export
 
                 export(load(paths[0]), gifs / f"{setting}_astar+bayes.gif", "gif", cell=8)
-    index = {"generated_by": f"colorgrid replay release --out {out} --episodes {episodes}", "replays": entries}
-    (out / "index.json").write_text(json.dumps(index, indent=2))
-    return index
+    write_index(out, entries, f"colorgrid replay release --out {out} --episodes {episodes}")
+    return entries

@@ -13,7 +13,7 @@ import json
 import math
 import os
 from dataclasses import dataclass, field
-from datetime import datetime, timezone
+from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
@@ -57,7 +57,7 @@ class Replay:
     penalty_coef: float = 1.0  # the penalty coefficient in force during the episode
     ended: str = "complete"  # "complete", or why it stopped early ("disconnected", "idle", ...)
     key_events: list | None = None  # human games: key log (see docs/SERVER_PROTOCOL.md)
-    created: str = field(default_factory=lambda: datetime.now(timezone.utc).isoformat(timespec="seconds"))
+    created: str = field(default_factory=lambda: datetime.now(UTC).isoformat(timespec="seconds"))
     env_id: str | None = None  # None: the config's (``EnvConfig.env_id``)
     meta: dict = field(default_factory=dict)  # free-form: description, game id, ...
 
@@ -105,7 +105,7 @@ class Replay:
         return body
 
     @classmethod
-    def from_document(cls, doc: Any, path=None) -> "Replay":
+    def from_document(cls, doc: Any, path=None) -> Replay:
         """A replay from a parsed file; a document that is not a valid replay raises ``ReplayError``."""
         if not isinstance(doc, dict) or doc.get("format") != FORMAT_NAME:
             raise ReplayError(path, f"not a ColorGrid replay (expected \"format\": \"{FORMAT_NAME}\")")
@@ -192,6 +192,12 @@ class Replay:
             require(all(isinstance(b, str) and len(b) == cells and set(b) <= digits for b in frames["blocks"]),
                     f"frames.blocks must be strings of {cells} characters, each '.' or a color digit below {C}")
             require(all(_is_int(g) and 0 <= g < C for g in frames["goal"]), f"frames.goal must hold colors in [0, {C})")
+            per_color = cfg.blocks_per_color  # a state numbers its blocks color by color (EnvState.block_colors)
+            wrong = next(((t, k, b.count(str(k))) for t, b in enumerate(frames["blocks"]) for k in range(C)
+                          if b.count(str(k)) != per_color), None)
+            require(wrong is None, "" if wrong is None else
+                    f"frames.blocks[{wrong[0]}] holds {wrong[2]} {cfg.color_names[wrong[1]]} blocks, but the config's "
+                    f"block_density {cfg.block_density:g} gives {per_color} of each color")
             present = [name for name in columns[1:4] if getattr(self, name) is not None]
             require(len(present) in (0, 3), "steps.block_reward, team_reward and picked_color come together "
                                             "(all three or none)")
@@ -268,11 +274,10 @@ def checksum(body: dict) -> str:
 def save(replay: Replay, path: str | os.PathLike) -> Path:
     """Write atomically: a temporary file in the same folder, flushed and fsynced, then renamed into place."""
     data = json.dumps(replay.to_document(), separators=(",", ":"), allow_nan=False).encode()
-    with atomic_path(path) as tmp:
-        with open(tmp, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
+    with atomic_path(path) as tmp, open(tmp, "wb") as f:
+        f.write(data)
+        f.flush()
+        os.fsync(f.fileno())
     return Path(path)
 
 
@@ -309,4 +314,4 @@ def file_sha256(path: str | os.PathLike) -> str:
     return _SHA256[key]
 
 
-__all__ = ["FORMAT_VERSION", "Replay", "ReplayError", "SUFFIX", "describe_agent", "load", "save"]
+__all__ = ["FORMAT_VERSION", "SUFFIX", "Replay", "ReplayError", "describe_agent", "load", "save"]

@@ -1,4 +1,4 @@
-"""Turning replays back into states: re-simulation, verification, frames, recording."""
+"""Turning replays back into states: re-simulation, verification, frames; recording a batch as replays."""
 
 from __future__ import annotations
 
@@ -6,7 +6,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from colorgrid.config import LEADER, EnvConfig
 from colorgrid.env import BatchEnv
 from colorgrid.replay.format import Replay, ReplayError
 from colorgrid.rollout import EpisodeBatch
@@ -102,40 +101,3 @@ def from_batch(batch: EpisodeBatch, agents: dict, source: str, penalty_coef: flo
         ))
     return replays
 
-
-def import_frames(config: EnvConfig, planes: np.ndarray, goal_info: np.ndarray, meta: dict | None = None) -> Replay:
-    """A frames replay from observation arrays, such as the paper's trajectory dumps.
-
-    planes: ``[T+1, C+A, H, W]`` (or ``[T+1, A, C+A, H, W]``, the first leader's view is used),
-    0/1 per cell; goal_info: ``[T+1, C]`` (or ``[T+1, A, C]``) one-hot goal per frame (the leader's view).
-    """
-    planes = np.asarray(planes)
-    goal_info = np.asarray(goal_info)
-    if planes.ndim == 5:
-        planes = planes[:, LEADER]
-    C, A, H, W = config.num_colors, config.num_agents, config.height, config.width
-    if planes.ndim != 4 or planes.shape[1:] != (config.num_planes, H, W):
-        raise ReplayError(None, f"trajectory must have shape [T, {config.num_planes}, {H}, {W}] for this config, "
-                                f"got {list(planes.shape)}")
-    if goal_info.ndim == 3:
-        goal_info = goal_info[:, LEADER]
-    if goal_info.shape != (planes.shape[0], C):
-        raise ReplayError(None, f"goal info must have shape [{planes.shape[0]}, {C}], got {list(goal_info.shape)}")
-    if planes.shape[0] < 2:
-        raise ReplayError(None, "a trajectory needs at least 2 frames (one step)")
-    if not (goal_info.sum(axis=1) == 1).all():
-        raise ReplayError(None, "goal info rows must be one-hot (the leader's view of the goal)")
-    blocks, cells = [], []
-    for t, frame in enumerate(planes):
-        agent_counts = frame[C:].reshape(A, -1).sum(axis=1)
-        if not (agent_counts == 1).all():
-            raise ReplayError(None, f"frame {t}: each agent plane must mark exactly one cell")
-        color = np.where(frame[:C].any(axis=0), frame[:C].argmax(axis=0), -1).ravel()
-        blocks.append(encode_blocks(color))
-        cells.append(frame[C:].reshape(A, -1).argmax(axis=1).tolist())
-    goals = goal_info.argmax(axis=1).astype(int).tolist()
-    T = planes.shape[0] - 1
-    return Replay(config=config, seed=None, source="import", agents={name: {"policy": "unknown"} for name in config.agent_names},
-                  actions=None, goal=goals[:T], block_reward=None,
-                  team_reward=None, picked_color=None, goal_switched=None,
-                  frames={"agent_cell": cells, "blocks": blocks, "goal": goals}, meta=dict(meta or {}))
