@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import json
+import sqlite3
 import subprocess
 import sys
 import tomllib
@@ -139,27 +140,27 @@ def test_williams_squares_balance_positions_and_neighbours(n):
     assert len(neighbours) == n * (n - 1)
 
 
-def test_assignment_is_balanced_over_many_participants_and_quotas_hold(tmp_path):
+def test_assignment_is_balanced_over_many_participants_and_quotas_hold(study_database):
     data = example()
     data["max_participants"] = 1000
     data["design"]["quota"] = 60
     study = parse_study(data)
-    service = StudyService(study, StudyStore(tmp_path / "s.sqlite", study.id, study_hash(study)))
+    service = StudyService(study, StudyStore(study_database, study.id, study_hash(study)))
     for i in range(150):
         service.join({"PROLIFIC_PID": f"p{i}"}, None, "test")
-    arms = Counter(r["arm"] for r in service.store.rows("SELECT arm FROM participants"))
+    arms = Counter(r["arm"] for r in service.store.participants())
     assert sorted(arms) == [0, 1, 2, 3] and max(arms.values()) - min(arms.values()) <= 1, arms
     for i in range(150, 240):
         service.join({"PROLIFIC_PID": f"p{i}"}, None, "test")
     with pytest.raises(Refused, match="the study is full"):  # 4 arms x quota 60
         service.join({"PROLIFIC_PID": "one-too-many"}, None, "test")
-    orders = {tuple(json.loads(r["conditions"])) for r in service.store.rows("SELECT conditions FROM participants")}
+    orders = {tuple(json.loads(r["conditions"])) for r in service.store.participants()}
     assert orders == {tuple(r) for r in williams(4)}
 
 
-def test_a_participant_id_cannot_start_over_and_its_own_browser_resumes(tmp_path):
+def test_a_participant_id_cannot_start_over_and_its_own_browser_resumes(study_database):
     study = load_study(EXAMPLE)
-    service = StudyService(study, StudyStore(tmp_path / "s.sqlite", study.id, study_hash(study)))
+    service = StudyService(study, StudyStore(study_database, study.id, study_hash(study)))
     first = service.join({"PROLIFIC_PID": "p1", "STUDY_ID": "s1"}, None, "browser A")
     assert service.join({"PROLIFIC_PID": "p1"}, first["session"], "browser A") == first
     with pytest.raises(Refused, match="already started the study; it cannot start again"):
@@ -169,7 +170,7 @@ def test_a_participant_id_cannot_start_over_and_its_own_browser_resumes(tmp_path
     with pytest.raises(Refused, match="no participant id"):
         service.join({"other": "x"}, None, "browser C")
     resuming = parse_study({**example(), "returning": "resume"})
-    again = StudyService(resuming, StudyStore(tmp_path / "s.sqlite", study.id, study_hash(resuming)))
+    again = StudyService(resuming, StudyStore(study_database, study.id, study_hash(resuming)))
     assert again.join({"PROLIFIC_PID": "p1"}, None, "browser B")["session"] == first["session"]
 
 
@@ -420,6 +421,7 @@ text = "Thank you."
 def test_every_exported_table_has_the_declared_columns_and_types_in_parquet_and_csv(tmp_path):
     import pyarrow.parquet as pq
 
+    from server.study.export import tables as export_tables
     from server.study.export import write_tables
     from server.study.schema import SCHEMA_FILE, check_arrow, check_frame, export_schema, read_csv
 
@@ -451,8 +453,15 @@ def test_every_exported_table_has_the_declared_columns_and_types_in_parquet_and_
         stop_server(server)
 
     out = tmp_path / "export"  # the command is run in the test above; here the function it calls
-    counts = write_tables(study, server.replays_dir / "study.sqlite", server.replays_dir, out)
+    database = server.replays_dir / "study.sqlite"
+    counts = write_tables(study, database, server.replays_dir, out)
     assert counts["trials"] == 10 and counts["participants"] == 3
+    # the figures the server stored at each game's end are those its replay file gives (games recorded before)
+    stored = export_tables(study, database, server.replays_dir)["trials"]
+    with sqlite3.connect(database) as db:
+        db.execute("UPDATE games SET steps = NULL")
+    pd.testing.assert_frame_equal(export_tables(study, database, server.replays_dir)["trials"], stored)
+    assert stored.follower_net_pickups.notna().all() and stored.belief_accuracy.notna().any()
     declared = export_schema(study)
     assert json.loads((out / SCHEMA_FILE).read_text())["tables"]["answers"]["questions"]["after_trial"][0]["scale"] == 5
     tables = {}

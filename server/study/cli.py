@@ -26,18 +26,25 @@ class StudySetup:
 
     study: Study
     study_file: Path
-    db_path: Path
+    database: str | Path
+    """The study's database: an SQLite file, or a URL (``server.study.store.database_url``)."""
     admin_token: str
 
-    def service(self):
-        from server.study.service import StudyService, study_hash
+    def store(self):
+        """The study's database, opened (created, or brought to the current schema) and checked."""
+        from server.study.service import study_hash
         from server.study.store import StudyStore
 
-        store = StudyStore(self.db_path, self.study.id, study_hash(self.study))
+        return StudyStore(self.database, self.study.id, study_hash(self.study))
+
+    def service(self):
+        from server.study.service import StudyService
+
+        store = self.store()
         if store.changed_study:
             logging.getLogger("colorgrid.server").warning(
                 "%s was made with another version of %s: participants who started keep their assignment, but "
-                "changed pages or conditions apply to everyone from now on", self.db_path, self.study_file)
+                "changed pages or conditions apply to everyone from now on", store.name, self.study_file)
         return StudyService(self.study, store)
 
 
@@ -51,13 +58,31 @@ def study_path(text: str) -> Path:
     return find_shipped(text, "studies", ".toml")
 
 
+def add_database_arguments(parser) -> None:
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--db", type=Path, metavar="PATH", help="the study's SQLite database (default: study.sqlite in "
+                       "the replays folder)")
+    where.add_argument("--database", metavar="URL", help="the study's database as a URL: "
+                       "postgresql+psycopg://USER@HOST:PORT/DB (several servers share it) or sqlite:///PATH")
+
+
+def study_database(args: argparse.Namespace, folder: Path) -> str | Path:
+    """The database the flags name (a URL is checked here), else ``study.sqlite`` in the study's folder."""
+    if args.database is not None:
+        from server.study.store import database_url
+
+        database_url(args.database)
+        return args.database
+    return args.db or folder / "study.sqlite"
+
+
 def add_study_commands(sub) -> None:
     study = sub.add_parser("study", help="run a human study from a study file, and export its data")
     commands = study.add_subparsers(dest="study_command", required=True)
     run = commands.add_parser("run", help="serve the study: participants open /study?PROLIFIC_PID=..., the admin /study/admin")
     run.add_argument("study_file", type=study_path, help="the study file (TOML; see docs/STUDIES.md), or the name of "
                      "a shipped example (belief_display)")
-    run.add_argument("--db", type=Path, help="the study's SQLite database (default: study.sqlite in the replays folder)")
+    add_database_arguments(run)
     add_arguments(run, ServerSettings, FLAGS, skip=("replays_dir",))
     run.add_argument("--replays-dir", type=Path, help="where the games are recorded (default: recordings/STUDY_ID)")
     run.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
@@ -66,7 +91,7 @@ def add_study_commands(sub) -> None:
     export.add_argument("study_file", type=study_path, help="the study file the study ran with (or its shipped name)")
     export.add_argument("--out", type=Path, required=True, help="the folder to write the tables to")
     export.add_argument("--replays-dir", type=Path, help="the study's replays folder (default: recordings/STUDY_ID)")
-    export.add_argument("--db", type=Path, help="the study's database (default: study.sqlite in the replays folder)")
+    add_database_arguments(export)
     export.set_defaults(func=cmd_export)
 
 
@@ -82,10 +107,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     for follower in sorted(study.followers):
         check_follower(follower)
     token = os.environ.get(ADMIN_TOKEN_ENV) or secrets.token_urlsafe(18)
-    setup = StudySetup(study, args.study_file.resolve(), args.db or folder / "study.sqlite", token)
+    setup = StudySetup(study, args.study_file.resolve(), study_database(args, folder), token)
+    store = setup.store()  # a database of another study or schema stops here, in one line
+    where = store.name
+    store.close()
     base = f"http://{settings.host}:{settings.port}"
     print(f"ColorGrid study {study.id!r}: {len(study.conditions)} conditions, {study.design.assignment} subjects; "
-          f"data in {setup.db_path} and {folder}", flush=True)
+          f"data in {where} and {folder}", flush=True)
     print(f"  participants: {base}/study?{study.id_params[0]}=PARTICIPANT_ID", flush=True)
     print(f"  admin:        {base}/study/admin   token: {token}  (never put it in a participant's link)", flush=True)
     serve(settings, log_level=args.log_level, study=setup)
@@ -97,10 +125,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
     study = load_study(args.study_file)
     folder = study_folder(study, args.replays_dir)
-    db = args.db or folder / "study.sqlite"
-    if not db.is_file():
-        raise ValueError(f"{db}: no study database (run the study first, or pass --db / --replays-dir)")
-    counts = write_tables(study, db, folder, args.out)
+    counts = write_tables(study, study_database(args, folder), folder, args.out)
     print(f"wrote {', '.join(f'{name} ({n} rows)' for name, n in counts.items())} to {args.out} "
           "as .parquet and .csv", flush=True)
     return 0

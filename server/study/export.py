@@ -4,40 +4,33 @@ Six tables, each written as Parquet and CSV, of the columns and types declared i
 ``server.study.schema`` (listed in docs/STUDIES.md, "Data dictionary"):
 ``participants``, ``trials`` (one row per game played, practice included), ``steps`` (one row
 per game step), ``keys`` (the key log with reaction times), ``answers`` and ``focus`` (the page's
-focus and visibility changes during games). Games are read back from their replay files and
-re-simulated, so positions come from the rules, not from what the page showed. Every table carries
-the participant's arm and the condition of the row's game or trial, so a ``groupby`` needs no join.
+focus and visibility changes during games). The database is read through ``server.study.store``
+(SQLite or PostgreSQL alike). A game's figures in ``trials`` are those stored when it ended
+(``server.study.figures``); games recorded before have them computed from their replays, the same
+way. The per-step tables read the replay files back and re-simulate them, so positions come from
+the rules, not from what the page showed. Every table carries the participant's arm and the
+condition of the row's game or trial, so a ``groupby`` needs no join.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import json
-import sqlite3
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
-from colorgrid.config import AGENTS, FOLLOWER, LEADER
+from colorgrid.config import AGENTS, FOLLOWER
 from colorgrid.replay import load
 from colorgrid.replay.simulate import replay_states
 from colorgrid.replay.timeline import reaction_times
 from server.study.assign import arm_labels, arms
 from server.study.config import Study
+from server.study.figures import FIGURES, SCORES, game_figures, score_figures
 from server.study.schema import SCHEMA_FILE, conform, export_schema, questions_metadata, sidecar, write_parquet
+from server.study.store import read_tables
 
 TABLES = ("participants", "trials", "steps", "keys", "answers", "focus")
-
-
-def read_db(db: Path) -> dict[str, list[dict]]:
-    con = sqlite3.connect(f"file:{db}?mode=ro", uri=True)
-    con.row_factory = sqlite3.Row
-    try:
-        return {name: [dict(r) for r in con.execute(f"SELECT * FROM {name}")]
-                for name in ("participants", "games", "answers")}
-    finally:
-        con.close()
 
 
 def _time(seconds) -> pd.Timestamp | None:
@@ -52,9 +45,10 @@ def _condition(study: Study, index: int | None, settings: dict | None = None) ->
             **{f"condition_{k}": v for k, v in settings.items()}}
 
 
-def tables(study: Study, db: Path, replays_dir: Path) -> dict[str, pd.DataFrame]:
-    """The six tables as pandas DataFrames, each of the columns and types ``export_schema`` declares."""
-    data = read_db(db)
+def tables(study: Study, database: str | Path, replays_dir: Path) -> dict[str, pd.DataFrame]:
+    """The six tables as pandas DataFrames, each of the columns and types ``export_schema`` declares.
+    ``database``: the study's SQLite file or its URL (``server.study.store.database_url``)."""
+    data = read_tables(database, study.id)
     labels, arm_list = arm_labels(study), arms(study)
     between = study.design.assignment == "between"
     people = {p["pid"]: p for p in data["participants"]}
@@ -77,33 +71,24 @@ def tables(study: Study, db: Path, replays_dir: Path) -> dict[str, pd.DataFrame]
         "minutes": (p["completed"] - p["started"]) / 60 if p["completed"] else None,
     } for p in data["participants"]]
     trials, steps, keys, focus = [], [], [], []
-    for g in sorted(data["games"], key=lambda g: (g["pid"], g["step"], g["attempt"])):
-        scores = json.loads(g["scores"]) if g["scores"] else {}
+    for g in data["games"]:
         base = {**who(g["pid"]), "kind": g["kind"], "trial_index": g["trial_index"],
                 **_condition(study, g["condition"], json.loads(g["settings"])), "attempt": g["attempt"]}
         row = {**base, "page_step": g["step"], "game_id": g["game_id"], "replay_id": g["replay_id"],
-               "ended": g["ended"], "started": _time(g["started"]), "finished": _time(g["finished"]),
-               "team_score": scores.get("team"), "leader_score": scores.get(AGENTS[LEADER]),
-               "follower_score": scores.get(AGENTS[FOLLOWER])}
+               "ended": g["ended"], "started": _time(g["started"]), "finished": _time(g["finished"])}
+        stored = g.get("steps") is not None  # the figures written at the game's end (schema version 2)
         path = replays_dir / f"{g['replay_id']}.replay.json" if g["replay_id"] else None
-        if path is None or not path.is_file():
-            trials.append({**row, "replay_found": False})
+        replay = load(path) if path is not None and path.is_file() else None
+        if stored:
+            figures = {name: g[name] for name in (*SCORES, *FIGURES)}
+        else:  # a game recorded before: its figures from the replay, as it was exported then
+            scores = score_figures(json.loads(g["scores"]) if g["scores"] else None)
+            figures = {**scores, **(game_figures(replay) if replay is not None else {})}
+        trials.append({**row, **figures, "replay_found": replay is not None})
+        if replay is None:
             continue
-        replay = load(path)
-        final = replay.final()
         follower = AGENTS[FOLLOWER]
         beliefs = replay.goal_probs.get(follower) or []
-        correct = [int(np.argmax(b)) == replay.goal[t] for t, b in enumerate(beliefs)]
-        trials.append({**row, "replay_found": True, "steps": replay.num_steps,
-                       "follower_goal_pickups": final[f"{follower}_goal_pickups"],
-                       "follower_wrong_pickups": final[f"{follower}_wrong_pickups"],
-                       "follower_net_pickups": final[f"{follower}_goal_pickups"] - final[f"{follower}_wrong_pickups"],
-                       "leader_goal_pickups": final[f"{AGENTS[LEADER]}_goal_pickups"],
-                       "leader_wrong_pickups": final[f"{AGENTS[LEADER]}_wrong_pickups"],
-                       "belief_accuracy": float(np.mean(correct)) if correct else None,
-                       "deadline_misses": len(replay.meta.get("deadline_misses", [])),
-                       "viewport": json.dumps((replay.meta.get("client") or {}).get("viewport")),
-                       "user_agent": (replay.meta.get("client") or {}).get("user_agent")})
         states = replay_states(replay, path)
         for t in range(replay.num_steps):
             pos = states[t].agent_pos[0]
@@ -127,7 +112,7 @@ def tables(study: Study, db: Path, replays_dir: Path) -> dict[str, pd.DataFrame]
                           "t_client_ms": e.get("t_client"), "t_server_ms": e.get("t_server")})
     questions = {(page, q["id"]): q for page, qs in questions_metadata(study).items() for q in qs}
     answers = []
-    for a in sorted(data["answers"], key=lambda a: (a["pid"], a["step"], a["question"])):
+    for a in data["answers"]:
         q = questions.get((a["page"], a["question"]), {})
         value = json.loads(a["value"]) if a["value"] is not None else None
         kind = q.get("kind")
@@ -146,15 +131,15 @@ def tables(study: Study, db: Path, replays_dir: Path) -> dict[str, pd.DataFrame]
     return {name: conform(rows[name], schema[name]) for name in TABLES}
 
 
-def write_tables(study: Study, db: Path, replays_dir: Path, out: Path) -> dict[str, int]:
+def write_tables(study: Study, database: str | Path, replays_dir: Path, out: Path) -> dict[str, int]:
     """Write every table as ``out/NAME.parquet`` (its types in its schema) and ``out/NAME.csv`` (its types in
-    ``out/schema.json``, read back by ``server.study.schema.read_csv``); returns the row counts."""
-    if not db.is_file():
-        raise FileNotFoundError(f"{db}: no study database (has the study run? see --replays-dir)")
+    ``out/schema.json``, read back by ``server.study.schema.read_csv``); returns the row counts. ``database``:
+    the study's SQLite file or its URL."""
+    frames = tables(study, database, replays_dir)
     out.mkdir(parents=True, exist_ok=True)
     schema = export_schema(study)
     counts = {}
-    for name, frame in tables(study, db, replays_dir).items():
+    for name, frame in frames.items():
         write_parquet(frame, study, schema[name], out / f"{name}.parquet")
         frame.to_csv(out / f"{name}.csv", index=False)
         counts[name] = len(frame)

@@ -228,7 +228,9 @@ def export_schema(study: Study) -> dict[str, Table]:
             Column("team_score", "float64", "points", "the team's score at the end"),
             Column("leader_score", "float64", "points", "the participant's (the leader's) score"),
             Column("follower_score", "float64", "points", "the AI follower's score"),
-            Column("replay_found", "bool", "", "whether the replay file was found (the columns below need it)"),
+            Column("replay_found", "bool", "", "whether the replay file was found (the steps, keys and focus tables "
+                                              "need it; the columns below are stored when the game ends, and read "
+                                              "from the replay for games recorded before)"),
             Column("steps", "Int64", "steps", "steps played"),
             Column("follower_goal_pickups", "Int64", "blocks", "goal-colored blocks the follower collected"),
             Column("follower_wrong_pickups", "Int64", "blocks", "blocks of another color the follower collected"),

@@ -16,15 +16,16 @@ import random
 import secrets
 import statistics
 import time
+from collections import defaultdict
 from dataclasses import dataclass
 
 from markdown_it import MarkdownIt
 
 from colorgrid.presets import env_config
 from colorgrid.render import look
-
 from server.study.assign import arm_labels, arms, choose_arm, trial_order
 from server.study.config import ID_ALLOWED, ID_PATTERN, GameSettings, Page, Question, Study
+from server.study.figures import game_figures, score_figures
 from server.study.store import StudyStore
 
 LOST = ("disconnected", "server_shutdown")
@@ -118,32 +119,38 @@ class StudyService:
         pid = params.get("_pid")  # an anonymous participant coming back: only with its session
         if not (self.study.anonymous and pid and session and self.store.participant(pid) is not None):
             pid = self.participant_id(params)
-        with self.store.transaction() as db:
-            row = db.execute("SELECT * FROM participants WHERE pid = ?", (pid,)).fetchone()
+        with self.store.transaction(assign=True) as tx:  # counts read and row written as one, across processes
+            row = tx.participant(pid)
             if row is not None:
-                if session and secrets.compare_digest(session, row["session"]):
-                    self.store.log(db, pid, "resumed")
-                elif self.study.returning == "resume":
-                    self.store.log(db, pid, "resumed", new_browser=True, user_agent=user_agent[:300])
-                else:
-                    self.store.log(db, pid, "refused", reason="already started")
-                    raise Refused("this participant id has already started the study; it cannot start again")
-                return {"pid": pid, "session": row["session"]}
-            started = db.execute("SELECT COUNT(*) FROM participants").fetchone()[0]
-            if started >= self.study.max_participants:
+                return self.returning(tx, row, session, user_agent)
+            if tx.count_participants() >= self.study.max_participants:
                 raise Refused("the study is full: thank you for your interest")
-            arm = choose_arm(self.store.arm_counts(db, len(self.arms)), self.study.design.quota,
-                             self.study.design.balance, self.rng)
+            arm = choose_arm(tx.arm_counts(len(self.arms)), self.study.design.quota, self.study.design.balance,
+                             self.rng)
             if arm is None:
                 raise Refused("the study is full: thank you for your interest")
             conditions = trial_order(self.study, arm, self.rng)
             kept = {k: str(params[k])[:200] for k in (*self.study.id_params, *self.study.keep_params) if params.get(k)}
-            session, now = secrets.token_urlsafe(24), time.time()
-            db.execute("INSERT INTO participants (pid, session, arm, conditions, status, step, url_params, user_agent,"
-                       " started, updated) VALUES (?, ?, ?, ?, 'active', 0, ?, ?, ?, ?)",
-                       (pid, session, arm, json.dumps(conditions), json.dumps(kept), user_agent[:500], now, now))
-            self.store.log(db, pid, "joined", arm=arm)
-        return {"pid": pid, "session": session}
+            new, now = secrets.token_urlsafe(24), time.time()
+            row = tx.add_participant({"pid": pid, "session": new, "arm": arm, "conditions": json.dumps(conditions),
+                                      "status": "active", "step": 0, "url_params": json.dumps(kept),
+                                      "user_agent": user_agent[:500], "started": now, "updated": now})
+            if row["session"] != new:  # another process stored this participant first
+                return self.returning(tx, row, session, user_agent)
+            tx.log(pid, "joined", arm=arm)
+        return {"pid": pid, "session": new}
+
+    def returning(self, tx, row: dict, session: str | None, user_agent: str) -> dict:
+        """A participant who joined before: their own browser (or any, when the study resumes) gets their session."""
+        pid = row["pid"]
+        if session and secrets.compare_digest(session, row["session"]):
+            tx.log(pid, "resumed")
+        elif self.study.returning == "resume":
+            tx.log(pid, "resumed", new_browser=True, user_agent=user_agent[:300])
+        else:
+            tx.log(pid, "refused", reason="already started")
+            raise Refused("this participant id has already started the study; it cannot start again")
+        return {"pid": pid, "session": row["session"]}
 
     def check(self, pid: str, session: str):
         row = self.store.participant(pid) if isinstance(pid, str) else None
@@ -170,7 +177,7 @@ class StudyService:
         if step.has_game:
             out["game"] = {"mode": settings.mode, "show_belief": settings.show_belief, "horizon": settings.horizon,
                            "tick_hz": settings.tick_hz}
-            last = self.last_game(pid, row["step"])
+            last = self.store.last_game(pid, row["step"])
             live = self.live.get(pid)
             if live is not None and not live.finished:
                 out["live"] = {"game_id": live.game_id, "token": live.token}
@@ -181,11 +188,6 @@ class StudyService:
             out["completion_code"] = code
             out["redirect_url"] = self.study.redirect_url.replace("{code}", code) if self.study.redirect_url else ""
         return out
-
-    def last_game(self, pid: str, step: int):
-        rows = self.store.rows("SELECT * FROM games WHERE pid = ? AND step = ? ORDER BY attempt DESC LIMIT 1",
-                               pid, step)
-        return rows[0] if rows else None
 
     # ---------------------------------------------------------------- moving on
     def advance(self, pid: str, session: str, step_index: int, answers: dict | None, agree: bool) -> dict:
@@ -212,24 +214,20 @@ class StudyService:
                 raise AnswerProblems(problems)
             clean = {q.id: answers.get(q.id) if answers.get(q.id) != "" else None for q in step.questions}
         if step.has_game:
-            last = self.last_game(pid, step_index)
+            last = self.store.last_game(pid, step_index)
             if last is None or not last["ended"] or last["ended"] in LOST:
                 raise Invalid("the game on this page is not over yet")
         now = time.time()
-        with self.store.transaction() as db:
-            current = db.execute("SELECT step FROM participants WHERE pid = ?", (pid,)).fetchone()["step"]
-            if current != step_index:  # a second tab moved on meanwhile
+        nxt = step_index + 1
+        done = nxt == len(steps) or steps[nxt].kind == "debrief"
+        with self.store.transaction() as tx:
+            if not tx.move_on(pid, step_index, min(nxt, len(steps) - 1), done, now):  # a second tab moved on meanwhile
                 raise Invalid("this page was already completed; reload to continue")
             for qid, value in clean.items():
-                db.execute("INSERT OR REPLACE INTO answers VALUES (?, ?, ?, ?, ?, ?, ?)",
-                           (pid, step_index, step.answers_page, step.trial_index, qid, json.dumps(value), now))
-            nxt = step_index + 1
-            done = nxt == len(steps) or steps[nxt].kind == "debrief"
-            db.execute("UPDATE participants SET step = ?, updated = ?, status = ?, completed = ? WHERE pid = ?",
-                       (min(nxt, len(steps) - 1), now, "completed" if done else "active", now if done else None, pid))
-            self.store.log(db, pid, "consented" if step.kind == "consent" else "advanced", step=step_index)
+                tx.answer(pid, step_index, step.answers_page, step.trial_index, qid, value, now)
+            tx.log(pid, "consented" if step.kind == "consent" else "advanced", step=step_index)
             if done:
-                self.store.log(db, pid, "completed")
+                tx.log(pid, "completed")
         if nxt == len(steps):  # no debrief page: the study ends on the last page
             return {**self.view(pid, session), "finished": True}
         return self.view(pid, session)
@@ -245,7 +243,7 @@ class StudyService:
         live = self.live.get(pid)
         if live is not None and not live.finished:
             raise Invalid("this participant's game is still running: rejoin it")
-        last = self.last_game(pid, row["step"])
+        last = self.store.last_game(pid, row["step"])
         if last is not None and (not last["ended"] or last["ended"] not in LOST):
             raise Invalid("the game on this page was already played")
         settings = self.game_settings(step)
@@ -258,27 +256,30 @@ class StudyService:
     def game_started(self, game) -> None:
         m = game.study
         self.live[m["participant"]] = game
-        with self.store.transaction() as db:
-            db.execute("INSERT INTO games (pid, step, attempt, kind, trial_index, condition, settings, game_id, started)"
-                       " VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                       (m["participant"], m["step"], m["attempt"], m["kind"], m["trial_index"], m["condition_index"],
-                        json.dumps(m["condition"]), game.game_id, time.time()))
+        with self.store.transaction() as tx:
+            tx.add_game({"pid": m["participant"], "step": m["step"], "attempt": m["attempt"], "kind": m["kind"],
+                         "trial_index": m["trial_index"], "condition": m["condition_index"],
+                         "settings": json.dumps(m["condition"]), "game_id": game.game_id, "started": time.time()})
 
     def game_over(self, game, reason: str, scores: dict) -> None:
+        """Record the end of a game with its figures (``server.study.figures``), read from the game's own record
+        (descriptions of the AI agents do not enter them)."""
         m = game.study
         if self.live.get(m["participant"]) is game:
             del self.live[m["participant"]]
-        with self.store.transaction() as db:
-            db.execute("UPDATE games SET replay_id = ?, ended = ?, scores = ?, finished = ? "
-                       "WHERE pid = ? AND step = ? AND attempt = ?",
-                       (game.replay_id, reason, json.dumps(scores), time.time(), m["participant"], m["step"],
-                        m["attempt"]))
+        figures = game_figures(game.to_replay(reason, defaultdict(dict)))
+        with self.store.transaction() as tx:
+            tx.end_game(m["participant"], m["step"], m["attempt"],
+                        {"replay_id": game.replay_id, "ended": reason, "scores": json.dumps(scores),
+                         "finished": time.time(), **score_figures(scores), **figures})
 
     # ---------------------------------------------------------------- the admin's view
     def summary(self, live_games: int) -> dict:
-        rows = self.store.rows("SELECT pid, arm, status, step, started, completed, updated FROM participants")
+        rows = self.store.participants()
         labels = arm_labels(self.study)
-        by_arm = [{"arm": a, "label": labels[a], "active": 0, "completed": 0} for a in range(len(self.arms))]
+        figures = self.store.figures_by_arm(LOST)
+        by_arm = [{"arm": a, "label": labels[a], "active": 0, "completed": 0,
+                   "trials": figures.get(a, {"games": 0})} for a in range(len(self.arms))]
         for r in rows:
             if 0 <= r["arm"] < len(by_arm):
                 by_arm[r["arm"]][r["status"]] += 1

@@ -1,135 +1,371 @@
-"""Where a study's data lasts: participants, their assignment and progress, games and answers, in SQLite.
+"""Where a study's data lasts: participants, their assignment and progress, games and answers.
 
-One file per study (``<recordings>/<study id>/study.sqlite`` by default), written through the
-standard library's ``sqlite3`` in WAL mode, every change in one transaction, so that a crash or
-a kill loses nothing that was answered. The SQL is plain and portable (no SQLite-only types): a
-server database later means another ``connect()`` and the same statements.
+The one place that speaks SQL, through SQLAlchemy Core: the tables are declared once below and
+every statement is built from them, so the same code runs on **SQLite** (the default: one file,
+``<recordings>/<study id>/study.sqlite``, WAL, ``synchronous=FULL``) and on **PostgreSQL** (one
+database that several play-server processes share). Every change is one transaction, so that a
+crash or a kill loses nothing that was answered.
+
+Assigning a participant (``StudyStore.transaction(assign=True)``) holds a lock the database gives,
+so that counts read and the row written are one step even across processes: SQLite's
+``BEGIN IMMEDIATE`` (every write transaction here takes it) and PostgreSQL's
+``pg_advisory_xact_lock`` on a key derived from the study id. The participant id is the primary
+key and an insert that finds it there returns the row already stored.
+
+The ``meta`` table names the study and the schema version; a database of another study or of a
+schema this code does not know is refused (``ValueError``, one line). A version 1 file (before
+the per-game figures) is brought to version 2 when a study opens it; the export reads either.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
-import sqlite3
-import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
-SCHEMA_VERSION = 1
-SCHEMA = """
-CREATE TABLE IF NOT EXISTS meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
-CREATE TABLE IF NOT EXISTS participants (
-    pid TEXT PRIMARY KEY,
-    session TEXT NOT NULL,
-    arm INTEGER NOT NULL,
-    conditions TEXT NOT NULL,          -- JSON: the condition index of each trial, in play order
-    status TEXT NOT NULL,              -- active | completed
-    step INTEGER NOT NULL DEFAULT 0,   -- the page (of the participant's expanded pages) they are on
-    url_params TEXT NOT NULL,          -- JSON: the id and kept parameters of the link they came with
-    user_agent TEXT NOT NULL,
-    started REAL NOT NULL,             -- seconds since the epoch
-    completed REAL,
-    updated REAL NOT NULL
-);
-CREATE TABLE IF NOT EXISTS games (
-    pid TEXT NOT NULL,
-    step INTEGER NOT NULL,
-    attempt INTEGER NOT NULL,          -- 0, then 1, 2... when a game was lost (disconnected, server stopped)
-    kind TEXT NOT NULL,                -- practice | trial
-    trial_index INTEGER,               -- 0-based among the trials (null for practice)
-    condition INTEGER,                 -- index into the study's conditions (null for practice)
-    settings TEXT NOT NULL,            -- JSON: the game's settings (follower, show_belief, mode, ...)
-    game_id TEXT NOT NULL,
-    replay_id TEXT,
-    ended TEXT,                        -- null while live; then the replay's reason (complete, idle, ...)
-    scores TEXT,                       -- JSON: team, leader, follower
-    started REAL NOT NULL,
-    finished REAL,
-    PRIMARY KEY (pid, step, attempt)
-);
-CREATE TABLE IF NOT EXISTS answers (
-    pid TEXT NOT NULL,
-    step INTEGER NOT NULL,
-    page TEXT NOT NULL,                -- the questionnaire's name
-    trial_index INTEGER,               -- for questions after a trial: which trial
-    question TEXT NOT NULL,
-    value TEXT,                        -- JSON: a number (likert), a string (choice, text) or null (skipped)
-    answered REAL NOT NULL,
-    PRIMARY KEY (pid, step, question)
-);
-CREATE TABLE IF NOT EXISTS events (
-    pid TEXT NOT NULL,
-    t REAL NOT NULL,
-    kind TEXT NOT NULL,                -- joined, resumed, refused, consented, advanced, completed
-    detail TEXT NOT NULL               -- JSON
-);
-"""
+from sqlalchemy import (
+    Column,
+    Float,
+    Integer,
+    MetaData,
+    Table,
+    Text,
+    create_engine,
+    event,
+    func,
+    insert,
+    inspect,
+    select,
+    update,
+)
+from sqlalchemy.dialects import postgresql, sqlite
+from sqlalchemy.engine import URL, Connection, Engine, make_url
+from sqlalchemy.exc import ArgumentError, DBAPIError
+
+from server.study.figures import FIGURES, SCORES, score_figures
+
+SCHEMA_VERSION = 2
+"""Version 2 added the per-game figures (``figures.SCORES`` and ``figures.FIGURES``) to ``games``."""
+BACKENDS = ("sqlite", "postgresql")
+SQL_TYPES = {int: Integer, float: Float, str: Text}
+
+tables = MetaData()
+meta = Table("meta", tables, Column("key", Text, primary_key=True), Column("value", Text, nullable=False))
+participants = Table(
+    "participants", tables,
+    Column("pid", Text, primary_key=True),
+    Column("session", Text, nullable=False),
+    Column("arm", Integer, nullable=False),
+    Column("conditions", Text, nullable=False),  # JSON: the condition index of each trial, in play order
+    Column("status", Text, nullable=False),  # active | completed
+    Column("step", Integer, nullable=False, server_default="0"),  # the page (of their expanded pages) they are on
+    Column("url_params", Text, nullable=False),  # JSON: the id and kept parameters of the link they came with
+    Column("user_agent", Text, nullable=False),
+    Column("started", Float, nullable=False),  # seconds since the epoch
+    Column("completed", Float),
+    Column("updated", Float, nullable=False),
+)
+FIGURE_COLUMNS = [Column(name, Float) for name in SCORES] + [Column(name, SQL_TYPES[kind])
+                                                             for name, kind in FIGURES.items()]
+"""The ``games`` columns of schema version 2: null while the game runs, and for games recorded before."""
+games = Table(
+    "games", tables,
+    Column("pid", Text, primary_key=True),
+    Column("step", Integer, primary_key=True),
+    Column("attempt", Integer, primary_key=True),  # 0, then 1, 2... when a game was lost (disconnected, stopped)
+    Column("kind", Text, nullable=False),  # practice | trial
+    Column("trial_index", Integer),  # 0-based among the trials (null for practice)
+    Column("condition", Integer),  # index into the study's conditions (null for practice)
+    Column("settings", Text, nullable=False),  # JSON: the game's settings (follower, show_belief, mode, ...)
+    Column("game_id", Text, nullable=False),
+    Column("replay_id", Text),
+    Column("ended", Text),  # null while live; then the replay's reason (complete, idle, ...)
+    Column("scores", Text),  # JSON: team, leader, follower
+    Column("started", Float, nullable=False),
+    Column("finished", Float),
+    *FIGURE_COLUMNS,
+)
+answers = Table(
+    "answers", tables,
+    Column("pid", Text, primary_key=True),
+    Column("step", Integer, primary_key=True),
+    Column("page", Text, nullable=False),  # the questionnaire's name
+    Column("trial_index", Integer),  # for questions after a trial: which trial
+    Column("question", Text, primary_key=True),
+    Column("value", Text),  # JSON: a number (likert), a string (choice, text) or null (skipped)
+    Column("answered", Float, nullable=False),
+)
+events = Table(
+    "events", tables,
+    Column("pid", Text, nullable=False),
+    Column("t", Float, nullable=False),
+    Column("kind", Text, nullable=False),  # joined, resumed, refused, consented, advanced, completed
+    Column("detail", Text, nullable=False),  # JSON
+)
 
 
-def connect(path: str | Path) -> sqlite3.Connection:
-    """An open study database (created with its tables if new)."""
-    Path(path).parent.mkdir(parents=True, exist_ok=True)
-    db = sqlite3.connect(str(path), check_same_thread=False, isolation_level=None, timeout=10)
-    db.row_factory = sqlite3.Row
-    db.execute("PRAGMA journal_mode=WAL")
-    db.execute("PRAGMA synchronous=FULL")  # an answer that was acknowledged survives a power cut
-    db.executescript(SCHEMA)
-    return db
+# ---------------------------------------------------------------- opening a database
+def database_url(database: str | Path) -> URL:
+    """The SQLAlchemy URL of a study database: a path (an SQLite file) or a ``sqlite:///PATH`` or
+    ``postgresql+psycopg://USER@HOST:PORT/DB`` URL (``postgresql://`` means the same driver)."""
+    if isinstance(database, Path):
+        return URL.create("sqlite", database=str(database))
+    try:
+        url = make_url(database)
+    except ArgumentError:
+        url = None
+    if url is None or url.get_backend_name() not in BACKENDS:
+        raise ValueError(f"--database {database!r}: a study database is a sqlite:///PATH or "
+                         "postgresql+psycopg://USER@HOST:PORT/DB URL")
+    if url.drivername == "postgresql":
+        url = url.set(drivername="postgresql+psycopg")
+    if url.get_backend_name() == "postgresql":
+        from colorgrid.extras import require
+
+        require("postgres", "a PostgreSQL study database")
+    return url
 
 
-class StudyStore:
-    """The study's tables, safe to use from the event loop's worker threads (one lock, short transactions)."""
+def describe(url: URL) -> str:
+    """How messages name a database: an SQLite file's path, else the URL without its password."""
+    return url.database if url.get_backend_name() == "sqlite" else url.render_as_string(hide_password=True)
 
-    def __init__(self, path: str | Path, study_id: str, study_hash: str):
-        self.path = Path(path)
-        self.db = connect(self.path)
-        self.lock = threading.Lock()
-        with self.transaction() as db:
-            known = dict(db.execute("SELECT key, value FROM meta").fetchall())
-            if known.get("study_id", study_id) != study_id:
-                raise ValueError(f"{self.path} belongs to study {known['study_id']!r}, not {study_id!r}")
-            db.execute("INSERT OR IGNORE INTO meta VALUES ('study_id', ?), ('schema', ?), ('created', ?)",
-                       (study_id, str(SCHEMA_VERSION), str(time.time())))
-            db.execute("INSERT OR REPLACE INTO meta VALUES ('study_hash', ?)", (study_hash,))
-            self.changed_study = known.get("study_hash", study_hash) != study_hash
 
-    # ---------------------------------------------------------------- plumbing
-    class _Transaction:
-        def __init__(self, store: "StudyStore"):
-            self.store = store
+def open_engine(url: URL, read_only: bool = False) -> Engine:
+    """An engine for ``url``; SQLite in WAL mode, ``synchronous=FULL``, whose write transactions begin with
+    ``BEGIN IMMEDIATE`` (a transaction opened on ``reader(engine)`` begins a plain ``BEGIN``)."""
+    if url.get_backend_name() != "sqlite":
+        return create_engine(url, pool_pre_ping=True)
+    path = Path(url.database)
+    if read_only:
+        url = url.set(database=f"file:{path}?mode=ro", query={"uri": "true"})
+    else:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    engine = create_engine(url, connect_args={"timeout": 10, "check_same_thread": False})
 
-        def __enter__(self) -> sqlite3.Connection:
-            self.store.lock.acquire()
-            self.store.db.execute("BEGIN IMMEDIATE")
-            return self.store.db
+    @event.listens_for(engine, "connect")
+    def configure(connection, record):
+        connection.isolation_level = None  # sqlite3 leaves BEGIN to us (below)
+        if not read_only:
+            connection.execute("PRAGMA journal_mode=WAL")
+            connection.execute("PRAGMA synchronous=FULL")  # an answer that was acknowledged survives a power cut
 
-        def __exit__(self, kind, err, tb):
-            try:
-                self.store.db.execute("COMMIT" if kind is None else "ROLLBACK")
-            finally:
-                self.store.lock.release()
+    @event.listens_for(engine, "begin")
+    def begin(connection):
+        writes = not read_only and not connection.get_execution_options().get("read_only")
+        connection.exec_driver_sql("BEGIN IMMEDIATE" if writes else "BEGIN")
 
-    def transaction(self) -> "_Transaction":
-        return StudyStore._Transaction(self)
+    return engine
 
-    def close(self) -> None:
-        with self.lock:
-            self.db.close()
 
-    # ---------------------------------------------------------------- participants
-    def participant(self, pid: str) -> sqlite3.Row | None:
-        with self.lock:
-            return self.db.execute("SELECT * FROM participants WHERE pid = ?", (pid,)).fetchone()
+def lock_key(study_id: str) -> int:
+    """The PostgreSQL advisory lock of a study: a signed 64-bit number derived from its id."""
+    return int.from_bytes(hashlib.sha256(f"colorgrid-study:{study_id}".encode()).digest()[:8], "big", signed=True)
 
-    def arm_counts(self, db: sqlite3.Connection, arms: int) -> list[int]:
+
+def read_meta(conn: Connection) -> dict[str, str]:
+    return dict(conn.execute(select(meta.c.key, meta.c.value)).tuples().all())
+
+
+def check_meta(known: dict[str, str], study_id: str, where: str) -> int:
+    """The schema version of a database whose ``meta`` is ``known`` (0: new); raises ``ValueError`` for another
+    study's database or a schema version this code does not read."""
+    if known.get("study_id", study_id) != study_id:
+        raise ValueError(f"{where} belongs to study {known['study_id']!r}, not {study_id!r}: give this study its "
+                         "own database")
+    version = known.get("schema")
+    if version is None:
+        return 0
+    if version not in {str(v) for v in range(1, SCHEMA_VERSION + 1)}:
+        raise ValueError(f"{where} is a study database of schema version {version}; this colorgrid reads versions "
+                         f"1 to {SCHEMA_VERSION} (a newer colorgrid made it: use that one, or another database)")
+    return int(version)
+
+
+def connect_error(url: URL, err: DBAPIError) -> ValueError:
+    first = str(err.orig).strip().splitlines()[0] if err.orig is not None else str(err)
+    return ValueError(f"{describe(url)}: cannot open the study database: {first}")
+
+
+def rows_of(result) -> list[dict]:
+    return [dict(r) for r in result.mappings()]
+
+
+# ---------------------------------------------------------------- a transaction's statements
+class Transaction:
+    """The statements of one transaction (``StudyStore.transaction``); rows are plain dicts."""
+
+    def __init__(self, conn: Connection):
+        self.conn = conn
+        self.insert = postgresql.insert if conn.dialect.name == "postgresql" else sqlite.insert
+
+    def participant(self, pid: str) -> dict | None:
+        row = self.conn.execute(select(participants).where(participants.c.pid == pid)).mappings().first()
+        return dict(row) if row is not None else None
+
+    def count_participants(self) -> int:
+        return self.conn.execute(select(func.count()).select_from(participants)).scalar_one()
+
+    def arm_counts(self, arms: int) -> list[int]:
         counts = [0] * arms
-        for arm, n in db.execute("SELECT arm, COUNT(*) FROM participants GROUP BY arm"):
+        for arm, n in self.conn.execute(select(participants.c.arm, func.count()).group_by(participants.c.arm)):
             if 0 <= arm < arms:
                 counts[arm] = n
         return counts
 
-    def log(self, db: sqlite3.Connection, pid: str, kind: str, **detail) -> None:
-        db.execute("INSERT INTO events VALUES (?, ?, ?, ?)", (pid, time.time(), kind, json.dumps(detail)))
+    def add_participant(self, row: dict) -> dict:
+        """Insert ``row`` unless its pid is there already; returns the participant's row as stored."""
+        self.conn.execute(self.insert(participants).values(**row).on_conflict_do_nothing(index_elements=["pid"]))
+        return self.participant(row["pid"])
 
-    def rows(self, sql: str, *args) -> list[sqlite3.Row]:
-        with self.lock:
-            return self.db.execute(sql, args).fetchall()
+    def move_on(self, pid: str, step: int, to_step: int, done: bool, now: float) -> bool:
+        """Move a participant from page ``step`` to ``to_step``; False when they were no longer on ``step``."""
+        moved = self.conn.execute(update(participants).where(participants.c.pid == pid, participants.c.step == step)
+                                  .values(step=to_step, updated=now, status="completed" if done else "active",
+                                          completed=now if done else None))
+        return moved.rowcount == 1
+
+    def answer(self, pid: str, step: int, page: str, trial_index: int | None, question: str, value, now: float):
+        row = {"pid": pid, "step": step, "page": page, "trial_index": trial_index, "question": question,
+               "value": json.dumps(value), "answered": now}
+        self.conn.execute(self.insert(answers).values(**row).on_conflict_do_update(
+            index_elements=["pid", "step", "question"], set_={k: row[k] for k in ("page", "trial_index", "value",
+                                                                                   "answered")}))
+
+    def last_game(self, pid: str, step: int) -> dict | None:
+        row = self.conn.execute(select(games).where(games.c.pid == pid, games.c.step == step)
+                                .order_by(games.c.attempt.desc()).limit(1)).mappings().first()
+        return dict(row) if row is not None else None
+
+    def add_game(self, row: dict) -> None:
+        self.conn.execute(insert(games).values(**row))
+
+    def end_game(self, pid: str, step: int, attempt: int, values: dict) -> None:
+        self.conn.execute(update(games).where(games.c.pid == pid, games.c.step == step, games.c.attempt == attempt)
+                          .values(**values))
+
+    def log(self, pid: str, kind: str, **detail) -> None:
+        self.conn.execute(insert(events).values(pid=pid, t=time.time(), kind=kind, detail=json.dumps(detail)))
+
+
+# ---------------------------------------------------------------- the store
+class StudyStore:
+    """A study's database, safe to use from the event loop's worker threads and from several processes.
+
+    ``database``: an SQLite file's path, or a URL (``database_url``)."""
+
+    def __init__(self, database: str | Path, study_id: str, study_hash: str):
+        self.url = database_url(database)
+        self.path = Path(self.url.database) if self.url.get_backend_name() == "sqlite" else None
+        """The SQLite file (None on PostgreSQL)."""
+        self.name = describe(self.url)
+        self.lock_key = lock_key(study_id)
+        self.engine = open_engine(self.url)
+        try:
+            with self.transaction(assign=True) as tx:  # two processes starting at once create the tables once
+                tables.create_all(tx.conn)
+                known = read_meta(tx.conn)
+                version = check_meta(known, study_id, self.name)
+                if version == 1:
+                    migrate_1_to_2(tx.conn)
+                tx.conn.execute(tx.insert(meta).on_conflict_do_nothing(index_elements=["key"]).values(
+                    [{"key": "study_id", "value": study_id}, {"key": "created", "value": str(time.time())}]))
+                for key, value in (("schema", str(SCHEMA_VERSION)), ("study_hash", study_hash)):
+                    tx.conn.execute(tx.insert(meta).values(key=key, value=value).on_conflict_do_update(
+                        index_elements=["key"], set_={"value": value}))
+                self.changed_study = known.get("study_hash", study_hash) != study_hash
+        except DBAPIError as err:
+            self.engine.dispose()
+            raise connect_error(self.url, err) from None
+        except ValueError:
+            self.engine.dispose()
+            raise
+
+    @contextmanager
+    def transaction(self, assign: bool = False) -> Iterator[Transaction]:
+        """One write transaction; ``assign``: under the study's lock (assigning participants to arms)."""
+        with self.engine.begin() as conn:
+            if assign and conn.dialect.name == "postgresql":
+                conn.execute(select(func.pg_advisory_xact_lock(self.lock_key)))
+            yield Transaction(conn)
+
+    @contextmanager
+    def reading(self) -> Iterator[Transaction]:
+        """One read-only transaction (on SQLite it takes no write lock)."""
+        with self.engine.connect().execution_options(read_only=True) as conn, conn.begin():
+            yield Transaction(conn)
+
+    def close(self) -> None:
+        self.engine.dispose()
+
+    # ---------------------------------------------------------------- reads
+    def participant(self, pid: str) -> dict | None:
+        with self.reading() as tx:
+            return tx.participant(pid)
+
+    def last_game(self, pid: str, step: int) -> dict | None:
+        """The participant's latest attempt at the game of page ``step``."""
+        with self.reading() as tx:
+            return tx.last_game(pid, step)
+
+    def participants(self) -> list[dict]:
+        with self.reading() as tx:
+            return rows_of(tx.conn.execute(select(participants)))
+
+    def figures_by_arm(self, lost: tuple[str, ...]) -> dict[int, dict]:
+        """Per arm, over its trials that ended (but not ``lost``): how many, and the mean of each figure."""
+        means = {name: func.avg(games.c[name]) for name in ("team_score", "follower_net_pickups",
+                                                             "follower_wrong_pickups", "belief_accuracy")}
+        query = (select(participants.c.arm, func.count().label("games"), *(m.label(n) for n, m in means.items()))
+                 .join_from(games, participants, games.c.pid == participants.c.pid)
+                 .where(games.c.kind == "trial", games.c.ended.is_not(None), games.c.ended.not_in(lost))
+                 .group_by(participants.c.arm))
+        with self.reading() as tx:
+            return {r["arm"]: {k: (float(v) if v is not None and k != "games" else v) for k, v in r.items()
+                               if k != "arm"} for r in rows_of(tx.conn.execute(query))}
+
+
+def migrate_1_to_2(conn: Connection) -> None:
+    """Add the figure columns to ``games`` and fill the scores of games already over from their JSON (the other
+    figures of those games stay null: the export computes them from the replays)."""
+    present = {c["name"] for c in inspect(conn).get_columns("games")}
+    quote = conn.dialect.identifier_preparer.quote
+    for column in FIGURE_COLUMNS:
+        if column.name not in present:
+            conn.exec_driver_sql(f"ALTER TABLE games ADD COLUMN {quote(column.name)} "
+                                 f"{column.type.compile(dialect=conn.dialect)}")
+    done = conn.execute(select(games.c.pid, games.c.step, games.c.attempt, games.c.scores)
+                        .where(games.c.scores.is_not(None))).all()
+    for pid, step, attempt, scores in done:
+        conn.execute(update(games).where(games.c.pid == pid, games.c.step == step, games.c.attempt == attempt)
+                     .values(**score_figures(json.loads(scores))))
+
+
+def read_tables(database: str | Path, study_id: str) -> dict[str, list[dict]]:
+    """The ``participants``, ``games`` and ``answers`` of a study's database (schema version 1 or 2), read only:
+    participants in the order they joined, games by participant, page and attempt, answers by participant,
+    page and question. A version 1 database's games lack the figure columns."""
+    url = database_url(database)
+    if url.get_backend_name() == "sqlite" and not Path(url.database).is_file():
+        raise FileNotFoundError(f"{url.database}: no study database (run the study first, or pass --db, --database "
+                                "or --replays-dir)")
+    engine = open_engine(url, read_only=True)
+    # sorted here, not by the database: PostgreSQL's collation may order text otherwise than SQLite's
+    order = {"participants": lambda r: (r["started"], r["pid"]), "games": lambda r: (r["pid"], r["step"], r["attempt"]),
+             "answers": lambda r: (r["pid"], r["step"], r["question"])}
+    try:
+        with engine.connect() as conn:
+            check_meta(read_meta(conn), study_id, describe(url))
+            out = {}
+            for table in (participants, games, answers):
+                present = {c["name"] for c in inspect(conn).get_columns(table.name)}
+                rows = rows_of(conn.execute(select(*(c for c in table.columns if c.name in present))))
+                out[table.name] = sorted(rows, key=order[table.name])
+            return out
+    except DBAPIError as err:
+        raise connect_error(url, err) from None
+    finally:
+        engine.dispose()
