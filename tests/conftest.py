@@ -94,3 +94,21 @@ def browser():
         b = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS, headless=True)
         yield b
         b.close()
+
+
+@pytest.fixture(scope="session")
+def postgres():
+    """A PostgreSQL cluster of the tests' own (``tests/pg.py``), started on first use and removed at the end."""
+    from tests.pg import PostgresCluster
+
+    cluster = PostgresCluster.start(free_port())
+    yield cluster
+    cluster.stop()
+
+
+@pytest.fixture(params=["sqlite", "postgresql"])
+def study_database(request, tmp_path):
+    """A new, empty study database on each backend: an SQLite file's path, or a PostgreSQL database's URL."""
+    if request.param == "sqlite":
+        return tmp_path / "study.sqlite"
+    return request.getfixturevalue("postgres").new_database()
