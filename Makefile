@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: play test bench setup browser clean
+.PHONY: play test bench setup browser services clean
 
 setup: $(STAMP)
 
@@ -26,10 +26,22 @@ browser:
 	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
 	  $$SUDO apt-get update -qq && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null; }
 
+# The study tests start a PostgreSQL cluster of their own (tests/pg.py) with Debian's initdb and pg_ctl, which
+# live in /usr/lib/postgresql/<version>/bin, not on PATH; haproxy puts several play servers behind one address.
+services:
+	@missing=""; \
+	{ { command -v initdb && command -v pg_ctl; } || \
+	  ls /usr/lib/postgresql/*/bin/initdb /usr/lib/postgresql/*/bin/pg_ctl; } >/dev/null 2>&1 || missing="postgresql"; \
+	command -v haproxy >/dev/null 2>&1 || missing="$${missing:+$$missing }haproxy"; \
+	[ -z "$$missing" ] || { \
+	  echo "installing Debian's $$missing for the tests"; \
+	  SUDO=$$( [ "$$(id -u)" = 0 ] || echo sudo ); \
+	  $$SUDO apt-get update -qq && $$SUDO env DEBIAN_FRONTEND=noninteractive apt-get install -y -qq $$missing >/dev/null; }
+
 play: $(STAMP)
 	$(VENV)/bin/colorgrid play
 
-test: $(STAMP) browser
+test: $(STAMP) browser services
 	$(PY) -m pytest
 
 bench: $(STAMP)
