@@ -182,7 +182,8 @@ def build_parser() -> argparse.ArgumentParser:
     ev.add_argument("--follower", default="bayes", help="every follower's policy: a scripted name or a checkpoint .pt")
     ev.add_argument("--compare", nargs="+", metavar="FOLLOWER", help="evaluate several followers on the same seeds")
     ev.add_argument("--team", type=team_shape, metavar="LEADERS:FOLLOWERS", help="team shape, e.g. 2:1 (1..8 of "
-                    "each; the same as --set num_leaders=2 --set num_followers=1): tables per agent and per role")
+                    "each; the same as --set env.num_leaders=2 --set env.num_followers=1): tables per agent and per "
+                    "role")
     ev.add_argument("--agent", action="append", default=[], metavar="NAME=POLICY", help="one agent's policy in "
                     "place of its role's, e.g. --agent leader_1=person:slip=0.1 (repeatable; names: leader_0.., "
                     "follower_0.., or leader/follower in a 1:1 team)")

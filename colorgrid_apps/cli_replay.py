@@ -208,7 +208,7 @@ def add_replay_commands(sub) -> None:
                     "with an index.json; one file is written to --out FILE.replay.json. The paper's planes, "
                     "[x, y] boards and color order are mapped (its blue stays blue); the block density is read from "
                     "the frames (17 blocks of each color: 0.05; 34: 0.10). Examples: colorgrid replay import "
-                    "trajectories/run1 --out replays/run1; colorgrid replay import "
+                    "trajectories/run1 --out recordings/run1; colorgrid replay import "
                     "trajectory_iteration=0_env=0.npy --out ep.replay.json")
     imp.add_argument("trajectory", metavar="TRAJECTORY_OR_DIR",
                      help="a trajectories/<run> folder of the paper's dumps, or one .npy of frames [T+1, C+A, H, W] "

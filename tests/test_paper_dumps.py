@@ -27,7 +27,7 @@ PAPER_COLOR_NAMES = ("red", "blue", "green")
 """The paper code's color planes 0, 1, 2 (``color_maze.IDs``)."""
 DUMPS = {"density 0.10": ("", 0, 34, 0.10), "density 0.05, env 0": ("density05", 0, 17, 0.05),
          "density 0.05, env 3": ("density05", 3, 17, 0.05)}
-"""Each dump: its folder in tests/data/paper, its env, the blocks of each color it holds, the density that gives them."""
+"""Each dump: its folder in tests/data/paper, its env, the blocks of each color it holds, the density giving them."""
 
 
 def unpack(folder: str, env: int, to: Path) -> Path:

@@ -217,7 +217,8 @@ def model_card(path: Path, source: dict, net, env: EnvConfig) -> str:
         f"# Model card: `{path.name}` (the {role}, imported from the paper's code)",
         "",
         (f"- **Source**: `{source['file']}` (sha256 `{source['sha256']}`), a state dict saved by the paper's "
-         f"{source['code']}{iteration}; {'saved after torch.compile (keys prefixed _orig_mod.); ' if source['compiled'] else ''}"
+         f"{source['code']}{iteration}; "
+         f"{'saved after torch.compile (keys prefixed _orig_mod.); ' if source['compiled'] else ''}"
          f"{'with' if source['lstm'] else 'without'} its LSTM."),
         ("- **Imported with**: `colorgrid checkpoint import-paper "
          f"{source['file']} --role {role} --out {path.name} --{'asymmetric' if env.asymmetric else 'symmetric'}`"),
