@@ -52,9 +52,10 @@ def leader_progress(inp: AgentInput, env: EnvConfig) -> np.ndarray:
 
 
 def step_tensors(inp: AgentInput, env: EnvConfig, agent_index: int, device,
-                 progress: bool = False) -> dict[str, torch.Tensor]:
+                 progress: bool = False, copy_obs: bool = True) -> dict[str, torch.Tensor]:
     """The tensors of one step for ``B`` envs, each with a leading time axis of 1; with ``progress`` the extras
-    end with ``leader_progress`` (a network with ``net.leader_progress``)."""
+    end with ``leader_progress`` (a network with ``net.leader_progress``). ``copy_obs=False``: on the CPU the
+    ``obs`` tensor shares the observation's memory (for a caller that reads it before the env steps again)."""
     obs = inp.observation
     B = obs.shape[0]
     me = cells_of(obs, env.num_colors + agent_index)
@@ -64,9 +65,11 @@ def step_tensors(inp: AgentInput, env: EnvConfig, agent_index: int, device,
     if progress:
         parts.append(leader_progress(inp, env))
     extras = np.concatenate(parts, axis=1)
-    arrays = {"obs": obs, "me": me, "goal": inp.goal_info.astype(np.float32), "extras": extras,
-              "starts": np.asarray(inp.episode_start, dtype=bool)}
-    return {k: torch.as_tensor(np.array(v, copy=True))[None].to(device) for k, v in arrays.items()}
+    arrays = {"obs": np.array(obs, copy=True) if copy_obs else np.ascontiguousarray(obs), "me": me,
+              "goal": np.array(inp.goal_info, dtype=np.float32), "extras": extras,
+              "starts": np.array(inp.episode_start, dtype=bool)}  # each its own memory (but obs, if asked)
+    tensors = {k: torch.from_numpy(v)[None] for k, v in arrays.items()}
+    return tensors if torch.device(device).type == "cpu" else {k: v.to(device) for k, v in tensors.items()}
 
 
 def rows_of_agents(steps: list[dict[str, torch.Tensor]]) -> dict[str, torch.Tensor]:

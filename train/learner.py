@@ -55,12 +55,18 @@ class Learner:
         probs = torch.softmax(logits[0], dim=1)
         actions = sample(probs, self.generator)
         self.store_view(view)
+        self.keep(x, actions, torch.log(probs.gather(1, actions[:, None])[:, 0]), value[0])
+        return actions.cpu().numpy(), torch.softmax(goal_logits[0], dim=1).cpu().numpy()
+
+    def keep(self, x: dict[str, torch.Tensor], actions: torch.Tensor, logp: torch.Tensor, value: torch.Tensor) -> None:
+        """Keep one step's inputs ``x`` (as ``act`` takes them) and what was chosen, each ``[rows]``, in the rollout
+        (its network view is stored apart: ``store_view``)."""
         for k in _SIDE:
             self.buffer[k].append(x[k][0])
         self.buffer["actions"].append(actions)
-        self.buffer["logp"].append(torch.log(probs.gather(1, actions[:, None])[:, 0]))
-        self.buffer["values"].append(value[0])
-        return actions.cpu().numpy(), torch.softmax(goal_logits[0], dim=1).cpu().numpy()
+        self.buffer["logp"].append(logp)
+        self.buffer["values"].append(value)
+        self.steps += 1
 
     def store_view(self, view: dict[str, torch.Tensor]) -> None:
         """Keep this step's network view in the rollout's preallocated storage (no stacking at the update)."""
@@ -71,7 +77,6 @@ class Learner:
                     stored = self.views[k] = torch.empty(self.ppo.num_steps, *v.shape[1:], dtype=v.dtype,
                                                          device=v.device)
             stored[self.steps].copy_(v[0])
-        self.steps += 1
 
     @torch.inference_mode()
     def value(self, x: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -172,8 +177,12 @@ class Learner:
 
 def sample(probs: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
     """One action per row of ``probs [B, A]`` by inverting the CDF (uniforms from ``generator``, on the CPU)."""
-    u = torch.rand(probs.shape[0], 1, generator=generator).to(probs.device)
-    return (probs.cumsum(dim=1) <= u).sum(dim=1).clamp_(max=probs.shape[1] - 1)
+    return sample_from(probs, torch.rand(probs.shape[0], 1, generator=generator).to(probs.device))
+
+
+def sample_from(probs: torch.Tensor, uniforms: torch.Tensor) -> torch.Tensor:
+    """The action of each row of ``probs [..., A]`` that ``uniforms [..., 1]`` picks by inverting the CDF."""
+    return (probs.cumsum(dim=-1) <= uniforms).sum(dim=-1).clamp_(max=probs.shape[-1] - 1)
 
 
 def rows(t: torch.Tensor, dim: int, idx: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:

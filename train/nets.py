@@ -309,6 +309,18 @@ class ActorCritic(nn.Module):
             view["identity"] = identity
         return view
 
+    def side_inputs(self, goal: torch.Tensor, extras: torch.Tensor, identity: torch.Tensor | None) -> torch.Tensor:
+        """What joins the encoder's features, ``[T, B, k]``: the goal (``goal_in_trunk``), the extras and a shared
+        network's row identity, each where the network takes it."""
+        side = []
+        if self.goal_in_trunk:
+            side.append(goal)
+        if self.net.extra_inputs:  # with leader_progress, the extras' tail is the belief core's alone
+            side.append(extras[..., :extra_size(self.env)] if self.net.leader_progress else extras)
+        if self.shared:
+            side.append(identity)
+        return join(side, dim=2) if side else goal.new_zeros(*goal.shape[:2], 0)
+
     def forward(self, view, goal, extras, starts, state):
         """``view`` from ``prepare``; all inputs ``[T, B, ...]``. Returns ``(logits, value, goal_logits, state)``.
 
@@ -316,14 +328,7 @@ class ActorCritic(nn.Module):
         there, so sequences that span an episode boundary stay correct.
         """
         T, B = goal.shape[:2]
-        side = []
-        if self.goal_in_trunk:
-            side.append(goal)
-        if self.net.extra_inputs:  # with leader_progress, the extras' tail is the belief core's alone
-            side.append(extras[..., :extra_size(self.env)] if self.net.leader_progress else extras)
-        if self.shared:
-            side.append(view["identity"])
-        side = join(side, dim=2) if side else goal.new_zeros(T, B, 0)
+        side = self.side_inputs(goal, extras, view.get("identity"))
         flat = {k: v.reshape(T * B, *v.shape[2:]) for k, v in view.items()}
         goal_logits, g = None, goal
         if self.belief_core:

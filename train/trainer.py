@@ -40,6 +40,7 @@ from train.memory import keep_freed_memory
 from train.metrics import MetricsLog, episode_columns, evaluation_row
 from train.nets import ActorCritic, with_leader_progress
 from train.policy import NetPolicy, check_compatible
+from train.stacked import StackedActing, can_stack
 
 
 R = TypeVar("R")
@@ -122,6 +123,7 @@ class Trainer:
         self.tensorboard = tensorboard
         self.log: MetricsLog | None = None
         self._pool: ThreadPoolExecutor | None = None
+        self._stacked: StackedActing | None = None
 
     def _make_learner(self, name: str, agents: tuple[int, ...]) -> Learner:
         """The network ``name`` that plays ``agents`` (one, or a role's learners sharing it), new or warm-started."""
@@ -254,12 +256,27 @@ class Trainer:
             return None
         return max(1, threads // len(self.learners))
 
+    def _stacked_acting(self) -> StackedActing | None:
+        """The learners' acting in one set of batched operations (``refresh`` it to their current weights), where
+        their networks allow it (``train.stacked.can_stack``: the fast feed-forward network on the CPU), else None."""
+        if self._stacked is None and can_stack(list(self.learners.values())):
+            self._stacked = StackedActing(list(self.learners.values()))
+        return self._stacked
+
     @contextmanager
-    def _acting_side_by_side(self) -> Iterator[ThreadPoolExecutor | None]:
+    def _acting_side_by_side(self, wanted: bool = True) -> Iterator[ThreadPoolExecutor | None]:
         """The threads on which the learners act during one rollout (``_threads_each``; None: one after the other),
         with this thread at the per-learner torch thread count while inside (the rollout's other torch ops too:
-        a rollout's operations are far too small to gain from more)."""
+        a rollout's operations are far too small to gain from more). ``wanted=False``: one thread, at one torch
+        thread (stacked acting)."""
         each, threads = self._threads_each(), torch.get_num_threads()
+        if not wanted:
+            torch.set_num_threads(1)
+            try:
+                yield None
+            finally:
+                torch.set_num_threads(threads)
+            return
         if each is None:
             yield None
             return
@@ -280,12 +297,20 @@ class Trainer:
         done_eps: dict[str, list] = {}
         shaped_sum = self.shaped_sum
         hits = {a: 0.0 for learner in self.learners.values() for a in learner.agents}
-        with self._acting_side_by_side() as acting:
+        stacked = self._stacked_acting()
+        with self._acting_side_by_side(stacked is None) as acting:
+            if stacked is not None:
+                stacked.refresh()  # this update's weights (at this thread count: the ops are small)
             for _ in range(cfg.ppo.num_steps):
                 true_goal = env.state.goal.copy()
                 actions = np.zeros((B, A), dtype=np.int64)
                 targets = {i: self._aux_targets(lr, true_goal) for i, lr in self.learners.items()}
-                acted = side_by_side(self.learners, lambda lr: lr.act(self._learner_tensors(lr, true_goal)), acting)
+                if stacked is None:
+                    acted = side_by_side(self.learners, lambda lr: lr.act(self._learner_tensors(lr, true_goal)),
+                                         acting)
+                else:
+                    acted = dict(zip(self.learners, stacked.act([self._learner_tensors(lr, true_goal)
+                                                                 for lr in self.learners.values()])))
                 for i, learner in self.learners.items():
                     chosen, probs = acted[i]
                     for k, a in enumerate(learner.agents):  # rows are agent-major: agent k's envs are rows kB..(k+1)B
@@ -355,7 +380,7 @@ class Trainer:
         return rows_of_agents([
             step_tensors(self.last.agent_input(self.obs if obs is None else obs, a, self.env.penalty_coef, goal,
                                                episode_start=episode_start), self.config.env, a, self.device,
-                         progress=learner.model.net.leader_progress)
+                         progress=learner.model.net.leader_progress, copy_obs=False)
             for a in learner.agents])
 
     def _final_values(self, infos: dict, done: np.ndarray) -> dict[int, torch.Tensor]:

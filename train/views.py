@@ -60,17 +60,21 @@ def _pooled(obs, pool, out):
                     out[n, p, i, j] = np.float32(total) / np.float32((r1 - r0) * (c1 - c0))
 
 
-def window_patches(obs: torch.Tensor, me: torch.Tensor, radius: int, cells: int) -> torch.Tensor:
-    """``[N, cells^2, P + 1, 9]`` float32 from ``obs [N, P, H, W]`` (uint8, CPU) and own cells ``me [N, 2]``."""
+def window_patches(obs: torch.Tensor, me: torch.Tensor, radius: int, cells: int,
+                   out: torch.Tensor | None = None) -> torch.Tensor:
+    """``[N, cells^2, P + 1, 9]`` float32 from ``obs [N, P, H, W]`` (uint8, CPU) and own cells ``me [N, 2]``, written
+    into ``out`` (contiguous) if given."""
     N, P = obs.shape[:2]
-    out = torch.empty(N, cells * cells, P + 1, 9)
+    out = torch.empty(N, cells * cells, P + 1, 9) if out is None else out
     _window_patches(obs.numpy(), me.to(torch.int64).numpy(), radius, cells, out.numpy())
     return out
 
 
-def pooled(obs: torch.Tensor, pool: int) -> torch.Tensor:
-    """``avg_pool2d(obs.float(), pool, ceil_mode=True)`` of ``obs [N, P, H, W]`` (uint8, CPU), flattened: ``[N, -1]``."""
+def pooled(obs: torch.Tensor, pool: int, out: torch.Tensor | None = None) -> torch.Tensor:
+    """``avg_pool2d(obs.float(), pool, ceil_mode=True)`` of ``obs [N, P, H, W]`` (uint8, CPU), flattened: ``[N, -1]``,
+    written into ``out`` (contiguous) if given."""
     N, P, H, W = obs.shape
-    out = torch.empty(N, P, -(-H // pool), -(-W // pool))
-    _pooled(obs.numpy(), pool, out.numpy())
-    return out.reshape(N, -1)
+    shape = (N, P, -(-H // pool), -(-W // pool))
+    grid = torch.empty(shape) if out is None else out.view(shape)
+    _pooled(obs.numpy(), pool, grid.numpy())
+    return grid.reshape(N, -1)
