@@ -19,23 +19,17 @@ def _window_patches(obs, me, radius, cells, out):
     """``out [N, cells^2, P + 1, 9]``: the ``3 * cells`` square of the window of ``obs [N, P, H, W]`` whose top-left
     corner is ``radius`` cells up and left of ``me [N, 2]``, as 3x3 patches; plane ``P`` is 1 on the grid."""
     N, P, H, W = obs.shape
+    side = 3 * cells
+    out[:] = 0.0  # beyond the walls
     for n in range(N):
         top, left = me[n, 0] - radius, me[n, 1] - radius
-        for ci in range(cells):
-            for cj in range(cells):
-                cell = ci * cells + cj
-                for kh in range(3):
-                    row = top + 3 * ci + kh
-                    for kw in range(3):
-                        col = left + 3 * cj + kw
-                        k = kh * 3 + kw
-                        if 0 <= row < H and 0 <= col < W:
-                            for p in range(P):
-                                out[n, cell, p, k] = obs[n, p, row, col]
-                            out[n, cell, P, k] = 1.0
-                        else:
-                            for p in range(P + 1):
-                                out[n, cell, p, k] = 0.0
+        for r in range(max(0, -top), min(side, H - top)):  # the window's rows on the grid
+            row, first, kh = top + r, (r // 3) * cells, (r % 3) * 3
+            for c in range(max(0, -left), min(side, W - left)):
+                cell, k, col = first + c // 3, kh + c % 3, left + c
+                for p in range(P):
+                    out[n, cell, p, k] = obs[n, p, row, col]
+                out[n, cell, P, k] = 1.0
 
 
 @njit(cache=True, nogil=True)
