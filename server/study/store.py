@@ -117,7 +117,7 @@ def database_url(database: str | Path) -> URL:
         url = make_url(database)
     except ArgumentError:
         url = None
-    if url is None or url.get_backend_name() not in BACKENDS:
+    if url is None or url.get_backend_name() not in BACKENDS or not url.database:
         raise ValueError(f"--database {database!r}: a study database is a sqlite:///PATH or "
                          "postgresql+psycopg://USER@HOST:PORT/DB URL")
     if url.drivername == "postgresql":
@@ -136,7 +136,7 @@ def describe(url: URL) -> str:
 
 def open_engine(url: URL, read_only: bool = False) -> Engine:
     """An engine for ``url``; SQLite in WAL mode, ``synchronous=FULL``, whose write transactions begin with
-    ``BEGIN IMMEDIATE`` (a transaction opened on ``reader(engine)`` begins a plain ``BEGIN``)."""
+    ``BEGIN IMMEDIATE`` (a connection with the execution option ``read_only`` begins a plain ``BEGIN``)."""
     if url.get_backend_name() != "sqlite":
         return create_engine(url, pool_pre_ping=True)
     path = Path(url.database)
@@ -181,7 +181,7 @@ def check_meta(known: dict[str, str], study_id: str, where: str) -> int:
         return 0
     if version not in {str(v) for v in range(1, SCHEMA_VERSION + 1)}:
         raise ValueError(f"{where} is a study database of schema version {version}; this colorgrid reads versions "
-                         f"1 to {SCHEMA_VERSION} (a newer colorgrid made it: use that one, or another database)")
+                         f"1 to {SCHEMA_VERSION} (another colorgrid made it: use that one, or another database)")
     return int(version)
 
 
