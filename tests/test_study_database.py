@@ -136,6 +136,7 @@ def test_the_same_study_changed_is_noticed_not_refused(study_database):
     again = StudyStore(study_database, "s", "version-2")
     assert again.changed_study
     again.close()
+    assert read_tables(again.address, "s")["participants"] == []  # another process opens it by its address
     assert not StudyStore(study_database, "s", "version-2").changed_study
 
 

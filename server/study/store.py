@@ -284,6 +284,11 @@ class StudyStore:
             self.engine.dispose()
             raise
 
+    @property
+    def address(self) -> str:
+        """The database's URL as text, password included: what another process opens it with (``read_tables``)."""
+        return self.url.render_as_string(hide_password=False)
+
     @contextmanager
     def transaction(self, assign: bool = False) -> Iterator[Transaction]:
         """One write transaction; ``assign``: under the study's lock (assigning participants to arms)."""
