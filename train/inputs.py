@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import torch
 
@@ -11,17 +13,26 @@ from colorgrid.policies.base import AgentInput
 
 def one_hot(values: np.ndarray, n: int) -> np.ndarray:
     """One-hot of ``values [...]`` over ``n`` classes; values outside ``[0, n)`` (none) give all zeros."""
-    out = np.zeros((*values.shape, n), dtype=np.float32)
-    valid = (values >= 0) & (values < n)
-    out[valid, values[valid]] = 1.0
-    return out
+    values = np.asarray(values)
+    rows = np.where((values >= 0) & (values < n), values, n)  # n: the all-zeros row
+    return _identity_and_none(n)[rows]
+
+
+@functools.cache
+def _identity_and_none(n: int) -> np.ndarray:
+    """``[n + 1, n]``: the one-hot rows of ``0 .. n-1``, then a row of zeros (read only)."""
+    rows = np.eye(n + 1, n, dtype=np.float32)
+    rows.flags.writeable = False
+    return rows
 
 
 def cells_of(obs: np.ndarray, plane: int) -> np.ndarray:
     """``[B, 2]``: the (row, col) of the one cell set in ``obs[:, plane]`` (an agent's plane)."""
-    B, _, H, W = obs.shape
+    B, W = obs.shape[0], obs.shape[3]
     flat = obs[:, plane].reshape(B, -1).argmax(axis=1)
-    return np.stack([flat // W, flat % W], axis=1)
+    cells = np.empty((B, 2), dtype=flat.dtype)
+    np.divmod(flat, W, out=(cells[:, 0], cells[:, 1]))
+    return cells
 
 
 def leader_progress(inp: AgentInput, env: EnvConfig) -> np.ndarray:
