@@ -107,18 +107,20 @@ def main() -> None:
     print(f"machine: {machine()}; torch {torch.__version__}; cuda: {torch.cuda.is_available()}")
     print(f"{'setup':<10} {'device':<7} {'threads':>7} {'env-steps/s':>12} {'rollout/s':>10} {'update/s':>10} "
           f"{'CPU s/iter':>10}")
+    measured = {}
     for name in args.setup:
-        r = measure(name, args.iterations, args.threads, args.device)
+        r = measured[name] = measure(name, args.iterations, args.threads, args.device)
         print(f"{r['setup']:<10} {r['device']:<7} {r['threads']:>7} {r['sps']:>12.0f} {r['rollout_sps']:>10.0f} "
               f"{r['update_sps']:>10.0f} {r['cpu_s_per_iter']:>10.2f}", flush=True)
     print("(median over iterations of 16 envs x 128 steps, both agents learning; the paper's public trainer: "
           "about 36 env-steps/s on a 2-core CPU)")
     rate = matmul_rate(args.threads)
     print(f"\nthis CPU's float32 matmul rate (2048x2048, {torch.get_num_threads()} threads): {rate / 1e9:.0f} GFLOP/s")
-    print(f"{'setup':<10} {'GFLOP/env-step':>15} {'ceiling env-steps/s':>20}")
+    print(f"{'setup':<10} {'GFLOP/env-step':>15} {'ceiling env-steps/s':>20} {'share of the ceiling':>21}")
     for name in args.setup:
         work = flops_per_env_step(name)
-        print(f"{name:<10} {work / 1e9:>15.3f} {rate / work:>20.0f}", flush=True)
+        ceiling = rate / work
+        print(f"{name:<10} {work / 1e9:>15.3f} {ceiling:>20.0f} {measured[name]['sps'] / ceiling:>21.0%}", flush=True)
     print("(the ceiling: every operation at the matmul rate; nothing else costs time)")
     if args.profile:
         profile_update(args.setup[0], args.threads, args.device)
