@@ -86,8 +86,8 @@ def timeline_file(path: str, replay_id: str, out: str, max_bytes: int) -> None:
 
 def export_file(path: str, out: str, fmt: str, max_bytes: int) -> str | None:
     """Export the replay at ``path`` to ``out``; returns the problem if it cannot be exported."""
-    from colorgrid_apps.export import export
     from colorgrid.replay import ReplayError, load
+    from colorgrid_apps.export import export
 
     try:
         export(load(path, max_bytes=max_bytes), out, fmt, path=path)
@@ -163,24 +163,30 @@ class ReplayJobs:
         out = self.cache_dir / f"{replay_id}-{mtime:.6f}.timeline.json"
         return await self._cached(out, lambda: self.run(timeline_file, str(path), replay_id, str(out), max_bytes))
 
+    async def once(self, out: Path, make, done=None):
+        """What ``make()`` returns, the job that writes ``out``: at most one job per file, however many requests
+        wait for it; ``done()`` is called once the job has ended."""
+        running = self._making.get(out)
+        if running is None:
+            running = asyncio.ensure_future(make())
+            self._making[out] = running
+            running.add_done_callback(lambda _: self._making.pop(out, None))
+            if done is not None:
+                running.add_done_callback(lambda _: done())
+        return await asyncio.shield(running)
+
     async def _cached(self, out: Path, make, export: bool = False) -> Path:
         """``out`` once made: at most one job per file, however many requests wait for it."""
         if out.exists() and out not in self._making:
             os.utime(out)  # recently used: evicted last
             return out
-        running = self._making.get(out)
-        if running is None:
-            running = asyncio.ensure_future(make())
-            self._making[out] = running
-            running.add_done_callback(lambda _: self._done(out, export))
-        problem = await asyncio.shield(running)
+        problem = await self.once(out, make, lambda: self._done(export))
         if problem is not None:
             raise ValueError(problem)
         return out
 
-    def _done(self, out: Path, export: bool) -> None:
+    def _done(self, export: bool) -> None:
         self.exporting -= export
-        self._making.pop(out, None)
         try:
             self.trim_cache()
         except OSError:
