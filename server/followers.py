@@ -10,6 +10,7 @@ import numpy as np
 from colorgrid.config import FOLLOWER, EnvConfig
 from colorgrid.policies import SCRIPTED, IdleFollower, make_policy, policy_teams
 from colorgrid.policies.base import AgentInput
+from colorgrid.replay import describe_agent
 from colorgrid.step_inputs import StepInputs
 from server.inference import InferenceWorker, RemotePolicy
 
@@ -91,6 +92,10 @@ class FollowerPool:
         """Actions ``[n]`` and beliefs ``[n, C]`` (or None) for the games in ``slots``."""
         out = self.policy.act(AgentInput.concat(inputs), rows=np.asarray(slots))
         return out.actions, out.goal_probs
+
+    def describe(self) -> dict:
+        """The replay's ``agents`` entry for the agent this pool plays (a checkpoint's file named)."""
+        return describe_agent(self.policy.describe(), self.name if self.name.endswith(".pt") else None)
 
     def fallback(self, inputs: list[AgentInput], slots: list[int]) -> np.ndarray:
         return self.idle.act(AgentInput.concat(inputs), rows=np.asarray(slots)).actions

@@ -12,14 +12,13 @@ from pathlib import Path
 from typing import Protocol
 
 from colorgrid.config import FOLLOWER, EnvConfig
+from colorgrid.policies import policy_teams
 from colorgrid.presets import env_config
 from colorgrid.replay import save
-from colorgrid.replay.format import describe_agent
 from colorgrid.roles import scores
-from colorgrid.policies import policy_teams
 from server.followers import FollowerPool, follower_label, is_scripted, plays
-from server.inference import InferenceLost, InferenceWorker
 from server.game import STAND_IN, Game, Seat
+from server.inference import InferenceLost, InferenceWorker
 from server.protocol import ROOM_COUNTDOWN_S, Mode, Team
 from server.rooms import Room, RoomError, new_code, parse_code
 from server.settings import ServerSettings
@@ -509,7 +508,7 @@ class GameHub:
             try:
                 actions, beliefs = await asyncio.wait_for(asyncio.shield(future), deadline)
                 return actions, beliefs, False
-            except asyncio.TimeoutError:  # the call goes on; its late failure, if any, is logged
+            except TimeoutError:  # the call goes on; its late failure, if any, is logged
                 future.add_done_callback(lambda f: f.cancelled() or f.exception() is None or log.error(
                     "follower %s failed after its deadline: %s", pool.name, f.exception()))
             except InferenceLost as err:  # a new process serves the next call; this step takes the fallback
@@ -615,10 +614,7 @@ class GameHub:
     async def _save(self, game: Game, reason: str) -> None:
         stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime(game.created))
         replay_id = f"play-{stamp}-{game.game_id}"
-        descriptions = {player.agent: describe_agent(player.pool.policy.describe(),
-                                                     player.pool.name if player.pool.name.endswith(".pt") else None)
-                        for player in game.followers()}
-        replay = game.to_replay("complete" if reason == "complete" else reason, descriptions)
+        replay = game.to_replay(reason, {player.agent: player.pool.describe() for player in game.followers()})
         # Written (atomically, fsynced) on a worker thread so saving never stalls the tick.
         path = Path(self.settings.replays_dir) / f"{replay_id}.replay.json"
         await asyncio.get_running_loop().run_in_executor(self.saver, save, replay, path)
