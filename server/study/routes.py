@@ -52,7 +52,7 @@ def export_zip(study_file: str, db: str, replays_dir: str, out: str) -> str:
     from server.study.export import write_tables
 
     folder = Path(out).with_suffix("")
-    write_tables(load_study(study_file), Path(db), Path(replays_dir), folder)
+    write_tables(load_study(study_file), db, Path(replays_dir), folder)
     archive = shutil.make_archive(str(folder), "zip", folder)
     shutil.rmtree(folder, ignore_errors=True)
     return archive
@@ -133,6 +133,6 @@ def mount_study(app: FastAPI, service: StudyService, admin_token: str, web_dir: 
         """Every table of ``colorgrid study export`` (Parquet and CSV) in one zip file."""
         admin(authorization)
         out = Path(tempfile.mkdtemp(prefix="colorgrid-study-export-")) / f"{study.id}-data"
-        archive = await jobs.run(export_zip, str(study_file), str(service.store.path), str(replays_dir), str(out))
+        archive = await jobs.run(export_zip, str(study_file), service.store.address, str(replays_dir), str(out))
         return FileResponse(archive, filename=f"{study.id}-data.zip", media_type="application/zip",
                             background=BackgroundTask(shutil.rmtree, str(out.parent), True))
