@@ -33,6 +33,47 @@ def follower_label(followers: tuple[str, ...]) -> str:
     return followers[0] if len(set(followers)) == 1 else " + ".join(followers)
 
 
+FOLLOWER_INFO = {
+    "ippo": ("Trained assistant (IPPO)", "learned from play beside a scripted leader; reads the goal from your moves",
+             True),
+    "ippo-people": ("Trained assistant for people (IPPO)",
+                    "trained further beside leaders that slip, turn late and make mistakes", True),
+    "ippo-cautious": ("Cautious trained assistant for people (IPPO)",
+                      ("the trained assistant for people, trained further to take fewer wrong blocks and to read "
+                       "where your moves lead; it leaves a block it is unsure of"), True),
+    "ippo-1L2F": ("Trained assistant for two (IPPO, 1:2)",
+                  "trained as one of two AI followers beside a scripted leader; plays only in the 1:2 team", True),
+    "ippo-2L1F": ("Trained assistant for two leaders (IPPO, 2:1)",
+                  "trained beside two scripted leaders; plays only in the 2:1 team", True),
+    "ippo-leader": ("Trained leader (IPPO)", "the trained leader playing the follower's part: for researchers", True),
+    "bayes": ("Bayesian assistant", "works out the goal from your moves and pickups, and collects once it is sure",
+              True),
+    "bayes-people": ("Bayesian assistant for people",
+                     ("the Bayesian assistant, forgiving of late turns and slips, so a wrong move is not taken for "
+                      "a goal switch"), True),
+    "copy": ("Copycat", "collects the color of the last block you took that paid", False),
+    "oracle": ("Oracle", "sees the goal: for researchers", False),
+    "idle": ("Bystander", "walks about and never collects: you play alone", False),
+    "random": ("Random mover", "moves at random and collects whatever it steps on", False),
+}
+"""How the play page names each scripted or shipped follower: label, one-line description, whether it holds a
+belief over the goal (that the page may draw)."""
+
+
+def follower_info(name: str) -> dict:
+    """``{value, label, description, has_belief}`` for a follower name. Parameters (``bayes:lapse=0.2``) are
+    added to the label; a name not in ``FOLLOWER_INFO`` (a checkpoint path) is labelled by its file name."""
+    base, _, params = name.partition(":")
+    known = FOLLOWER_INFO.get(base)
+    if known is None:
+        what = "a trained follower loaded from" if name.endswith(".pt") else "the follower"
+        label, description, has_belief = name.rsplit("/", 1)[-1], f"{what} {name}", True
+    else:
+        label, description, has_belief = known
+        label += f" ({params})" if params else ""
+    return {"value": name, "label": label, "description": description, "has_belief": has_belief}
+
+
 class FollowerPool:
     """A policy playing agent ``agent_index`` (a follower, or the scripted leader in the seat of a person who
     left), with one row ("slot") per concurrent game of one config.

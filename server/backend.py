@@ -1,0 +1,111 @@
+"""What one play-server process owns (``Backend``) and what several processes share (``Shared``).
+
+A deployment may run several play-server processes behind one proxy: they write their games into one
+recordings folder and, during a study, one study store. Everything else lives and dies with its
+process: the games and rooms it runs, their tick loops, its inference process, its play sockets, its
+replay worker processes and what it has cached of the shared folder. Routes reach all of it through
+``request.app.state.backend`` (the ``CurrentBackend`` dependency), never through module globals.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+from fastapi import Depends
+from starlette.requests import HTTPConnection
+
+from server.connection import CLOSE_RESTART, SocketRegistry
+from server.hub import GameHub
+from server.jobs import ReplayJobs
+from server.library import ReplayLibrary
+from server.settings import ServerSettings
+
+if TYPE_CHECKING:  # the study's extra is imported only when a study runs
+    from server.study.service import StudyService
+
+
+@dataclass(frozen=True)
+class Shared:
+    """What every process of one deployment reads and writes alike; no process owns it."""
+
+    settings: ServerSettings
+    """How every process runs (``colorgrid play``'s flags)."""
+    study: object | None = None
+    """The study being served (``server.study.cli.StudySetup``: its file and admin token), or None for free play."""
+    service: StudyService | None = None
+    """The study's service over its store (``server.study.service.StudyService``), where every process records
+    participants and their games; None for free play."""
+
+    @classmethod
+    def open(cls, settings: ServerSettings, study=None) -> Shared:
+        """The shared parts for ``settings``, connected to the study's store when ``study`` is given."""
+        return cls(settings, study, study.service() if study is not None else None)
+
+    @property
+    def recordings(self) -> Path:
+        """The recordings folder: every process saves its games' replays (and branches) here and lists them."""
+        return self.settings.replays_dir
+
+    def close(self) -> None:
+        """Close this process's connection to the study store (the store itself stays)."""
+        if self.service is not None:
+            self.service.store.close()
+
+
+class Backend:
+    """One play-server process: the shared parts and what it owns.
+
+    ``hub`` holds its games and waiting rooms, their tick loops and its inference process;
+    ``sockets`` its open play sockets and their rate limits; ``jobs`` its replay worker processes
+    and export cache; ``replays`` what it has scanned of the shared replay folders.
+    """
+
+    def __init__(self, shared: Shared):
+        settings = shared.settings
+        self.shared = shared
+        self.hub = GameHub(settings)
+        if shared.service is not None:  # a study's games are recorded in its store as they start and end
+            self.hub.listeners.append(shared.service)
+        self.sockets = SocketRegistry(settings)
+        self.jobs = ReplayJobs(settings.max_exports, int(settings.export_cache_mb * 1e6))
+        self.replays = ReplayLibrary(settings, self.jobs)
+        self._warm_up: asyncio.Task | None = None
+
+    @property
+    def settings(self) -> ServerSettings:
+        return self.shared.settings
+
+    def start(self) -> None:
+        """Start the tick loops, the sweeper and the followers' warm-up, and the replay workers (in the event loop)."""
+        self.hub.start()
+        self._warm_up = asyncio.create_task(self.jobs.warm_up())
+
+    async def shutdown(self) -> None:
+        """Save every live game, tell each player (``game_over``, reason ``server_shutdown``) and then close its
+        socket. Runs before the web server closes connections; calling it again does nothing."""
+        told = await self.hub.stop()
+        await asyncio.gather(*(conn.close_after_sending(CLOSE_RESTART, "server shutdown") for conn in told),
+                             return_exceptions=True)
+
+    async def stop(self) -> None:
+        """``shutdown``, then stop the replay workers and remove the export cache."""
+        if self._warm_up is not None:
+            self._warm_up.cancel()
+        await self.shutdown()
+        self.jobs.close()
+
+    def study_games(self) -> int:
+        """This process's live games that belong to the study."""
+        return sum(g.study is not None for g in self.hub.games.values())
+
+
+def current_backend(conn: HTTPConnection) -> Backend:
+    """The backend of the process serving this request or socket."""
+    return conn.app.state.backend
+
+
+CurrentBackend = Annotated[Backend, Depends(current_backend)]
+"""A route's parameter type for this process's backend (a FastAPI dependency)."""

@@ -1,0 +1,280 @@
+"""One play WebSocket: who may open one, and what a connection does with each frame before the hub sees it.
+
+``SocketRegistry`` refuses handshakes (origin, too many sockets) and limits new games per address;
+``Connection`` is one browser tab's socket: rate and size limits, JSON and message validation
+(``server.protocol``), an outgoing queue, and each message handed to the ``GameHub`` that plays the game.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import time
+from urllib.parse import urlsplit
+
+from fastapi import WebSocket, WebSocketDisconnect
+from pydantic import ValidationError
+
+from server.hub import GameHub, ServerFull
+from server.limits import AddressLimits, FloodRule, TokenBucket
+from server.protocol import (
+    CLIENT_TYPES,
+    CreateRoom,
+    JoinRoom,
+    Key,
+    Mode,
+    NewGame,
+    PageEvent,
+    Ping,
+    Quit,
+    Ready,
+    Rejoin,
+    Team,
+    client_message,
+    error,
+)
+from server.rooms import RoomError
+from server.settings import ServerSettings
+
+CLOSE_POLICY = 1008  # a flood, or a page from an origin that is not allowed
+CLOSE_GOING_AWAY = 1001  # idle without a game
+CLOSE_RESTART = 1012  # the server is stopping (after game_over)
+CLOSE_TRY_LATER = 1013  # too many connections
+FLOOD_WINDOW_S = 5.0
+log = logging.getLogger("colorgrid.server")
+
+
+class SocketRegistry:
+    """Who may open a play socket: allowed origins, a cap on open sockets, a game-creation rate per address."""
+
+    def __init__(self, settings: ServerSettings):
+        self.settings = settings
+        self.open: set[Connection] = set()
+        rate = settings.new_games_per_minute
+        self.new_games = AddressLimits(rate / 60.0, burst=rate)
+
+    def refusal(self, ws: WebSocket) -> tuple[int, str] | None:
+        """Why this handshake is refused (close code and reason), or None."""
+        origin = ws.headers.get("origin")
+        if origin is not None and not self.origin_allowed(origin, ws.headers.get("host", "")):
+            return CLOSE_POLICY, f"origin {origin!r} is not allowed"
+        if len(self.open) >= self.settings.max_connections:
+            return CLOSE_TRY_LATER, f"too many connections ({len(self.open)}); try again later"
+        return None
+
+    def origin_allowed(self, origin: str, host: str) -> bool:
+        """The server's own pages (the origin names the host the request went to), or a configured origin."""
+        allowed = self.settings.allowed_origins
+        if "*" in allowed or origin.rstrip("/") in allowed:
+            return True
+        parts = urlsplit(origin)
+        return parts.scheme in ("http", "https") and bool(host) and parts.netloc.lower() == host.lower()
+
+
+class Connection:
+    """One browser tab's WebSocket: validation, rate limits, and an outgoing queue per socket."""
+
+    def __init__(self, ws: WebSocket, hub: GameHub, new_games: TokenBucket, study=None):
+        self.ws, self.hub, self.new_games, self.study = ws, hub, new_games, study
+        self.settings = settings = hub.settings
+        self.game = None
+        self.room = None  # the room this tab waits in, before its game starts
+        self.closed = False
+        self.outbox: asyncio.Queue = asyncio.Queue(maxsize=256)
+        self.messages = TokenBucket(settings.max_messages_per_s, burst=2 * settings.max_messages_per_s)
+        self.flood = FloodRule(int(FLOOD_WINDOW_S * settings.max_messages_per_s), FLOOD_WINDOW_S)
+        self.last_refusal_notice = 0.0
+
+    async def send(self, message: dict) -> None:
+        if self.closed:
+            raise ConnectionError("socket closed")
+        if self.outbox.full():  # a slow reader: drop the oldest queued message, keep the newest state
+            self.outbox.get_nowait()
+            self.outbox.task_done()
+        self.outbox.put_nowait(message)
+
+    def detach(self) -> None:
+        """This tab no longer plays its game or waits in its room: another connection took the game over
+        (``rejoin``), the person left it, or the room closed."""
+        self.game = self.room = None
+
+    def attach(self, game) -> None:
+        """The room's game started: this tab plays it."""
+        self.game, self.room = game, None
+
+    async def writer(self) -> None:
+        while True:
+            message = await self.outbox.get()
+            try:
+                text = json.dumps(message, allow_nan=False)
+            except ValueError:  # e.g. a follower's belief gone NaN: this message is lost, the socket is not
+                log.exception("could not encode a %s message", message.get("type"))
+                text = json.dumps(error("internal", "the server could not send a message; the game goes on"))
+            try:
+                await self.ws.send_text(text)
+            finally:
+                self.outbox.task_done()
+
+    async def close_after_sending(self, code: int, reason: str, timeout_s: float = 2.0) -> None:
+        """Close once what is queued (the ``game_over``) has gone out, or after ``timeout_s``."""
+        try:
+            await asyncio.wait_for(self.outbox.join(), timeout_s)
+        except TimeoutError:
+            pass
+        self.closed = True
+        try:
+            await self.ws.close(code, reason)
+        except Exception:  # already closed by the client
+            pass
+
+    async def receive(self) -> dict:
+        """The next frame; a socket with no game or room that stays silent for ``connection_idle_s`` is closed."""
+        if self.game is not None or self.room is not None:
+            return await self.ws.receive()
+        try:
+            return await asyncio.wait_for(self.ws.receive(), self.settings.connection_idle_s)
+        except TimeoutError:
+            await self.ws.close(CLOSE_GOING_AWAY, "idle: no game was started")
+            raise WebSocketDisconnect(CLOSE_GOING_AWAY) from None
+
+    async def serve(self) -> None:
+        """Take this socket's frames until it closes (``WebSocketDisconnect``)."""
+        while True:
+            raw = await self.receive()
+            if raw["type"] == "websocket.disconnect":
+                raise WebSocketDisconnect(raw.get("code", 1000))
+            text = raw.get("text")
+            size = len(text.encode()) if text is not None else len(raw.get("bytes") or b"")
+            if not self.messages.allow():
+                if self.flood.refuse():
+                    await self.ws.close(CLOSE_POLICY, "message flood")
+                    raise WebSocketDisconnect(CLOSE_POLICY)
+                if time.monotonic() - self.last_refusal_notice > 1.0:
+                    self.last_refusal_notice = time.monotonic()
+                    await self.send(error("rate_limited", f"too many messages: at most "
+                                                          f"{self.settings.max_messages_per_s:g}/s; extra ones are refused"))
+                continue
+            if size > self.settings.max_message_bytes:
+                await self.send(error("too_large", f"message of {size} bytes refused; the limit is "
+                                                   f"{self.settings.max_message_bytes}"))
+                continue
+            if text is None:
+                await self.send(error("bad_json", "binary messages are not supported; send JSON text"))
+                continue
+            try:
+                await self.handle(text)
+            except Exception:  # a bug must cost this message, not the connection or the game
+                log.exception("could not handle a message")
+                await self.send(error("internal", "the server could not handle this message; the game goes on"))
+
+    async def handle(self, text: str) -> None:
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            await self.send(error("bad_json", f"not valid JSON: {err.msg} at position {err.pos}"))
+            return
+        except RecursionError:
+            await self.send(error("bad_json", "not accepted: JSON nested too deeply"))
+            return
+        if not isinstance(data, dict) or data.get("type") not in CLIENT_TYPES:
+            kind = data.get("type") if isinstance(data, dict) else None
+            shown = repr(kind) if isinstance(kind, str) and len(kind) <= 40 else type(kind).__name__
+            await self.send(error("unknown_type", f"unknown message type {shown}; expected one of {list(CLIENT_TYPES)}"))
+            return
+        try:
+            msg = client_message.validate_python(data)
+        except ValidationError as err:
+            first = err.errors()[0]
+            where = ".".join(str(p) for p in first["loc"][1:]) or "message"
+            await self.send(error("invalid_message", f"{data['type']}: {where}: {first['msg']}"))
+            return
+        try:
+            await self.dispatch(msg)
+        except ServerFull as err:
+            await self.send({"type": "full", "message": str(err)})
+        except RoomError as err:
+            await self.send(error(err.code, str(err)))
+        except ValueError as err:
+            await self.send(error("rejected", str(err)))
+
+    async def dispatch(self, msg) -> None:
+        if isinstance(msg, Ping):
+            await self.send({"type": "pong", "t_server": time.time() * 1000})
+        elif isinstance(msg, (NewGame, Rejoin, CreateRoom, JoinRoom)):
+            if self.game is not None and self.hub.controls(self.game, self):
+                raise ValueError("this connection already has a live game; send quit first")
+            if self.hub.room_of(self, self.room) is not None:
+                raise ValueError(f"this connection waits in room {self.room.code}; send quit to leave it first")
+            if self.study is not None and isinstance(msg, (CreateRoom, JoinRoom)):
+                raise ValueError("this server runs a study: games start from the study page")
+            # joining a room counts as a new game: room codes cannot be tried quickly
+            if not isinstance(msg, Rejoin) and not self.new_games.allow():
+                raise ValueError(f"too many new games from this address: at most "
+                                 f"{self.settings.new_games_per_minute:g} a minute (rooms opened and joined "
+                                 f"count too); try again in {self.new_games.retry_after():.0f} s")
+            if isinstance(msg, NewGame):
+                self.game = await self.new_game(msg)
+            elif isinstance(msg, CreateRoom):
+                self.room = await self.hub.create_room(msg.team, msg.follower, msg.preset, msg.mode, msg.horizon,
+                                                       msg.show_belief, self, self.client_info(msg.viewport))
+            elif isinstance(msg, JoinRoom):
+                self.room = await self.hub.join_room(msg.code, self, self.client_info(msg.viewport))
+            else:
+                self.game = await self.hub.rejoin(msg.game_id, msg.token, self)
+        elif self.hub.room_of(self, self.room) is not None:  # waiting in a room
+            if isinstance(msg, Ready):
+                await self.hub.set_ready(self.room, self, msg.ready)
+            elif isinstance(msg, Quit):
+                await self.hub.leave_room(self.room, self)
+                self.room = None
+            else:
+                raise ValueError(f"the game of room {self.room.code} has not started: send ready (or quit to leave)")
+        elif isinstance(msg, Ready):
+            raise ValueError("no room on this connection: send create_room or join_room first")
+        elif self.hub.played_to_the_end(self.game, self):  # keys on their way at the end are logged, not refused
+            seat = self.game.seat_of(self)
+            if isinstance(msg, Key) and (problem := self.game.press(msg.key, msg.seq, msg.t_client, seat)):
+                await self.send(error("bad_key", problem))
+            elif isinstance(msg, PageEvent):
+                self.game.page_event(msg.event, msg.visible, msg.t_client, seat)
+        elif self.game is None or not self.hub.controls(self.game, self):
+            raise ValueError("no live game on this connection: send new_game or rejoin first")
+        elif isinstance(msg, Key):
+            problem = await self.hub.key(self.game, msg.key, msg.seq, msg.t_client, self.game.seat_of(self))
+            if problem:
+                await self.send(error("bad_key", problem))
+        elif isinstance(msg, PageEvent):
+            self.game.page_event(msg.event, msg.visible, msg.t_client, self.game.seat_of(self))
+        elif isinstance(msg, Quit):
+            if self.game.study is not None:
+                raise ValueError("a study's game cannot be ended early")
+            await self.hub.quit(self.game, self)
+
+    def client_info(self, viewport) -> dict:
+        """What a replay records of the page: its user agent and, when sent, its viewport."""
+        return {"user_agent": self.ws.headers.get("user-agent", "")[:500],
+                "viewport": list(viewport) if viewport else None}
+
+    async def new_game(self, msg: NewGame):
+        client_info = self.client_info(msg.viewport)
+        if self.study is None:
+            if msg.study is not None:
+                raise ValueError("this server runs no study")
+            return await self.hub.new_game(msg.follower, msg.preset, msg.mode, msg.horizon, msg.show_belief, self,
+                                           client_info=client_info, team=msg.team, followers=msg.followers)
+        if msg.study is None:
+            raise ValueError("this server runs a study: games start from the study page")
+        if msg.team != Team.ONE_TO_ONE:
+            raise ValueError("a study's games are one person with one AI follower (team 1:1); the study file sets "
+                             "everything else")
+        from server.study.service import Invalid as StudyInvalid
+        from server.study.service import Refused as StudyRefused
+
+        try:
+            game, meta = await asyncio.get_running_loop().run_in_executor(
+                None, self.study.game_for, msg.study.participant, msg.study.session)
+        except (StudyRefused, StudyInvalid) as err:
+            raise ValueError(str(err)) from None
+        return await self.hub.new_game(game.follower, game.preset, Mode(game.mode), game.horizon, game.show_belief,
+                                       self, tick_hz=game.tick_hz, study=meta, client_info=client_info)

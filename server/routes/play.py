@@ -1,0 +1,71 @@
+"""Playing: ``/api/options`` (what a new game or room may choose) and the play WebSocket ``/ws/play``, whose
+messages (docs/SERVER_PROTOCOL.md) start games, open and join rooms, and carry keys."""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+
+from fastapi import APIRouter, WebSocket, WebSocketDisconnect
+
+from colorgrid.presets import PRESETS, env_config
+from colorgrid.render import look
+from server.backend import CurrentBackend
+from server.connection import Connection
+from server.followers import follower_info
+from server.protocol import KEY_ACTIONS, MAX_HORIZON, ROOM_CODE_LENGTH, Mode, Team
+
+log = logging.getLogger("colorgrid.server")
+router = APIRouter()
+
+
+@router.get("/api/options")
+async def options(backend: CurrentBackend):
+    """What a new game may choose (followers, with labels and descriptions in ``follower_info``, presets with
+    their rewards, modes, teams, the horizon's limit) and the defaults, plus what the page needs to draw and
+    play: the look of boards and the move keys."""
+    settings = backend.settings
+    presets = {name: env_config(name) for name in sorted(PRESETS)}
+    team_followers = {t: backend.hub.team_followers(t) for t in Team}
+    return {"followers": list(settings.follower_choices), "default_follower": settings.follower,
+            "follower_info": [follower_info(name) for name in settings.follower_choices],
+            "presets": list(presets), "default_preset": settings.preset,
+            "preset_settings": {name: {"goal_reward": c.goal_reward, "wrong_penalty": c.wrong_penalty,
+                                       "horizon": c.horizon} for name, c in presets.items()},
+            "modes": [{"value": m.value, "label": m.label} for m in Mode],
+            "teams": [{"value": t.value, "label": t.label, "people": t.people, "ai_followers": t.num_followers,
+                       "room": t.room,
+                       "followers": team_followers[t]}
+                      for t in Team if team_followers[t]],
+            "room_code_length": ROOM_CODE_LENGTH,
+            "horizon": {"default": presets[settings.preset].horizon, "max": MAX_HORIZON},
+            "keys": KEY_ACTIONS, "look": look(),
+            "tick_hz": settings.tick_hz, "show_belief": settings.show_belief}
+
+
+@router.websocket("/ws/play")
+async def play_socket(ws: WebSocket, backend: CurrentBackend):
+    """One browser tab's socket, from the handshake (refused before it is accepted, so the browser sees it fail)
+    to its close: its seat then waits for a rejoin, and it leaves the room it waited in."""
+    sockets, hub = backend.sockets, backend.hub
+    refusal = sockets.refusal(ws)
+    if refusal is not None:
+        log.warning("refused a play socket: %s", refusal[1])
+        await ws.close(refusal[0], refusal[1])
+        return
+    await ws.accept()
+    conn = Connection(ws, hub, sockets.new_games.bucket(ws.client.host if ws.client else "?"), backend.shared.service)
+    sockets.open.add(conn)
+    writer = asyncio.create_task(conn.writer())
+    try:
+        await conn.serve()
+    except WebSocketDisconnect:
+        pass
+    finally:
+        sockets.open.discard(conn)
+        conn.closed = True
+        writer.cancel()
+        if conn.game is not None:
+            hub.disconnect(conn.game, conn)
+        if conn.room is not None:
+            await hub.leave_room(conn.room, conn)
