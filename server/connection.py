@@ -232,21 +232,14 @@ class Connection:
                 raise ValueError(f"the game of room {self.room.code} has not started: send ready (or quit to leave)")
         elif isinstance(msg, Ready):
             raise ValueError("no room on this connection: send create_room or join_room first")
-        elif self.hub.played_to_the_end(self.game, self):  # keys on their way at the end are logged, not refused
-            seat = self.game.seat_of(self)
-            if isinstance(msg, Key) and (problem := self.game.press(msg.key, msg.seq, msg.t_client, seat)):
-                await self.send(error("bad_key", problem))
-            elif isinstance(msg, PageEvent):
-                self.game.page_event(msg.event, msg.visible, msg.t_client, seat)
-        elif self.game is None or not self.hub.controls(self.game, self):
+        elif (seat := self.hub.seat_of(self.game, self)) is None:
             raise ValueError("no live game on this connection: send new_game or rejoin first")
-        elif isinstance(msg, Key):
-            problem = await self.hub.key(self.game, msg.key, msg.seq, msg.t_client, self.game.seat_of(self))
-            if problem:
+        elif isinstance(msg, Key):  # keys on their way at a real-time game's end are logged, not refused
+            if problem := await self.hub.key(self.game, msg.key, msg.seq, msg.t_client, seat):
                 await self.send(error("bad_key", problem))
         elif isinstance(msg, PageEvent):
-            self.game.page_event(msg.event, msg.visible, msg.t_client, self.game.seat_of(self))
-        elif isinstance(msg, Quit):
+            self.game.page_event(msg.event, msg.visible, msg.t_client, seat)
+        elif isinstance(msg, Quit) and self.hub.controls(self.game, self):  # a quit after the last step changes nothing
             if self.game.study is not None:
                 raise ValueError("a study's game cannot be ended early")
             await self.hub.quit(self.game, self)

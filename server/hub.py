@@ -289,9 +289,12 @@ class GameHub:
         """Whether ``client`` plays ``game`` now (it is live and was not taken over, and the person is in it)."""
         return game.game_id in self.games and game.seat_of(client) is not None
 
-    def played_to_the_end(self, game: Game | None, client: Client) -> bool:
-        """Whether ``client`` played ``game``, which has made its last step and takes late keys (``LATE_KEYS_S``)."""
-        return game is not None and game.game_id in self.ending and game.seat_of(client) is not None
+    def seat_of(self, game: Game | None, client: Client) -> Seat | None:
+        """The seat ``client`` plays in ``game`` while the game takes its keys: it is live, or it has made its last
+        step and takes the keys still on their way (``LATE_KEYS_S``); else None."""
+        if game is None or (game.game_id not in self.games and game.game_id not in self.ending):
+            return None
+        return game.seat_of(client)
 
     def disconnect(self, game: Game, client: Client) -> None:
         """``client`` closed: its seat waits for a rejoin (a connection that was replaced changes nothing)."""
