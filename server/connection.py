@@ -152,8 +152,9 @@ class Connection:
                     raise WebSocketDisconnect(CLOSE_POLICY)
                 if time.monotonic() - self.last_refusal_notice > 1.0:
                     self.last_refusal_notice = time.monotonic()
-                    await self.send(error("rate_limited", f"too many messages: at most "
-                                                          f"{self.settings.max_messages_per_s:g}/s; extra ones are refused"))
+                    rate = self.settings.max_messages_per_s
+                    await self.send(error("rate_limited", f"too many messages: at most {rate:g}/s; extra ones are "
+                                                          "refused"))
                 continue
             if size > self.settings.max_message_bytes:
                 await self.send(error("too_large", f"message of {size} bytes refused; the limit is "
@@ -180,7 +181,8 @@ class Connection:
         if not isinstance(data, dict) or data.get("type") not in CLIENT_TYPES:
             kind = data.get("type") if isinstance(data, dict) else None
             shown = repr(kind) if isinstance(kind, str) and len(kind) <= 40 else type(kind).__name__
-            await self.send(error("unknown_type", f"unknown message type {shown}; expected one of {list(CLIENT_TYPES)}"))
+            await self.send(error("unknown_type", f"unknown message type {shown}; expected one of "
+                                                  f"{list(CLIENT_TYPES)}"))
             return
         try:
             msg = client_message.validate_python(data)
