@@ -24,6 +24,7 @@ from server.library import ReplayLibrary
 from server.settings import ServerSettings
 
 if TYPE_CHECKING:  # the study's extra is imported only when a study runs
+    from server.cluster.plan import Membership
     from server.study.service import StudyService
 
 
@@ -60,7 +61,8 @@ class Backend:
 
     ``hub`` holds its games and waiting rooms, their tick loops and its inference process;
     ``sockets`` its open play sockets and their rate limits; ``jobs`` its replay worker processes
-    and export cache; ``replays`` what it has scanned of the shared replay folders.
+    and export cache; ``replays`` what it has scanned of the shared replay folders; ``member`` its place among
+    several processes behind HAProxy (``server.cluster``), None when it runs alone.
     """
 
     def __init__(self, shared: Shared):
@@ -72,6 +74,7 @@ class Backend:
         self.sockets = SocketRegistry(settings)
         self.jobs = ReplayJobs(settings.max_exports, int(settings.export_cache_mb * 1e6))
         self.replays = ReplayLibrary(settings, self.jobs)
+        self.member: Membership | None = None  # set by server.cluster.siblings.join_cluster
         self._warm_up: asyncio.Task | None = None
 
     @property

@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 from colorgrid.configkit import Flag, add_arguments, from_args
 from server.settings import ServerSettings
-
 
 FLAGS = {
     "show_belief": Flag(name="--hide-belief", invert=True, help="never show players the follower's belief"),
     "allowed_hosts": Flag(name="--allowed-host", extend_default=True),
     "allowed_origins": Flag(name="--allowed-origin", extend_default=True),
-    "follower": Flag(help="default follower: bayes-people (the people-robust Bayesian one), any follower name, a named spec or a checkpoint .pt"),
+    "follower": Flag(help="default follower: bayes-people (the people-robust Bayesian one), any follower name, a named "
+                          "spec or a checkpoint .pt"),
 }
 """Where a flag differs from the one generated from its ``ServerSettings`` field."""
 
@@ -22,19 +23,65 @@ def add_play_command(sub) -> None:
     play = sub.add_parser("play", help="run the play server: lead in the browser, a follower assists")
     add_arguments(play, ServerSettings, FLAGS)
     play.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
+    add_cluster_arguments(play)
     play.set_defaults(func=cmd_play)
 
 
 def cmd_play(args: argparse.Namespace) -> int:
     """Run the play server (uvicorn) until interrupted."""
-    from server.run import serve
-
     settings = from_args(ServerSettings, args, FLAGS)
     check_writable(settings.replays_dir, "--replays-dir")
     check_follower(settings.follower)
-    print(f"ColorGrid play server: http://{settings.host}:{settings.port}/  (replays in {settings.replays_dir}; "
-          "Ctrl+C stops)", flush=True)
-    serve(settings, log_level=args.log_level)
+
+    def announce(url: str) -> None:
+        print(f"ColorGrid play server: {url}/  (replays in {settings.replays_dir}; Ctrl+C stops)", flush=True)
+
+    return serve_or_launch(args, settings, settings.replays_dir, announce)
+
+
+def add_cluster_arguments(parser: argparse.ArgumentParser) -> None:
+    """``--processes``, ``--backends``, ``--cluster``: one process, or several behind HAProxy."""
+    group = parser.add_argument_group("several processes behind HAProxy (docs/STUDIES.md, \"Running a large study\")")
+    group.add_argument("--processes", type=int, default=1, metavar="N",
+                       help="run N play-server processes on this machine behind HAProxy, which listens on --host "
+                            "and --port (default 1: one process, no proxy)")
+    group.add_argument("--backends", metavar="HOST:PORT,...",
+                       help="run HAProxy alone on --host and --port, in front of these play servers (other machines "
+                            "sharing the database and the recordings folder, each started with --cluster)")
+    group.add_argument("--cluster", type=Path, metavar="FILE",
+                       help="this server is one of the backends that FILE (cluster.json, written by --processes or "
+                            "--backends) names: it answers as one of them, and /api/health reports them all")
+
+
+def serve_or_launch(args: argparse.Namespace, settings: ServerSettings, folder: Path, announce, study=None) -> int:
+    """One play server (``--cluster``: one backend of several), or the launcher of several behind HAProxy
+    (``--processes N``), or HAProxy alone (``--backends``); ``announce(url)`` prints where people connect."""
+    from server.cluster.plan import check_processes
+    from server.run import serve
+
+    roles = [flag for flag, given in (("--processes", args.processes != 1), ("--backends", args.backends),
+                                      ("--cluster", args.cluster)) if given]
+    if len(roles) > 1:
+        raise ValueError(f"{' and '.join(roles)} are one or the other: --processes N runs the backends and HAProxy "
+                         "here, --backends HAProxy alone, --cluster one backend of those")
+    check_processes(args.processes)
+    if args.processes > 1 or args.backends:
+        from server.cluster.launcher import Cluster
+
+        cluster = (Cluster.local(settings, args.processes, folder, study, args.log_level) if args.processes > 1
+                   else Cluster.proxy_only(settings, args.backends, folder, study))
+        announce(cluster.url)
+        where = f"{args.processes} processes" if args.processes > 1 else f"the backends {args.backends}"
+        print(f"  HAProxy in front of {where}: {cluster.proxy_file} (backends listed in {cluster.plan_file})",
+              flush=True)
+        return cluster.run()
+    member = None
+    if args.cluster is not None:
+        from server.cluster.plan import Membership
+
+        member = Membership.of(args.cluster, settings.port)
+    announce(f"http://{settings.host}:{settings.port}")
+    serve(settings, log_level=args.log_level, study=study, member=member)
     return 0
 
 

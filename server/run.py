@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import copy
 import logging
 
 import uvicorn
@@ -71,15 +72,31 @@ class PlayServer(uvicorn.Server):
         await super().shutdown(sockets)
 
 
-def serve(settings: ServerSettings, log_level: str = "info", study=None) -> None:
-    """Run the play server until interrupted (serving ``study``, a ``StudySetup``, when given)."""
+def serve(settings: ServerSettings, log_level: str = "info", study=None, member=None) -> None:
+    """Run the play server until interrupted (serving ``study``, a ``StudySetup``, when given; as one backend of
+    a cluster behind HAProxy with ``member``, a ``server.cluster.plan.Membership``)."""
     app = create_app(settings, study)
+    log_config = uvicorn.config.LOGGING_CONFIG
+    if member is not None:
+        from server.cluster.siblings import join_cluster
+
+        join_cluster(app, member)
+        log_config = named_logs(member.name or f"{settings.host}:{settings.port}")
     protocol = type("Protocol", (HeaderTimeoutProtocol,), {"header_timeout_s": settings.header_timeout_s})
     # No per-message compression: deflating every state message for every player cost the event loop more
     # than any other part of a tick (a state is about 1.3 KB, 5 a second: bandwidth is not the limit).
     config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=log_level, ws_max_size=65536,
-                            ws_per_message_deflate=False, http=protocol, timeout_graceful_shutdown=10)
+                            ws_per_message_deflate=False, http=protocol, timeout_graceful_shutdown=10,
+                            log_config=log_config)
     try:
         PlayServer(config, app).run()
     except KeyboardInterrupt:  # Ctrl+C: uvicorn has already shut down (games saved); no traceback for that
         pass
+
+
+def named_logs(name: str) -> dict:
+    """uvicorn's logging with each line marked by the backend it comes from (``[b2]``)."""
+    config = copy.deepcopy(uvicorn.config.LOGGING_CONFIG)
+    for formatter in config["formatters"].values():
+        formatter["fmt"] = formatter["fmt"].replace("%(levelprefix)s", f"%(levelprefix)s [{name}]", 1)
+    return config

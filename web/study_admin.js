@@ -38,6 +38,14 @@ async function refresh() {
     : `completion time: median ${median.toFixed(1)} min (all: ${s.completion_minutes.values.join(", ")})`;
   table($("arms"), ["arm", "trials (conditions in order)", "in progress", "completed", "quota"],
     s.arms.map((a) => [a.arm, a.label, a.active, a.completed, s.quota ?? "none"]));
+  $("servers").hidden = !s.backends;  // several processes behind HAProxy: each one's load and clock
+  if (s.backends) {
+    table($("backends"), ["process", "address", "state", "live games", "connections", "tick lateness p50 / p99 (ms)",
+                          "late ticks", "follower deadline misses"],
+      s.backends.map((b) => [b.name, b.address, b.up ? (b.ready ? "up" : "starting") : `down: ${b.problem}`, b.games,
+                             b.connections, b.up ? `${b.tick_lateness_p50_ms} / ${b.tick_lateness_p99_ms}` : "",
+                             b.late_ticks, b.deadline_misses]));
+  }
   const factors = Object.keys(s.conditions[0] ?? {}).filter((k) => k !== "label");
   table($("conditions"), ["condition", ...factors], s.conditions.map((c) => [c.label, ...factors.map((k) => String(c[k]))]));
   table($("recent"), ["participant", "arm", "status", "page", "started", "last seen", "completed"],

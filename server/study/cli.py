@@ -12,7 +12,7 @@ from pathlib import Path
 
 from colorgrid.configkit import add_arguments, from_args
 from colorgrid.resources import find_shipped
-from server.cli import FLAGS, check_follower, check_writable
+from server.cli import FLAGS, add_cluster_arguments, check_follower, check_writable, serve_or_launch
 from server.settings import ServerSettings
 from server.study.config import Study, load_study
 
@@ -79,13 +79,15 @@ def study_database(args: argparse.Namespace, folder: Path) -> str | Path:
 def add_study_commands(sub) -> None:
     study = sub.add_parser("study", help="run a human study from a study file, and export its data")
     commands = study.add_subparsers(dest="study_command", required=True)
-    run = commands.add_parser("run", help="serve the study: participants open /study?PROLIFIC_PID=..., the admin /study/admin")
+    run = commands.add_parser("run", help="serve the study: participants open /study?PROLIFIC_PID=..., the admin "
+                              "/study/admin")
     run.add_argument("study_file", type=study_path, help="the study file (TOML; see docs/STUDIES.md), or the name of "
                      "a shipped example (belief_display)")
     add_database_arguments(run)
     add_arguments(run, ServerSettings, FLAGS, skip=("replays_dir",))
     run.add_argument("--replays-dir", type=Path, help="where the games are recorded (default: recordings/STUDY_ID)")
     run.add_argument("--log-level", default="info", choices=["critical", "error", "warning", "info", "debug"])
+    add_cluster_arguments(run)
     run.set_defaults(func=cmd_run)
     export = commands.add_parser("export", help="write the study's tables (Parquet and CSV) for analysis")
     export.add_argument("study_file", type=study_path, help="the study file the study ran with (or its shipped name)")
@@ -96,8 +98,6 @@ def add_study_commands(sub) -> None:
 
 
 def cmd_run(args: argparse.Namespace) -> int:
-    from server.run import serve
-
     study = load_study(args.study_file)
     folder = study_folder(study, args.replays_dir)
     settings = from_args(ServerSettings, args, FLAGS, skip=("replays_dir",), replays_dir=folder)
@@ -111,13 +111,15 @@ def cmd_run(args: argparse.Namespace) -> int:
     store = setup.store()  # a database of another study or schema stops here, in one line
     where = store.name
     store.close()
-    base = f"http://{settings.host}:{settings.port}"
-    print(f"ColorGrid study {study.id!r}: {len(study.conditions)} conditions, {study.design.assignment} subjects; "
-          f"data in {where} and {folder}", flush=True)
-    print(f"  participants: {base}/study?{study.id_params[0]}=PARTICIPANT_ID", flush=True)
-    print(f"  admin:        {base}/study/admin   token: {token}  (never put it in a participant's link)", flush=True)
-    serve(settings, log_level=args.log_level, study=setup)
-    return 0
+
+    def announce(base: str) -> None:
+        print(f"ColorGrid study {study.id!r}: {len(study.conditions)} conditions, {study.design.assignment} subjects; "
+              f"data in {where} and {folder}", flush=True)
+        print(f"  participants: {base}/study?{study.id_params[0]}=PARTICIPANT_ID", flush=True)
+        print(f"  admin:        {base}/study/admin   token: {token}  (never put it in a participant's link)",
+              flush=True)
+
+    return serve_or_launch(args, settings, folder, announce, setup)
 
 
 def cmd_export(args: argparse.Namespace) -> int:

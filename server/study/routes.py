@@ -18,6 +18,7 @@ from fastapi import FastAPI, Header, HTTPException, Request
 from fastapi.responses import FileResponse, JSONResponse, RedirectResponse
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.background import BackgroundTask
+from starlette.concurrency import run_in_threadpool
 
 from server.study.service import AnswerProblems, Invalid, Refused, StudyService
 
@@ -123,10 +124,19 @@ def mount_study(app: FastAPI, service: StudyService, admin_token: str, web_dir: 
                                      "(Authorization: Bearer TOKEN)", headers={"WWW-Authenticate": "Bearer"})
 
     @app.get("/api/study/admin/summary", tags=["study"])
-    def summary(authorization: str | None = Header(default=None)) -> dict:
-        """Participants by status and arm, quotas, completion times and live games."""
+    async def summary(request: Request, authorization: str | None = Header(default=None)) -> dict:
+        """Participants by status and arm, quotas, completion times and live games; behind HAProxy, every
+        backend's live games and tick lateness (``backends``) and the live games of them all."""
         admin(authorization)
-        return service.summary(live_games())
+        live, backends = live_games(), None
+        member = request.app.state.backend.member
+        if member is not None:
+            from server.cluster.siblings import cluster_health
+            from server.routes.health import backend_health
+
+            cluster = await cluster_health(member, backend_health(request.app.state.backend))
+            live, backends = cluster["games"], cluster["backends"]
+        return {**await run_in_threadpool(service.summary, live), "backends": backends}
 
     @app.get("/api/study/admin/export.zip", tags=["study"])
     async def export(authorization: str | None = Header(default=None)):

@@ -1,0 +1,254 @@
+"""The launcher: the parent process of ``colorgrid play|study run --processes N`` (or ``--backends``).
+
+It starts N backend processes (``server.cluster.process``: uvicorn, one worker each, each with its own inference
+process) on free loopback ports, writes ``cluster.json`` and ``haproxy.cfg`` into the study's folder (the
+recordings folder in free play), starts HAProxy on the public address once every backend is ready, and then
+watches them: a child that dies is started again after a short wait (1 s, doubling while it keeps dying soon
+after its start, at most 30 s). On SIGTERM or Ctrl+C it stops the backends first (each saves its live games and
+tells its players), then HAProxy; no child outlives it (a backend stops itself when its launcher is gone,
+HAProxy is stopped by the kernel then).
+
+From Python (a load bench)::
+
+    cluster = Cluster.local(ServerSettings(port=0, replays_dir=folder), processes=3, folder=folder)
+    with cluster:              # start(): every backend ready, HAProxy answering on cluster.url
+        ...                    # cluster.poll() now and then restarts a backend that died
+"""
+
+from __future__ import annotations
+
+import ctypes
+import dataclasses
+import os
+import pickle
+import signal
+import subprocess
+import sys
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import server
+from server.cluster.haproxy import HEALTH_CHECK, PLAIN_HOST, check_config, haproxy_binary, proxy_config
+from server.cluster.plan import CLUSTER_FILE, PROXY_FILE, ClusterPlan, Membership, check_processes, free_port
+from server.cluster.process import BackendSpec
+from server.settings import ServerSettings
+
+READY_TIMEOUT_S = 180.0
+"""How long a backend may take to load its followers at the start (a fresh install compiles the env step)."""
+STOP_TIMEOUT_S = 45.0
+"""How long a backend may take to stop (saving its games takes at most 30 s, closing its sockets 10 s)."""
+PR_SET_PDEATHSIG = 1
+
+
+def die_with_parent() -> None:
+    """In a child before it runs (Linux): the kernel sends it SIGTERM when the launcher dies."""
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+    except (OSError, AttributeError):  # not Linux: the launcher's own stop is the only one
+        pass
+
+
+def say(text: str) -> None:
+    print(f"colorgrid cluster: {text}", flush=True)
+
+
+class Child:
+    """One supervised process: started, watched, started again after a short wait when it dies."""
+
+    FIRST_WAIT_S = 1.0
+    MAX_WAIT_S = 30.0
+    STABLE_S = 60.0
+    """A child that ran this long before it died is started again after the first wait, not a longer one."""
+
+    def __init__(self, name: str, argv: list[str], stdin: bytes | None = None, env: dict | None = None,
+                 pre_exec=None):
+        self.name, self.argv, self.stdin, self.env, self.pre_exec = name, argv, stdin, env, pre_exec
+        self.process: subprocess.Popen | None = None
+        self.started_at = 0.0
+        self.wait_s = self.FIRST_WAIT_S
+        self.restart_at: float | None = None
+        self.restarts = 0
+
+    def start(self) -> None:
+        self.process = subprocess.Popen(self.argv, stdin=subprocess.PIPE if self.stdin is not None else None,
+                                        env=self.env, start_new_session=True, preexec_fn=self.pre_exec)
+        if self.stdin is not None:
+            self.process.stdin.write(self.stdin)
+            self.process.stdin.close()
+        self.started_at, self.restart_at = time.monotonic(), None
+
+    @property
+    def alive(self) -> bool:
+        return self.process is not None and self.process.poll() is None
+
+    def check(self) -> None:
+        """Start it again if it died and its wait is over (called every half second by the launcher)."""
+        now = time.monotonic()
+        if self.process is None or self.alive:
+            return
+        if self.restart_at is None:
+            code = self.process.returncode
+            ran_s = now - self.started_at
+            self.wait_s = self.FIRST_WAIT_S if ran_s >= self.STABLE_S else self.wait_s
+            self.restart_at = now + self.wait_s
+            how = f"killed by signal {-code}" if code < 0 else f"exit code {code}"
+            say(f"{self.name} stopped ({how}) after {ran_s:.0f} s; starting it again in {self.wait_s:g} s")
+            self.wait_s = min(2 * self.wait_s, self.MAX_WAIT_S)
+        elif now >= self.restart_at:
+            self.restarts += 1
+            self.start()
+            say(f"{self.name} started again (restart {self.restarts}, pid {self.process.pid})")
+
+    def terminate(self) -> None:
+        if self.alive:
+            self.process.terminate()
+
+    def wait(self, timeout_s: float) -> None:
+        """Wait for it to end; past ``timeout_s``, kill it."""
+        if self.process is None:
+            return
+        try:
+            self.process.wait(timeout_s)
+        except subprocess.TimeoutExpired:
+            say(f"{self.name} did not stop within {timeout_s:g} s: killing it")
+            self.process.kill()
+            self.process.wait()
+
+
+def answers(url: str) -> bool:
+    """Whether ``url`` answers 200."""
+    try:
+        request = urllib.request.Request(url, headers={"Host": PLAIN_HOST})
+        with urllib.request.urlopen(request, timeout=2) as response:
+            return response.status == 200
+    except (OSError, ValueError):
+        return False
+
+
+class Cluster:
+    """Backends on this machine (or elsewhere) and HAProxy in front of them, as one thing to start and stop."""
+
+    def __init__(self, plan: ClusterPlan, settings: ServerSettings, folder: Path, study=None, log_level: str = "info",
+                 local: bool = True):
+        self.plan, self.settings, self.folder, self.study, self.log_level = plan, settings, folder, study, log_level
+        self.binary = haproxy_binary()
+        self.plan_file, self.proxy_file = folder / CLUSTER_FILE, folder / PROXY_FILE
+        self.backends = [self.backend(m) for m in plan.members] if local else []
+        self.proxy = Child("haproxy", [self.binary, "-db", "-f", str(self.proxy_file)], pre_exec=die_with_parent)
+        self._stop = threading.Event()
+
+    @classmethod
+    def local(cls, settings: ServerSettings, processes: int, folder: Path, study=None,
+              log_level: str = "info") -> Cluster:
+        """``processes`` backends on loopback ports of this machine, HAProxy on ``settings``' host and port (a
+        free port for 0)."""
+        check_processes(processes)
+        port = settings.port or free_port(settings.host if settings.host not in ("0.0.0.0", "::") else "127.0.0.1")
+        return cls(ClusterPlan.local(settings.host, port, processes), settings, folder, study, log_level)
+
+    @classmethod
+    def proxy_only(cls, settings: ServerSettings, backends: str, folder: Path, study=None) -> Cluster:
+        """HAProxy alone, in front of the backends ``--backends`` names (other machines sharing the database and
+        the recordings folder; each started with ``--cluster`` and the plan file this writes)."""
+        port = settings.port or free_port()
+        return cls(ClusterPlan.remote(settings.host, port, backends), settings, folder, study, local=False)
+
+    @property
+    def url(self) -> str:
+        """Where people connect: the proxy."""
+        host = {"0.0.0.0": "127.0.0.1", "::": "[::1]"}.get(self.plan.public_host, self.plan.public_host)
+        host = f"[{host}]" if ":" in host and not host.startswith("[") else host
+        return f"http://{host}:{self.plan.public_port}"
+
+    def backend_settings(self, member) -> ServerSettings:
+        """A backend's settings: the user's, listening on its loopback port and answering the public host too."""
+        public = self.plan.public_host
+        hosts = (*self.settings.allowed_hosts, *([] if public in ("0.0.0.0", "::") else [public]))
+        return dataclasses.replace(self.settings, host=member.host, port=member.port,
+                                   allowed_hosts=tuple(dict.fromkeys(hosts)))
+
+    def backend(self, member) -> Child:
+        spec = BackendSpec(self.backend_settings(member), Membership(self.plan_file, member.name), self.log_level,
+                           self.study)
+        package_root = str(Path(server.__file__).resolve().parent.parent)  # the child imports this very code
+        path = os.pathsep.join(p for p in (package_root, os.environ.get("PYTHONPATH", "")) if p)
+        return Child(member.name, [sys.executable, "-m", "server.cluster.process"], pickle.dumps(spec),
+                     {**os.environ, "PYTHONPATH": path, "PYTHONUNBUFFERED": "1"})
+
+    def id_params(self) -> tuple[str, ...]:
+        return tuple(self.study.study.id_params) if self.study is not None else ()
+
+    def write_files(self) -> None:
+        """``cluster.json`` (the backends read it) and ``haproxy.cfg`` (checked by HAProxy) in the folder."""
+        self.plan.write(self.plan_file)
+        self.proxy_file.write_text(proxy_config(self.plan, self.settings, self.id_params()))
+        check_config(self.binary, self.proxy_file)
+
+    # ------------------------------------------------------------ start, watch, stop
+    def start(self, timeout_s: float = READY_TIMEOUT_S) -> None:
+        """Every backend started and ready, then HAProxy answering; anything started is stopped on failure."""
+        self.write_files()
+        try:
+            for child in self.backends:
+                child.start()
+            deadline = time.monotonic() + timeout_s
+            for child, member in zip(self.backends, self.plan.members):
+                while not answers(f"http://{member.address}{HEALTH_CHECK}"):
+                    if not child.alive:
+                        raise ValueError(f"backend {member.name} stopped while starting (exit code "
+                                         f"{child.process.returncode}); its output is above")
+                    if time.monotonic() > deadline:
+                        raise ValueError(f"backend {member.name} was not ready within {timeout_s:g} s")
+                    time.sleep(0.2)
+            self.proxy.start()
+            self.wait_for_proxy()
+        except BaseException:
+            self.stop()
+            raise
+
+    def wait_for_proxy(self, timeout_s: float = 30.0) -> None:
+        """HAProxy answering through to a backend (alone in front of other machines: still running after 0.5 s)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            time.sleep(0.1)
+            if not self.proxy.alive:
+                raise ValueError(f"haproxy stopped at its start (exit code {self.proxy.process.returncode}): is "
+                                 f"{self.plan.public_host}:{self.plan.public_port} in use?")
+            if answers(f"{self.url}{HEALTH_CHECK}") if self.backends else time.monotonic() > deadline - timeout_s + 0.5:
+                return
+            if time.monotonic() > deadline:
+                raise ValueError(f"haproxy did not answer on {self.url} within {timeout_s:g} s")
+
+    def poll(self) -> None:
+        """Start again any child that died (after its wait); call it from the thread that called ``start``."""
+        for child in (*self.backends, self.proxy):
+            child.check()
+
+    def stop(self) -> None:
+        """The backends first (each saves its live games and tells its players), then HAProxy."""
+        for child in self.backends:
+            child.terminate()
+        for child in self.backends:
+            child.wait(STOP_TIMEOUT_S)
+        self.proxy.terminate()
+        self.proxy.wait(10)
+
+    def run(self) -> int:
+        """Start, watch until SIGTERM or Ctrl+C, stop; the launcher's whole life."""
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, lambda *_: self._stop.set())
+        self.start()
+        while not self._stop.wait(0.5):
+            self.poll()
+        say("stopping: the backends save their games, then haproxy stops")
+        self.stop()
+        return 0
+
+    def __enter__(self) -> Cluster:
+        self.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.stop()

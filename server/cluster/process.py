@@ -1,0 +1,53 @@
+"""One backend process of a cluster: ``python -m server.cluster.process``, started by the launcher.
+
+The launcher writes a ``BackendSpec`` (pickled) to the process's standard input: the settings it serves with
+(its loopback port), the study when one runs, and its membership. The process then is an ordinary play server
+(uvicorn, one worker, its own inference process) that also answers as one of the cluster
+(``server.cluster.siblings``). It stops the usual way on SIGTERM (every live game saved, each player told), and
+stops so, too, if the launcher dies without stopping it.
+"""
+
+from __future__ import annotations
+
+import os
+import pickle
+import signal
+import sys
+import threading
+import time
+from dataclasses import dataclass
+
+from server.settings import ServerSettings
+
+
+@dataclass(frozen=True)
+class BackendSpec:
+    """What one backend process runs."""
+
+    settings: ServerSettings
+    member: object
+    """Its ``server.cluster.plan.Membership``."""
+    log_level: str = "info"
+    study: object | None = None
+    """The study it serves (``server.study.cli.StudySetup``), or None for free play."""
+
+
+def stop_with_parent(parent: int, every_s: float = 1.0) -> None:
+    """Stop this server as SIGTERM does once ``parent`` (the launcher) is gone, so no backend outlives it."""
+    while os.getppid() == parent:
+        time.sleep(every_s)
+    os.kill(os.getpid(), signal.SIGTERM)
+
+
+def main() -> int:
+    from server.run import serve
+
+    spec: BackendSpec = pickle.load(sys.stdin.buffer)
+    sys.stdin.close()
+    threading.Thread(target=stop_with_parent, args=(os.getppid(),), daemon=True, name="launcher-watch").start()
+    serve(spec.settings, spec.log_level, spec.study, spec.member)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
