@@ -33,8 +33,8 @@ KEY = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 """What a routing key may be (a participant id is one, ``server.study.config.ID_PATTERN``)."""
 SUMMED = ("games", "rooms", "connections", "max_sessions")
 """Counts that add up over the backends."""
-REPORTED = ("ready", "pid", *SUMMED, "tick_lateness_p50_ms", "tick_lateness_p99_ms", "max_lateness_ms", "late_ticks",
-            "deadline_misses", "inference_restarts", "games_saved", "save_failures")
+REPORTED = ("ready", "pid", *SUMMED, "tick_lateness_p50_ms", "tick_lateness_p99_ms", "max_lateness_ms", "ticks",
+            "late_ticks", "deadline_misses", "inference_restarts", "games_saved", "save_failures")
 """What the cluster's health reports of each backend (from its own ``/api/health``)."""
 
 
@@ -56,8 +56,9 @@ def ask(member: Member, path: str, secret: str | None = None) -> tuple[int, dict
 
 
 async def cluster_health(membership: Membership, own: dict) -> dict:
-    """Every backend of the plan: up or not, and its load and tick lateness; the counts added up. This process
-    reports from ``own`` (its own health), the others as they answer their ``/api/health?scope=backend``."""
+    """``backends``: every backend of the plan, up or not, with its load and tick lateness; ``cluster``: the
+    counts added up. This process reports from ``own`` (its own health), the others as they answer their
+    ``/api/health?scope=backend``."""
     plan = membership.plan()
 
     async def report(member: Member) -> dict:
@@ -70,9 +71,10 @@ async def cluster_health(membership: Membership, own: dict) -> dict:
 
     backends = await asyncio.gather(*(report(m) for m in plan.members))
     up = [b for b in backends if b["up"]]
-    return {"backends": backends, "size": len(backends), "up": len(up),
-            "ready": sum(bool(b.get("ready")) for b in up), **{k: sum(b[k] for b in up) for k in SUMMED},
-            "tick_lateness_p99_ms": max((b["tick_lateness_p99_ms"] for b in up), default=0.0)}
+    return {"backends": backends,
+            "cluster": {"size": len(backends), "up": len(up), "ready": sum(bool(b.get("ready")) for b in up),
+                        **{k: sum(b[k] for b in up) for k in SUMMED},
+                        "tick_lateness_p99_ms": max((b["tick_lateness_p99_ms"] for b in up), default=0.0)}}
 
 
 async def room_holder(membership: Membership, code: str) -> Member | None:

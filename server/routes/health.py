@@ -39,8 +39,8 @@ def backend_health(backend: Backend) -> dict:
 
 @router.get("/api/health")
 async def health(backend: CurrentBackend, scope: Literal["cluster", "backend"] = "cluster"):
-    """Liveness and load: games running, the limit, tick statistics. In a cluster ``cluster`` adds every backend
-    (each one's games, rooms, connections and tick lateness, or why it did not answer) and the sums.
+    """Liveness and load: games running, the limit, tick statistics. In a cluster, ``backends`` adds every backend
+    (each one's games, rooms, connections and tick lateness, or why it did not answer) and ``cluster`` the sums.
     ``scope=backend``: this process alone, answered 503 until it is ready (HAProxy's health check)."""
     own = backend_health(backend)
     if scope == "backend":
@@ -49,4 +49,4 @@ async def health(backend: CurrentBackend, scope: Literal["cluster", "backend"] =
         return own
     from server.cluster.siblings import cluster_health
 
-    return {**own, "cluster": await cluster_health(backend.member, own)}
+    return {**own, **await cluster_health(backend.member, own)}

@@ -135,7 +135,7 @@ def mount_study(app: FastAPI, service: StudyService, admin_token: str, web_dir: 
             from server.routes.health import backend_health
 
             cluster = await cluster_health(member, backend_health(request.app.state.backend))
-            live, backends = cluster["games"], cluster["backends"]
+            live, backends = cluster["cluster"]["games"], cluster["backends"]
         return {**await run_in_threadpool(service.summary, live), "backends": backends}
 
     @app.get("/api/study/admin/export.zip", tags=["study"])
