@@ -286,52 +286,55 @@ def test_a_participant_goes_through_the_api_and_the_data_is_recorded(study_serve
     assert meta["client"]["viewport"] == [1280, 800] and meta["page_events"][0]["event"] == "blur"
 
 
-def test_two_participants_in_chromium_one_reloading_mid_trial(study_server, browser, tmp_path):
+def complete_fast_study(browser, url: str, pid: str, reload_in_trial: int | None = None) -> None:
+    """One participant through ``fast_study`` in chromium, from the link to the completion code; with
+    ``reload_in_trial``, the page reloads in the middle of that trial's game (it resumes the same game)."""
     from playwright.sync_api import expect
 
-    def go_through(pid: str, reload_in_trial: int | None):
-        context = browser.new_context(viewport={"width": 1200, "height": 900})
-        page = context.new_page()
-        page.goto(f"{study_server.url}/study?PROLIFIC_PID={pid}&STUDY_ID=st&SESSION_ID=se")
-        expect(page.locator("#page-title")).to_have_text("Consent")
-        page.click("#next")
-        expect(page.locator("#page-title")).to_have_text("How to play")
-        page.click("#next")
-        expect(page.locator("#page-title")).to_have_text("Practice game")
+    context = browser.new_context(viewport={"width": 1200, "height": 900})
+    page = context.new_page()
+    page.goto(f"{url}/study?PROLIFIC_PID={pid}&STUDY_ID=st&SESSION_ID=se")
+    expect(page.locator("#page-title")).to_have_text("Consent")
+    page.click("#next")
+    expect(page.locator("#page-title")).to_have_text("How to play")
+    page.click("#next")
+    expect(page.locator("#page-title")).to_have_text("Practice game")
+    page.click("#play")
+    expect(page.locator("#countdown")).to_have_text("3")  # real time: a visible 3-2-1 first
+    expect(page.locator("#page-title")).to_have_text("Practice game", timeout=30_000)  # back when it ends
+    expect(page.locator("#next")).to_be_visible(timeout=30_000)
+    page.click("#next")
+    for trial in range(4):
+        expect(page.locator("#page-title")).to_have_text(f"Game {trial + 1} of 4")
         page.click("#play")
-        expect(page.locator("#countdown")).to_have_text("3")  # real time: a visible 3-2-1 first
-        expect(page.locator("#page-title")).to_have_text("Practice game", timeout=30_000)  # back when it ends
-        expect(page.locator("#next")).to_be_visible(timeout=30_000)
+        expect(page.locator("#board")).to_be_visible()
+        page.locator("#board").focus()
+        for i in range(4):
+            if trial == reload_in_trial and i == 2:
+                page.reload()  # resumes the same game
+                expect(page.locator("#board")).to_be_visible(timeout=20_000)
+                expect(page.locator("#board")).to_have_attribute("data-step", "2")
+                page.locator("#board").focus()
+            expect(page.locator("#board")).to_have_attribute("data-step", str(i))
+            page.keyboard.press("ArrowLeft" if i % 2 else "ArrowUp")
+        expect(page.locator("#next")).to_be_visible(timeout=20_000)
         page.click("#next")
-        for trial in range(4):
-            expect(page.locator("#page-title")).to_have_text(f"Game {trial + 1} of 4")
-            page.click("#play")
-            expect(page.locator("#board")).to_be_visible()
-            page.locator("#board").focus()
-            for i in range(4):
-                if trial == reload_in_trial and i == 2:
-                    page.reload()  # resumes the same game
-                    expect(page.locator("#board")).to_be_visible(timeout=20_000)
-                    expect(page.locator("#board")).to_have_attribute("data-step", "2")
-                    page.locator("#board").focus()
-                expect(page.locator("#board")).to_have_attribute("data-step", str(i))
-                page.keyboard.press("ArrowLeft" if i % 2 else "ArrowUp")
-            expect(page.locator("#next")).to_be_visible(timeout=20_000)
-            page.click("#next")
-            page.locator("fieldset[data-id=helpful] input[value='6']").check()
-            page.click("#next")
-            expect(page.locator("fieldset[data-id=understood] .problem")).to_have_text("Please answer this question.")
-            page.locator("fieldset[data-id=understood] input[value='5']").check()
-            page.click("#next")
-        expect(page.locator("#page-title")).to_have_text("A few last questions")
-        page.locator("fieldset[data-id=belief_display] input[value='it helped']").check()
+        page.locator("fieldset[data-id=helpful] input[value='6']").check()
         page.click("#next")
-        expect(page.locator("#completion-code")).to_have_text("CG7QX2")
-        assert "cc=CG7QX2" in page.locator("#redirect").get_attribute("href")
-        context.close()
+        expect(page.locator("fieldset[data-id=understood] .problem")).to_have_text("Please answer this question.")
+        page.locator("fieldset[data-id=understood] input[value='5']").check()
+        page.click("#next")
+    expect(page.locator("#page-title")).to_have_text("A few last questions")
+    page.locator("fieldset[data-id=belief_display] input[value='it helped']").check()
+    page.click("#next")
+    expect(page.locator("#completion-code")).to_have_text("CG7QX2")
+    assert "cc=CG7QX2" in page.locator("#redirect").get_attribute("href")
+    context.close()
 
-    go_through("browser-1", reload_in_trial=None)
-    go_through("browser-2", reload_in_trial=1)
+
+def test_two_participants_in_chromium_one_reloading_mid_trial(study_server, browser, tmp_path):
+    complete_fast_study(browser, study_server.url, "browser-1")
+    complete_fast_study(browser, study_server.url, "browser-2", reload_in_trial=1)
     summary = json.loads(get(study_server, "/api/study/admin/summary", TOKEN)[1])
     completed = {p["pid"] for p in summary["recent"] if p["status"] == "completed"}
     assert {"browser-1", "browser-2"} <= completed and summary["completion_minutes"]["median"] > 0

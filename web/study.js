@@ -69,9 +69,11 @@ function show(next) {
   $("play").hidden = !gamePage || Boolean(view.done);
   $("next").hidden = view.kind === "debrief" || (gamePage && !view.done);
   $("next").textContent = view.kind === "consent" ? "I agree" : "Continue";
-  status(view.done ? ending(view) : "");
+  status(view.done ? ending(view) : view.interrupted ? INTERRUPTED : "", view.interrupted ? "warn" : "");
   if (view.live) connect({ type: "rejoin", game_id: view.live.game_id, token: view.live.token });
 }
+
+const INTERRUPTED = "Your game was interrupted: the server running it stopped. Press Play to play this game again.";
 
 function ending(page) {
   // The game just played, in words: how it ended and the team's score (a practice game's does not count).
@@ -198,6 +200,12 @@ function onMessage(msg) {
   } else if (msg.type === "error" || msg.type === "full") {
     console.info(msg);
     $("countdown").hidden = true;
+    if (game && !game.over && msg.code === "rejected") {  // its server stopped: the game cannot be rejoined
+      game = null;
+      socket?.close();
+      api("view", who).then(show).catch((err) => status(err.message, "error"));  // it offers to play it again
+      return;
+    }
     if (!game) {  // the game was not made: show the page again (its button starts it)
       api("view", who).then(show).catch((err) => status(err.message, "error"));
     }

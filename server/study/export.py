@@ -122,7 +122,8 @@ def tables(study: Study, database: str | Path, replays_dir: Path) -> dict[str, p
             condition = own_condition(a["pid"])
         answers.append({**who(a["pid"]), "page": a["page"], "trial_index": a["trial_index"],
                         **_condition(study, condition), "question": a["question"], "question_kind": kind,
-                        "likert": value if kind == "likert" else None, "scale": q["scale"] if kind == "likert" else None,
+                        "likert": value if kind == "likert" else None,
+                        "scale": q["scale"] if kind == "likert" else None,
                         "choice": value if kind == "choice" else None, "text": value if kind == "text" else None,
                         "answered": _time(a["answered"])})
     schema = export_schema(study)

@@ -65,8 +65,9 @@ TYPES: dict[str, Kind] = {
 
 GAME_KINDS = ("practice", "trial")
 STATUSES = ("active", "completed")
-ENDINGS = ("complete", "idle", "quit", "left", "disconnected", "server_shutdown", "stand_in_failed")
-"""Why a game ended (``game_over.reason``); a lost game (disconnected, server_shutdown) is played again."""
+ENDINGS = ("complete", "idle", "quit", "left", "disconnected", "server_shutdown", "stand_in_failed", "server_lost")
+"""Why a game ended (``game_over.reason``, or ``server_lost``: its process stopped without saving it); a lost game
+(disconnected, server_shutdown, server_lost) is played again."""
 KEY_STATUSES = ("applied", "superseded", "ignored", "unapplied")
 PAGE_EVENTS = typing.get_args(PageEvent.model_fields["event"].annotation)
 

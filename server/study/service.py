@@ -28,7 +28,10 @@ from server.study.config import ID_ALLOWED, ID_PATTERN, GameSettings, Page, Ques
 from server.study.figures import game_figures, score_figures
 from server.study.store import StudyStore
 
-LOST = ("disconnected", "server_shutdown")
+SERVER_LOST = "server_lost"
+"""The ending of a game whose process stopped without saving it (killed, crashed): written when the participant
+starts the game again, on whichever process they reach."""
+LOST = ("disconnected", "server_shutdown", SERVER_LOST)
 """Game endings that do not count: the participant plays that game again."""
 _markdown = MarkdownIt("commonmark", {"html": False})  # raw HTML in a study file is shown as text, never run
 
@@ -183,6 +186,8 @@ class StudyService:
                 out["live"] = {"game_id": live.game_id, "token": live.token}
             elif last is not None and last["ended"] and last["ended"] not in LOST:
                 out["done"] = {"ended": last["ended"], "scores": json.loads(last["scores"] or "null")}
+            elif self.interrupted(pid, last):
+                out["interrupted"] = True  # its process stopped: the page offers to play it again
         if step.kind == "debrief":
             code = self.study.completion_code
             out["completion_code"] = code
@@ -244,7 +249,7 @@ class StudyService:
         if live is not None and not live.finished:
             raise Invalid("this participant's game is still running: rejoin it")
         last = self.store.last_game(pid, row["step"])
-        if last is not None and (not last["ended"] or last["ended"] not in LOST):
+        if last is not None and not self.interrupted(pid, last) and (not last["ended"] or last["ended"] not in LOST):
             raise Invalid("the game on this page was already played")
         settings = self.game_settings(step)
         meta = {"study": self.study.id, "participant": pid, "step": row["step"], "kind": step.kind,
@@ -253,10 +258,19 @@ class StudyService:
                 "attempt": 0 if last is None else last["attempt"] + 1, "arm": row["arm"]}
         return settings, meta
 
+    def interrupted(self, pid: str, last: dict | None) -> bool:
+        """Whether the participant's latest game never ended and is not running here: the process that ran it
+        stopped without saving it (killed, crashed), this one or another behind the same proxy (a participant's
+        requests all reach one process, so their running game is always here)."""
+        return last is not None and not last["ended"] and pid not in self.live
+
     def game_started(self, game) -> None:
         m = game.study
         self.live[m["participant"]] = game
         with self.store.transaction() as tx:
+            if m["attempt"] > 0:  # an interrupted attempt before it gets its ending now (a lost one keeps its own)
+                tx.end_game(m["participant"], m["step"], m["attempt"] - 1, {"ended": SERVER_LOST,
+                                                                            "finished": time.time()}, running=True)
             tx.add_game({"pid": m["participant"], "step": m["step"], "attempt": m["attempt"], "kind": m["kind"],
                          "trial_index": m["trial_index"], "condition": m["condition_index"],
                          "settings": json.dumps(m["condition"]), "game_id": game.game_id, "started": time.time()})
@@ -265,13 +279,13 @@ class StudyService:
         """Record the end of a game with its figures (``server.study.figures``), read from the game's own record
         (descriptions of the AI agents do not enter them)."""
         m = game.study
-        if self.live.get(m["participant"]) is game:
-            del self.live[m["participant"]]
         figures = game_figures(game.to_replay(reason, defaultdict(dict)))
         with self.store.transaction() as tx:
             tx.end_game(m["participant"], m["step"], m["attempt"],
                         {"replay_id": game.replay_id, "ended": reason, "scores": json.dumps(scores),
                          "finished": time.time(), **score_figures(scores), **figures})
+        if self.live.get(m["participant"]) is game:  # only once its end is stored: never "interrupted" meanwhile
+            del self.live[m["participant"]]
 
     # ---------------------------------------------------------------- the admin's view
     def summary(self, live_games: int) -> dict:
@@ -286,7 +300,8 @@ class StudyService:
         minutes = [(r["completed"] - r["started"]) / 60 for r in rows if r["completed"]]
         return {
             "study": self.study.id, "title": self.study.title,
-            "conditions": [{"label": f"C{i + 1}", **dataclasses.asdict(c)} for i, c in enumerate(self.study.conditions)],
+            "conditions": [{"label": f"C{i + 1}", **dataclasses.asdict(c)}
+                           for i, c in enumerate(self.study.conditions)],
             "arms": by_arm, "quota": self.study.design.quota, "max_participants": self.study.max_participants,
             "participants": {"total": len(rows), "active": sum(r["status"] == "active" for r in rows),
                              "completed": sum(r["status"] == "completed" for r in rows)},

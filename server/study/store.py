@@ -243,8 +243,10 @@ class Transaction:
     def add_game(self, row: dict) -> None:
         self.conn.execute(insert(games).values(**row))
 
-    def end_game(self, pid: str, step: int, attempt: int, values: dict) -> None:
-        self.conn.execute(update(games).where(games.c.pid == pid, games.c.step == step, games.c.attempt == attempt)
+    def end_game(self, pid: str, step: int, attempt: int, values: dict, running: bool = False) -> None:
+        """Write a game's end; ``running``: only if it has none yet."""
+        which = [games.c.pid == pid, games.c.step == step, games.c.attempt == attempt]
+        self.conn.execute(update(games).where(*which, *([games.c.ended.is_(None)] if running else []))
                           .values(**values))
 
     def log(self, pid: str, kind: str, **detail) -> None:
