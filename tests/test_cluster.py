@@ -20,7 +20,7 @@ from websockets.sync.client import connect
 
 from colorgrid_apps.cli import main
 from server.cluster.haproxy import BACKEND_COOKIE, BACKEND_HEADER, ROUTE_COOKIE, check_config, proxy_config
-from server.cluster.plan import ClusterPlan
+from server.cluster.plan import ClusterPlan, Member
 from server.settings import ServerSettings
 from tests.conftest import ROOT, free_port
 
@@ -41,9 +41,13 @@ class RunningCluster:
     def ws_url(self) -> str:
         return self.url.replace("http://", "ws://") + "/ws/play"
 
-    def request(self, path: str, body: dict | None = None, cookies: dict | None = None) -> httpx.Response:
-        """Through the proxy (a POST with ``body``), carrying ``cookies``; redirects are not followed."""
+    def request(self, path: str, body: dict | None = None, cookies: dict | None = None,
+                token: str | None = None) -> httpx.Response:
+        """Through the proxy (a POST with ``body``), carrying ``cookies`` (and an admin ``token``); redirects are
+        not followed."""
         headers = {"Cookie": "; ".join(f"{k}={v}" for k, v in cookies.items())} if cookies else {}
+        if token:
+            headers["Authorization"] = f"Bearer {token}"
         return httpx.request("POST" if body is not None else "GET", self.url + path, json=body, headers=headers,
                              timeout=30)
 
@@ -170,6 +174,16 @@ def test_the_haproxy_configuration_is_valid_and_routes_by_the_study_id_then_the_
     remote = ClusterPlan.remote("::", 443, "10.0.0.11:9001, [fd00::2]:9001")
     assert [m.address for m in remote.members] == ["10.0.0.11:9001", "[fd00::2]:9001"]
     assert "    bind [::]:443" in proxy_config(remote, ServerSettings())
+
+
+DOCUMENTED = ClusterPlan("0.0.0.0", 8000, (Member("b1", "127.0.0.1", 41237), Member("b2", "127.0.0.1", 39411),
+                                            Member("b3", "127.0.0.1", 45063)), "secret")
+"""The plan whose configuration docs/STUDIES.md shows."""
+
+
+def test_docs_show_the_configuration_colorgrid_writes():
+    text = proxy_config(DOCUMENTED, ServerSettings(), ("PROLIFIC_PID", "pid"))
+    assert f"```\n{text}```" in (ROOT / "docs" / "STUDIES.md").read_text()
 
 
 # ---------------------------------------------------------------- free play over two backends

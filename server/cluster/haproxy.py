@@ -78,7 +78,7 @@ def proxy_config(plan: ClusterPlan, settings: ServerSettings, id_params: tuple[s
         (f"timeout http-request {settings.header_timeout_s:g}s", "a request's headers must arrive within this"),
         ("timeout client 60s", "an idle HTTP client is closed"),
         ("timeout server 300s", "the slowest answer (the admin's data download)"),
-        (f"timeout tunnel {tunnel_timeout_s(settings)}s", "a play socket may be silent this long (a room, a turn)"),
+        (f"timeout tunnel {tunnel_timeout_s(settings)}s", "a play socket may stay silent this long (not a game's length)"),
         ("timeout check 5s", "a health check's answer"),
         ("", ""),
         ("frontend colorgrid", ""),
