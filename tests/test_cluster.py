@@ -254,3 +254,30 @@ def test_health_through_the_proxy_reports_both_backends(play_cluster):
     assert [b["name"] for b in plan["backends"]] == ["b1", "b2"]
     assert (play_cluster.folder / "cluster.json").stat().st_mode & 0o077 == 0  # the siblings' secret is in it
     assert "balance hash" in (play_cluster.folder / "haproxy.cfg").read_text()
+
+
+def test_haproxy_alone_in_front_of_backends_elsewhere(play_cluster, tmp_path):
+    """``--backends``: the proxy's role for backends on other machines (here: the two of the running cluster)."""
+    plan = json.loads((play_cluster.folder / "cluster.json").read_text())
+    backends = ",".join(f"{b['host']}:{b['port']}" for b in plan["backends"])
+    port = free_port()
+    log = tmp_path / "proxy.log"
+    proxy = subprocess.Popen([sys.executable, "-m", "colorgrid_apps", "play", "--backends", backends, "--port",
+                              str(port), "--replays-dir", str(tmp_path), *FAST_FOLLOWERS], cwd=ROOT,
+                             stdout=open(log, "w"), stderr=subprocess.STDOUT, start_new_session=True)
+    alone = RunningCluster(proxy, f"http://127.0.0.1:{port}", tmp_path, log)
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                answer = alone.request("/api/health", cookies={ROUTE_COOKIE: "someone"})
+                break
+            except httpx.HTTPError:
+                assert proxy.poll() is None and time.monotonic() < deadline, log.read_text()
+                time.sleep(0.2)
+        assert answer.headers[BACKEND_HEADER] in ("b1", "b2") and len(answer.json()["backends"]) == 2
+        assert "HAProxy in front of the backends" in log.read_text()
+        written = json.loads((tmp_path / "cluster.json").read_text())
+        assert [f"{b['host']}:{b['port']}" for b in written["backends"]] == backends.split(",")
+    finally:
+        assert stop_cluster(alone) == 0

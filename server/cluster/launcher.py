@@ -26,13 +26,13 @@ import subprocess
 import sys
 import threading
 import time
-import urllib.request
 from pathlib import Path
 
 import server
-from server.cluster.haproxy import HEALTH_CHECK, PLAIN_HOST, check_config, haproxy_binary, proxy_config
+from server.cluster.haproxy import HEALTH_CHECK, check_config, haproxy_binary, proxy_config
 from server.cluster.plan import CLUSTER_FILE, PROXY_FILE, ClusterPlan, Membership, check_processes, free_port
 from server.cluster.process import BackendSpec
+from server.cluster.siblings import ask
 from server.settings import ServerSettings
 
 READY_TIMEOUT_S = 180.0
@@ -117,16 +117,6 @@ class Child:
             self.process.wait()
 
 
-def answers(url: str) -> bool:
-    """Whether ``url`` answers 200."""
-    try:
-        request = urllib.request.Request(url, headers={"Host": PLAIN_HOST})
-        with urllib.request.urlopen(request, timeout=2) as response:
-            return response.status == 200
-    except (OSError, ValueError):
-        return False
-
-
 class Cluster:
     """Backends on this machine (or elsewhere) and HAProxy in front of them, as one thing to start and stop."""
 
@@ -195,7 +185,7 @@ class Cluster:
                 child.start()
             deadline = time.monotonic() + timeout_s
             for child, member in zip(self.backends, self.plan.members):
-                while not answers(f"http://{member.address}{HEALTH_CHECK}"):
+                while ask(member.url, HEALTH_CHECK)[0] != 200:
                     if not child.alive:
                         raise ValueError(f"backend {member.name} stopped while starting (exit code "
                                          f"{child.process.returncode}); its output is above")
@@ -216,7 +206,9 @@ class Cluster:
             if not self.proxy.alive:
                 raise ValueError(f"haproxy stopped at its start (exit code {self.proxy.process.returncode}): is "
                                  f"{self.plan.public_host}:{self.plan.public_port} in use?")
-            if answers(f"{self.url}{HEALTH_CHECK}") if self.backends else time.monotonic() > deadline - timeout_s + 0.5:
+            if self.backends and ask(self.url, HEALTH_CHECK)[0] == 200:
+                return
+            if not self.backends and time.monotonic() - self.proxy.started_at > 0.5:
                 return
             if time.monotonic() > deadline:
                 raise ValueError(f"haproxy did not answer on {self.url} within {timeout_s:g} s")

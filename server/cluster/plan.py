@@ -37,6 +37,10 @@ class Member:
         """``host:port`` (an IPv6 host in brackets)."""
         return f"[{self.host}]:{self.port}" if ":" in self.host else f"{self.host}:{self.port}"
 
+    @property
+    def url(self) -> str:
+        return f"http://{self.address}"
+
 
 @dataclass(frozen=True)
 class ClusterPlan:

@@ -38,11 +38,11 @@ REPORTED = ("ready", "pid", *SUMMED, "tick_lateness_p50_ms", "tick_lateness_p99_
 """What the cluster's health reports of each backend (from its own ``/api/health``)."""
 
 
-def ask(member: Member, path: str, secret: str | None = None) -> tuple[int, dict]:
-    """A sibling's answer to ``GET path`` (status and JSON body); status 0 with the problem when it did not
-    answer. Blocking: called in a thread."""
+def ask(base: str, path: str, secret: str | None = None) -> tuple[int, dict]:
+    """A play server's answer to ``GET path`` (status and JSON body) at ``base`` (``http://HOST:PORT``, a sibling
+    or the proxy); status 0 with the problem when it did not answer. Blocking: called in a thread."""
     headers = {"Host": PLAIN_HOST, **({"Authorization": f"Bearer {secret}"} if secret else {})}
-    request = urllib.request.Request(f"http://{member.address}{path}", headers=headers)
+    request = urllib.request.Request(f"{base}{path}", headers=headers)
     try:
         with urllib.request.urlopen(request, timeout=ASK_TIMEOUT_S) as response:
             return response.status, json.loads(response.read())
@@ -63,7 +63,7 @@ async def cluster_health(membership: Membership, own: dict) -> dict:
 
     async def report(member: Member) -> dict:
         status, body = (200, own) if member.name == membership.name else await asyncio.to_thread(
-            ask, member, HEALTH_CHECK)
+            ask, member.url, HEALTH_CHECK)
         entry = {"name": member.name, "address": member.address, "up": status in (200, 503) and "ready" in body}
         entry.update({k: body[k] for k in REPORTED if k in body} if entry["up"] else
                      {"problem": body.get("problem") or f"answered {status}"})
@@ -81,7 +81,7 @@ async def room_holder(membership: Membership, code: str) -> Member | None:
     """The sibling whose waiting room has ``code``, if one has."""
     plan = membership.plan()
     others = [m for m in plan.members if m.name != membership.name]
-    answers = await asyncio.gather(*(asyncio.to_thread(ask, m, f"/api/cluster/rooms/{code}", plan.secret)
+    answers = await asyncio.gather(*(asyncio.to_thread(ask, m.url, f"/api/cluster/rooms/{code}", plan.secret)
                                      for m in others))
     return next((m for m, (status, _) in zip(others, answers) if status == 200), None)
 
