@@ -70,6 +70,9 @@ def serve_or_launch(args: argparse.Namespace, settings: ServerSettings, folder: 
 
         cluster = (Cluster.local(settings, args.processes, folder, study, args.log_level) if args.processes > 1
                    else Cluster.proxy_only(settings, args.backends, folder, study))
+        if args.backends and study is not None and not str(study.database).startswith("postgresql"):
+            print("warning: backends on other machines need one PostgreSQL database (--database "
+                  "postgresql+psycopg://...): SQLite's locking is not safe over a network folder", flush=True)
         announce(cluster.url)
         where = f"{args.processes} processes" if args.processes > 1 else f"the backends {args.backends}"
         print(f"  HAProxy in front of {where}: {cluster.proxy_file} (backends listed in {cluster.plan_file})",
