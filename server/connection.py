@@ -257,7 +257,8 @@ class Connection:
             if msg.study is not None:
                 raise ValueError("this server runs no study")
             return await self.hub.new_game(msg.follower, msg.preset, msg.mode, msg.horizon, msg.show_belief, self,
-                                           client_info=client_info, team=msg.team, followers=msg.followers)
+                                           client_info=client_info, team=msg.team, followers=msg.followers,
+                                           leader=msg.leader)
         if msg.study is None:
             raise ValueError("this server runs a study: games start from the study page")
         if msg.team != Team.ONE_TO_ONE:

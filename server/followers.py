@@ -1,17 +1,20 @@
 """Follower pools: one policy instance serves one agent index of every live game of the same kind, in one
-batched call."""
+batched call; and what the play page calls each AI follower and AI leader, and which teams each plays."""
 
 from __future__ import annotations
 
+import re
 import time
 
 import numpy as np
 
 from colorgrid.config import FOLLOWER, EnvConfig
+from colorgrid.env import BatchEnv
 from colorgrid.policies import SCRIPTED, IdleFollower, make_policy, policy_teams
 from colorgrid.policies.base import AgentInput
 from colorgrid.replay import describe_agent
 from colorgrid.step_inputs import StepInputs
+from server.game import PAIR_VIEW
 from server.inference import InferenceWorker, RemotePolicy
 
 
@@ -26,6 +29,17 @@ def plays(name: str, team) -> bool:
     team it was trained in (``policy_teams``)."""
     teams = policy_teams(name)
     return teams is None or team.value in teams
+
+
+def leads(name: str, team) -> str | None:
+    """How the AI leader ``name`` plays a leader seat of ``team`` (a ``Team``): ``"direct"`` (a scripted policy,
+    or a network trained in that team), ``PAIR_VIEW`` (a network trained in the 1:1 team, in a team with one
+    follower), or None (it does not). A checkpoint's acting settings (``x.pt:temperature=0``) change nothing here."""
+    base = name.partition(":")[0]
+    teams = policy_teams(base if base.endswith(".pt") else name)
+    if teams is None or team.value in teams:
+        return "direct"
+    return PAIR_VIEW if "1:1" in teams and team.num_followers == 1 else None
 
 
 def follower_label(followers: tuple[str, ...]) -> str:
@@ -60,23 +74,68 @@ FOLLOWER_INFO = {
 belief over the goal (that the page may draw)."""
 
 
+LEADER_INFO = {
+    "astar": ("Scripted leader (A*)", "knows the goal and walks to the nearest block of it by A*", False),
+    "person": ("Person-like scripted leader", "the A* leader with the slips, late turns and mistakes of people", False),
+    "ippo-leader": ("Trained leader (IPPO)", "the network trained to lead beside a follower (1:1)", True),
+    "idle": ("Bystander leader", "walks about and never collects", False),
+    "random": ("Random leader", "moves at random and collects whatever it steps on", False),
+}
+"""How the play page names each scripted or shipped AI leader (the other leader of a 2:1 game): label, one-line
+description, whether it holds a belief over the goal. A scripted policy not listed here is a follower."""
+
+
 def follower_info(name: str) -> dict:
-    """``{value, label, description, has_belief}`` for a follower name. Parameters (``bayes:lapse=0.2``) are
-    added to the label; a name not in ``FOLLOWER_INFO`` (a checkpoint path) is labelled by its file name."""
+    """``{value, label, description, has_belief}`` for a follower name (``policy_info``)."""
+    return policy_info(name, FOLLOWER_INFO, "follower")
+
+
+def leader_info(name: str, pair_view: bool = False) -> dict:
+    """``{value, label, description, has_belief}`` for an AI leader's name (``policy_info``); ``pair_view``: it
+    leads through ``PAIR_VIEW``, which its description says."""
+    info = policy_info(name, LEADER_INFO, "leader")
+    if pair_view:
+        info["description"] += ("; trained beside one follower (1:1), it sees the game as 1:1: itself and the "
+                                "follower (you are not in its view)")
+    return info
+
+
+def policy_info(name: str, known: dict, role: str) -> dict:
+    """``{value, label, description, has_belief}`` for a policy name of ``role``, from ``known`` (a name's label,
+    description, belief). Parameters (``bayes:lapse=0.2``) are added to the label; a name not in ``known`` (a
+    checkpoint path) is labelled by its file name and what its model card's title says of it (``paper_follower.pt
+    (imported from the paper's code)``)."""
     base, _, params = name.partition(":")
-    known = FOLLOWER_INFO.get(base)
-    if known is None:
-        what = "a trained follower loaded from" if name.endswith(".pt") else "the follower"
-        label, description, has_belief = name.rsplit("/", 1)[-1], f"{what} {name}", True
+    entry = known.get(base)
+    if entry is None:
+        label, description, has_belief = name.rsplit("/", 1)[-1], f"the {role} {name}", True
+        if name.endswith(".pt"):
+            origin = card_origin(name)
+            label += f" ({origin})" if origin else ""
+            description = (f"a trained {role}{f', {origin}' if origin else ''}: loaded from {name}"
+                           + (f" (its model card: {name[:-3]}.md)" if origin is not None else ""))
     else:
-        label, description, has_belief = known
+        label, description, has_belief = entry
         label += f" ({params})" if params else ""
     return {"value": name, "label": label, "description": description, "has_belief": has_belief}
 
 
+def card_origin(checkpoint: str) -> str | None:
+    """What the model card beside ``checkpoint`` (``X.md`` for ``X.pt``) says of its origin after the role in its
+    title (``# Model card: `x.pt` (the follower, imported from the paper's code)`` -> ``imported from the paper's
+    code``): ``""`` when it says nothing more, None without a readable card."""
+    try:
+        with open(checkpoint[:-3] + ".md", encoding="utf-8") as card:
+            title = card.readline()
+    except (OSError, UnicodeDecodeError):
+        return None
+    found = re.match(r"# Model card: `[^`]*` \((.*)\)\s*$", title)
+    return found.group(1).partition(", ")[2] if found else None
+
+
 class FollowerPool:
-    """A policy playing agent ``agent_index`` (a follower, or the scripted leader in the seat of a person who
-    left), with one row ("slot") per concurrent game of one config.
+    """A policy playing agent ``agent_index`` (a follower, an AI leader beside a person, or the scripted leader in
+    the seat of a person who left), with one row ("slot") per concurrent game of one config.
 
     ``act`` runs the policy for any subset of slots in one call. With a ``worker`` the policy is
     built and run in the inference process (``server.inference``); without one, here. ``fallback``
@@ -89,8 +148,8 @@ class FollowerPool:
         self.name = name
         self.config = config
         self.agent_index = agent_index
-        role = config.roles[agent_index]
-        self.policy = RemotePolicy(worker, name, role) if worker is not None else make_policy(name, role=role)
+        self.worker = worker
+        self.policy = self._new_policy()
         self.policy.reset(config, capacity, agent_index=agent_index, seed=seed)
         self.idle = IdleFollower()
         self.idle.reset(config, capacity, agent_index=agent_index, seed=seed + 1)
@@ -100,21 +159,44 @@ class FollowerPool:
         # its deadline), so calls never queue up behind a slow one on old inputs
         self.last_release = time.monotonic()
 
+    def _new_policy(self):
+        role = self.config.roles[self.agent_index]
+        return RemotePolicy(self.worker, self.name, role) if self.worker is not None else make_policy(self.name, role)
+
+    def _fresh_input(self, games: int = 1) -> AgentInput:
+        """The input of ``games`` games at their first step, on one fresh board."""
+        env = BatchEnv(self.config, num_envs=1, seed=0)
+        obs, _ = env.reset()
+        one = StepInputs.begin(self.config, 1).agent_input(obs, self.agent_index, env.penalty_coef,
+                                                           env.state.goal.copy())
+        return AgentInput.concat([one] * games)
+
     def warm_up(self) -> None:
         """One call on a fresh board in a free slot, and one env step (loading the compiled kernel), so that
         the first real step is as fast as the rest."""
-        from colorgrid.env import BatchEnv
-
-        env = BatchEnv(self.config, num_envs=1, seed=0)
-        obs, _ = env.reset()
         slot = self.acquire()
         try:
-            inputs = StepInputs.begin(self.config, 1).agent_input(obs, self.agent_index, env.penalty_coef,
-                                                                  env.state.goal.copy())
-            self.act([inputs], [slot])
+            self.act([self._fresh_input()], [slot])
         finally:
             self.release(slot)
+        env = BatchEnv(self.config, num_envs=1, seed=0)
+        env.reset()
         env.step(np.zeros((1, self.config.num_agents), dtype=np.int64))
+
+    def call_ms(self, games: int) -> float:
+        """How long one call of this pool's policy takes for ``games`` games on this machine, in ms: measured on a
+        policy built for it and then dropped (the pool's slots, which games may hold, are not touched)."""
+        policy = self._new_policy()
+        try:
+            policy.reset(self.config, games, agent_index=self.agent_index)
+            inputs = self._fresh_input(games)
+            policy.act(inputs)  # the first call of a policy may load what it needs
+            start = time.perf_counter()
+            policy.act(inputs)
+            return (time.perf_counter() - start) * 1000.0
+        finally:
+            if isinstance(policy, RemotePolicy):
+                policy.close()
 
     def acquire(self) -> int:
         if not self.free:

@@ -1,13 +1,15 @@
 """One game: people lead, AI followers assist; the server owns the state and records everything.
 
 A game's team is its config's (``EnvConfig.num_leaders``, ``num_followers``). Each leader is a
-``Seat`` played by a person; each follower is an ``AIPlayer``: a slot in the follower pool built for
-its agent index. When a person leaves a game that other people still play, a scripted leader takes
-their seat (an ``AIPlayer`` at the seat's agent index) and the replay says from which step.
+``Seat`` played by a person, or an AI leader beside them (``Game.leader_kinds``: the last leader
+seats); each follower and AI leader is an ``AIPlayer``: a slot in the pool built for its agent index.
+When a person leaves a game that other people still play, a scripted leader takes their seat (an
+``AIPlayer`` at the seat's agent index) and the replay says from which step.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import secrets
 import time
 from dataclasses import dataclass, field
@@ -26,6 +28,9 @@ from server.protocol import KEY_ACTIONS, Mode
 STAY = ACTION_NAMES.index("stay")
 STAND_IN = "astar"
 """The scripted leader that plays on in the seat of a person who left a game other people still play."""
+PAIR_VIEW = "1:1"
+"""How a network trained in the 1:1 team leads in a larger team with one follower: it sees the game as a 1:1 game
+of its own seat and the follower (``pair_view``); the other leaders are not in its view."""
 
 
 MAX_PAGE_EVENTS = 1000
@@ -70,6 +75,25 @@ class AIPlayer:
     slot: int
     beliefs: list = field(default_factory=list)  # [t][C] the policy's belief when acting, when it gives one
     fresh: bool = True  # no step acted yet: its first input starts an episode (clears the slot's memory)
+    view: tuple[int, int] | None = None  # a network trained in 1:1 leading here: the agents it sees (``pair_view``)
+
+
+def leader_seats(config: EnvConfig, ai_leaders: int) -> tuple[range, range]:
+    """The agent indices of the leader seats that people play and of those that AI leaders play (the last
+    ``ai_leaders``)."""
+    people = config.num_leaders - ai_leaders
+    return config.leaders[:people], config.leaders[people:]
+
+
+def pair_view(inp: AgentInput, config: EnvConfig, agents: tuple[int, int]) -> AgentInput:
+    """``inp`` (an agent's input in ``config``'s team) as the input of a 1:1 game of ``agents`` (a leader, then
+    the follower): the color planes and those two agents' planes, and their last actions and pickups. Every other
+    agent is left out: a network trained in the 1:1 team reads the board it knows, and another leader is, to it,
+    an obstacle it cannot see."""
+    C, agents = config.num_colors, list(agents)
+    return dataclasses.replace(inp, observation=inp.observation[:, [*range(C), *(C + a for a in agents)]],
+                               prev_picked_color=inp.prev_picked_color[:, agents],
+                               prev_actions=inp.prev_actions[:, agents])
 
 
 @dataclass
@@ -89,12 +113,14 @@ class Game:
     study: dict | None = None  # a study's game: participant, condition, trial index... (recorded in the replay)
     room: str | None = None  # the room's code, for a game of several people
     follower_kinds: tuple[str, ...] = ()  # each AI follower's kind, in agent order (all ``follower`` if empty)
+    leader_kinds: tuple[str, ...] = ()  # each AI leader's kind: they play the last leader seats, people the first
 
     def __post_init__(self) -> None:
         self.mode = Mode(self.mode)
         cfg = self.config
-        self.seats = [Seat(i, cfg.agent_names[i]) for i in cfg.leaders]
-        self.ai: dict[int, AIPlayer] = {}  # agent index -> its policy's slot (followers, stand-in leaders)
+        people, self.ai_leaders = leader_seats(cfg, len(self.leader_kinds))  # AI leaders in ``leader_kinds`` order
+        self.seats = [Seat(i, cfg.agent_names[i]) for i in people]
+        self.ai: dict[int, AIPlayer] = {}  # agent index -> its policy's slot (followers, AI and stand-in leaders)
         self.env = BatchEnv(cfg, num_envs=1, seed=self.seed, autoreset=False)
         self.obs, _ = self.env.reset()
         self.last = StepInputs.begin(cfg, 1)
@@ -149,8 +175,10 @@ class Game:
         seat.left, seat.left_at_step = reason, int(self.env.state.t[0])
         seat.client, seat.pending = None, None
 
-    def attach(self, agent: int, pool, slot: int) -> None:
-        self.ai[agent] = AIPlayer(agent, pool, slot)
+    def attach(self, agent: int, pool, slot: int, view: tuple[int, int] | None = None) -> None:
+        """``agent`` is played from now on by ``pool``'s ``slot`` (seeing the game through ``pair_view`` of
+        ``view`` when given)."""
+        self.ai[agent] = AIPlayer(agent, pool, slot, view=view)
 
     # ------------------------------------------------------------ keys
     def press(self, key: str, seq: int, t_client: float, seat: Seat | None = None) -> str | None:
@@ -210,7 +238,8 @@ class Game:
         """A policy's input now (copied: a call that missed its deadline may still be reading it)."""
         obs = {k: v.copy() for k, v in self.obs.items()}
         start = np.ones(1, dtype=bool) if player.fresh else None
-        return self.last.agent_input(obs, player.agent, self.env.penalty_coef, self.env.state.goal.copy(), start)
+        inp = self.last.agent_input(obs, player.agent, self.env.penalty_coef, self.env.state.goal.copy(), start)
+        return inp if player.view is None else pair_view(inp, self.config, player.view)
 
     def apply(self, moves: dict[int, tuple[int, np.ndarray | None, bool]]) -> None:
         """Step the world with each person's pending key (or stay) and the policies' ``moves``: agent index ->
@@ -280,6 +309,8 @@ class Game:
         if self.config.num_followers > 1:  # each AI follower's kind, by agent name
             kinds = self.follower_kinds or (self.follower,) * self.config.num_followers
             message["followers"] = dict(zip((cfg.agent_names[i] for i in cfg.followers), kinds))
+        if self.leader_kinds:  # each AI leader's kind, by agent name
+            message["leaders"] = dict(zip((cfg.agent_names[i] for i in self.ai_leaders), self.leader_kinds))
         return message
 
     def state_message(self) -> dict:
@@ -305,7 +336,8 @@ class Game:
         return message
 
     def to_replay(self, ended: str, descriptions: dict[int, dict]) -> Replay:
-        """The game as a replay; ``descriptions``: agent index -> its policy's ``agents`` entry (each AI follower)."""
+        """The game as a replay; ``descriptions``: agent index -> its policy's ``agents`` entry (each AI follower
+        and AI leader; one that saw the game through ``pair_view`` says so under ``view``)."""
         for entry in self.key_log:
             if entry["status"] == "pending":
                 entry["status"] = "unapplied"  # pressed after the last step the game made
@@ -314,7 +346,9 @@ class Game:
         for i, name in enumerate(names):
             seat = next((s for s in self.seats if s.agent == i), None)
             if seat is None:
-                agents[name] = descriptions[i]
+                view = self.ai[i].view if i in self.ai else None
+                agents[name] = descriptions[i] if view is None else {
+                    **descriptions[i], "view": {"team": PAIR_VIEW, "agents": [names[a] for a in view]}}
             elif seat.left is None:
                 agents[name] = {"policy": "human"}
             else:  # a person who left: the stand-in leader's moves from that step on

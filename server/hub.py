@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import gc
 import logging
 import time
@@ -11,13 +12,13 @@ from functools import partial
 from pathlib import Path
 from typing import Protocol
 
-from colorgrid.config import FOLLOWER, EnvConfig
+from colorgrid.config import FOLLOWER, LEADER, EnvConfig
 from colorgrid.policies import policy_teams
 from colorgrid.presets import env_config
 from colorgrid.replay import save
 from colorgrid.roles import scores
-from server.followers import FollowerPool, follower_label, is_scripted, plays
-from server.game import STAND_IN, Game, Seat
+from server.followers import FollowerPool, follower_label, is_scripted, leads, plays
+from server.game import PAIR_VIEW, STAND_IN, Game, Seat, leader_seats
 from server.inference import InferenceLost, InferenceWorker
 from server.protocol import ROOM_COUNTDOWN_S, Mode, Team
 from server.rooms import Room, RoomError, new_code, parse_code
@@ -66,7 +67,7 @@ class GameHub:
         self.saver = ThreadPoolExecutor(max_workers=1, thread_name_prefix="replay-saver")
         self.lock = asyncio.Lock()  # one step at a time: ticks and turn-based keys never interleave
         self.stats = {"ticks": 0, "late_ticks": 0, "max_lateness_ms": 0.0, "deadline_misses": 0, "games_saved": 0,
-                      "save_failures": 0}
+                      "save_failures": 0, "policy_call_ms": {}}  # policy_call_ms: each trained one's, at warm-up
         self.lateness_ms: list[float] = []
         self._tasks: list[asyncio.Task] = []
         self._notices: set[asyncio.Task] = set()  # seat changes being told to the other people of a game
@@ -75,9 +76,12 @@ class GameHub:
         self.listeners: list = []  # told game_started(game) and game_over(game, reason, scores): a study's records
         self._seed_counter = int(time.time())
         self.stopped = False
-        # pools never freed: the default's, and the trained followers' (building one would stall the inference thread)
+        # pools never freed: the default's, and the trained followers' and leaders' (building one would stall the
+        # inference thread)
         self._offered: dict[Team, list[str]] | None = None  # team_followers, by team
-        self.keep_warm = {settings.follower, *(f for f in settings.follower_choices if not is_scripted(f))}
+        self._leading: dict[Team, dict[str, str]] | None = None  # team_leaders: how each offered leader leads
+        self.warm_followers = {settings.follower, *(f for f in settings.follower_choices if not is_scripted(f))}
+        self.keep_warm = {*self.warm_followers, *(kind for kind in settings.leaders if not is_scripted(kind))}
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
@@ -86,23 +90,60 @@ class GameHub:
         self.clock(self.settings.tick_hz)
 
     async def _warm_up(self) -> None:
-        """Load the default follower, and every offered trained one, for both modes before the first player
-        waits on it: a trained network's first call pays for loading torch and the weights, and a pool is
-        built on the inference thread, where games must not wait for it."""
-        for follower in sorted(self.keep_warm, key=lambda f: f != self.settings.follower):  # the default first
-            # a trained follower in each team it plays (every AI seat of it); a scripted default in 1:1
-            teams = ([Team.ONE_TO_ONE] if is_scripted(follower)
-                     else [t for t in Team if follower in self.team_followers(t)])
-            for team, mode in ((team, mode) for team in teams for mode in Mode):
+        """Load the default follower, and every offered trained follower and AI leader, for both modes before the
+        first player waits on it: a trained network's first call pays for loading torch and the weights, and a
+        pool is built on the inference thread, where games must not wait for it. Each trained one's call is then
+        timed (``_time_calls``)."""
+        loop = asyncio.get_running_loop()
+        timed = set()
+        for kind, team, role in self._warm_seats():
+            for mode in Mode:
                 config = self.make_config(self.settings.preset, mode, None, team)
+                agents = config.followers if role == "follower" else leader_seats(config, config.num_leaders - 1)[1]
                 try:
-                    for agent in config.followers:
-                        pool = await self.pool_for(follower, config, agent)
-                        await asyncio.get_running_loop().run_in_executor(self.executor, pool.warm_up)
-                except Exception:  # a bad follower is reported when a game asks for it
-                    log.exception("could not warm up follower %s", follower)
+                    for agent in agents:
+                        pool, _ = await self.seat_pool(kind, config, agent)
+                        await loop.run_in_executor(self.executor, pool.warm_up)
+                    if kind not in timed and not is_scripted(kind):
+                        timed.add(kind)
+                        await loop.run_in_executor(self.executor, self._time_calls, pool)
+                except Exception as err:
+                    if role == "leader" and not isinstance(err, InferenceLost):  # one that cannot lead is not offered
+                        log.error("AI leader %s is not offered in team %s: %s", kind, team.value, err)
+                        self.team_leaders(team).pop(kind, None)
+                        break
+                    log.exception("could not warm up %s %s", role, kind)  # a game asking for it is told why
         gc.freeze()  # what start-up loaded (torch, the networks) is left out of later collections
         self.ready = True
+
+    def _warm_seats(self) -> list[tuple[str, Team, str]]:
+        """``(kind, team, role)`` of the pools made at start-up: the default follower first (in 1:1 when it is
+        scripted), each trained follower in each team it plays, each trained AI leader in each team it leads."""
+        seats = []
+        for follower in sorted(self.warm_followers, key=lambda f: f != self.settings.follower):
+            teams = ([Team.ONE_TO_ONE] if is_scripted(follower)
+                     else [t for t in Team if follower in self.team_followers(t)])
+            seats += [(follower, team, "follower") for team in teams]
+        for leader in self.keep_warm - self.warm_followers:
+            seats += [(leader, team, "leader") for team in Team if leader in self.team_leaders(team)]
+        return seats
+
+    def _time_calls(self, pool: FollowerPool) -> None:
+        """Time one call of ``pool``'s policy for one game and for ``max_sessions`` games on this machine, record
+        it (``stats["policy_call_ms"]``, in ``/api/health``) and warn when a full server's call would miss the
+        inference deadline: past about ``within_deadline`` games at once, every step of every game it plays takes
+        the fallback move (a large network on a small CPU: the paper's, docs/PAPER_CODE.md)."""
+        games, deadline = self.settings.max_sessions, self.settings.inference_deadline_ms
+        one = pool.call_ms(1)
+        full = pool.call_ms(games) if games > 1 else one
+        per_game = (full - one) / max(1, games - 1)
+        within = 0 if one > deadline else games if full <= deadline else 1 + int((deadline - one) / per_game)
+        self.stats["policy_call_ms"][pool.name] = {"one_game": round(one, 1), "games": games,
+                                                   "all_games": round(full, 1), "within_deadline": within}
+        if within < games:
+            log.warning("%s: one call takes %.0f ms for one game and %.0f ms for %d (max_sessions) on this machine; "
+                        "past about %d games at once it misses the %.0f ms inference deadline and its games take the "
+                        "fallback move", pool.name, one, full, games, within, deadline)
 
     async def stop(self) -> list[Client]:
         """Save every live game and tell its people (``game_over``, reason ``server_shutdown``); close every
@@ -171,6 +212,29 @@ class GameHub:
             self._clocks[tick_hz] = asyncio.create_task(self._tick_loop(tick_hz))
             self._tasks.append(self._clocks[tick_hz])
 
+    async def seat_pool(self, kind: str, config: EnvConfig, agent: int) -> tuple[FollowerPool, tuple[int, int] | None]:
+        """The pool that plays ``kind`` at agent ``agent`` of ``config``, and the agents it sees when it sees the game
+        as a 1:1 game (``PAIR_VIEW``: a network trained in 1:1 in a leader seat of a larger team; its pool is
+        built for the 1:1 team's leader), else None."""
+        fit = self.leader_fit(kind, Team(config.team)) if config.roles[agent] == "leader" else None
+        if fit == PAIR_VIEW:
+            pair = dataclasses.replace(config, num_leaders=1, num_followers=1)
+            return await self.pool_for(kind, pair, LEADER), (agent, *config.followers)
+        return await self.pool_for(kind, config, agent), None
+
+    def leader_fit(self, kind: str, team: Team) -> str | None:
+        """How AI leader ``kind`` plays a leader seat of ``team`` (``followers.leads``; an offered one's is read
+        once), or None."""
+        return self.team_leaders(team).get(kind) if kind in self.settings.leaders else leads(kind, team)
+
+    def team_leaders(self, team: Team) -> dict[str, str]:
+        """The offered AI leaders (``ServerSettings.leaders``) that play a leader seat beside a person in ``team``,
+        each with how it plays it (``followers.leads``); none in a team of one leader."""
+        if self._leading is None:  # once: a checkpoint file is read to know its team
+            self._leading = {t: {kind: fit for kind in self.settings.leaders if (fit := leads(kind, t))}
+                             if t.num_leaders > 1 else {} for t in Team}
+        return self._leading[team]
+
     def team_followers(self, team: Team = Team.TWO_FOLLOWERS) -> list[str]:
         """The offered followers that play in ``team`` (a trained network only in the team it was trained in),
         the default first if it does."""
@@ -214,39 +278,59 @@ class GameHub:
     async def new_game(self, follower: str | None, preset: str | None, mode: Mode, horizon: int | None,
                        show_belief: bool, client: Client, tick_hz: float | None = None, study: dict | None = None,
                        client_info: dict | None = None, team: Team = Team.ONE_TO_ONE,
-                       followers: list[str] | None = None) -> Game:
-        """Start a game for ``client``, the team's one person. ``tick_hz`` (default: the server's) sets a
+                       followers: list[str] | None = None, leader: str | None = None) -> Game:
+        """Start a game for ``client``, the team's one person; in a team of several leaders, ``leader`` (an offered
+        AI leader, ``team_leaders``) plays every other leader seat. ``tick_hz`` (default: the server's) sets a
         real-time game's clock; ``study`` is what a study's game records about itself (``meta.study``)."""
         team = Team(team)
-        if team.room:
-            raise ValueError(f"team {team.value} has {team.people} people: they meet in a room (create_room, "
-                             "then share its code)")
+        leaders = self.choose_leaders(team, leader)
+        if team.room and not leaders:
+            raise ValueError(f"team {team.value} has {team.people} leaders: people meet in a room (create_room, then "
+                             f"share its code), or one person plays beside an AI leader (leader: one of "
+                             f"{list(self.team_leaders(team))})")
         chosen, preset, config = self.choose(team, follower, preset, Mode(mode), horizon, followers)
         return await self._open_game(config, Mode(mode), chosen, preset, show_belief, [(client, client_info or {})],
-                                     tick_hz=tick_hz, study=study)
+                                     tick_hz=tick_hz, study=study, leaders=leaders)
+
+    def choose_leaders(self, team: Team, leader: str | None) -> tuple[str, ...]:
+        """The AI leaders of a game of one person in ``team``: ``leader`` in every leader seat but the person's;
+        none without one. One not offered for the team raises ``ValueError``."""
+        if leader is None:
+            return ()
+        offered = list(self.team_leaders(team))
+        if team.num_leaders == 1:
+            raise ValueError(f"team {team.value} has one leader, you: an AI leader plays beside a person in a team of "
+                             f"several leaders (team 2:1)")
+        if leader not in offered:
+            why = f"does not play a leader seat of team {team.value}" if leader in self.settings.leaders else \
+                "is not offered"
+            raise ValueError(f"AI leader {leader!r} {why}; choose one of {offered}")
+        return (leader,) * (team.num_leaders - 1)
 
     async def _open_game(self, config: EnvConfig, mode: Mode, followers: tuple[str, ...], preset: str,
                          show_belief: bool, people: list[tuple[Client, dict]], tick_hz: float | None = None,
-                         study: dict | None = None, room: str | None = None) -> Game:
-        """Make a game for ``people`` (connection and page info, one per leader, in agent order), with a slot in
-        each AI follower's pool (``followers``: one kind per follower, in agent order); send each person their
-        ``welcome`` and the first ``state``."""
+                         study: dict | None = None, room: str | None = None, leaders: tuple[str, ...] = ()) -> Game:
+        """Make a game for ``people`` (connection and page info, one per person's leader seat, in agent order),
+        with a slot in each AI follower's pool (``followers``: one kind per follower, in agent order) and each AI
+        leader's (``leaders``: one kind per leader seat after the people's); send each person their ``welcome``
+        and the first ``state``."""
         # The session is counted before the first await, so concurrent requests never overshoot the limit.
         self.check_capacity()
         self.reserved += 1
         try:
-            pools = [await self.pool_for(kind, config, i) for kind, i in zip(followers, config.followers)]
+            ai = [*zip(followers, config.followers), *zip(leaders, leader_seats(config, len(leaders))[1])]
+            pools = [(agent, *await self.seat_pool(kind, config, agent)) for kind, agent in ai]
             if self.stopped:
                 raise ServerFull("the server is shutting down; try again in a minute")
             self._seed_counter += 1
             game = Game(config=config, mode=mode, follower=follower_label(followers), follower_kinds=tuple(followers),
-                        preset=preset, seed=self._seed_counter,
+                        leader_kinds=tuple(leaders), preset=preset, seed=self._seed_counter,
                         show_belief=show_belief and self.settings.show_belief, max_key_log=self.settings.max_key_log,
                         tick_hz=tick_hz or self.settings.tick_hz, study=study, room=room)
             for seat, (client, client_info) in zip(game.seats, people):
                 seat.client, seat.client_info = client, client_info
-            for pool in pools:
-                game.attach(pool.agent_index, pool, pool.acquire())
+            for agent, pool, view in pools:
+                game.attach(agent, pool, pool.acquire(), view)
             try:
                 for listener in self.listeners:  # recorded before the player sees the game
                     await asyncio.get_running_loop().run_in_executor(self.saver, listener.game_started, game)
@@ -617,7 +701,7 @@ class GameHub:
     async def _save(self, game: Game, reason: str) -> None:
         stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime(game.created))
         replay_id = f"play-{stamp}-{game.game_id}"
-        replay = game.to_replay(reason, {player.agent: player.pool.describe() for player in game.followers()})
+        replay = game.to_replay(reason, {agent: player.pool.describe() for agent, player in game.ai.items()})
         # Written (atomically, fsynced) on a worker thread so saving never stalls the tick.
         path = Path(self.settings.replays_dir) / f"{replay_id}.replay.json"
         await asyncio.get_running_loop().run_in_executor(self.saver, save, replay, path)

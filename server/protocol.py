@@ -34,7 +34,8 @@ class Mode(str, Enum):
 
 class Team(str, Enum):
     """Who plays a game: leaders and followers, as ``"leaders:followers"``. Every leader is a person (a
-    scripted leader takes the seat of one who leaves) and every follower is the server's AI follower."""
+    scripted leader takes the seat of one who leaves), or one person leads beside AI leaders (``NewGame.leader``);
+    every follower is the server's AI follower."""
 
     ONE_TO_ONE = "1:1"
     TWO_PEOPLE = "2:1"
@@ -62,7 +63,7 @@ class Team(str, Enum):
     def label(self) -> str:
         """How a page names the team."""
         return {Team.ONE_TO_ONE: "you lead, one AI follower",
-                Team.TWO_PEOPLE: "two people lead together, one AI follower (a room)",
+                Team.TWO_PEOPLE: "two leaders, one AI follower: you and another person (a room) or an AI leader",
                 Team.TWO_FOLLOWERS: "you lead, two AI followers"}[self]
 
 
@@ -112,7 +113,11 @@ class NewGame(_Message):
     horizon: int | None = Field(default=None, ge=1, le=MAX_HORIZON)
     show_belief: bool = True
     team: Team = Team.ONE_TO_ONE
-    """A team with one person (``"1:1"``, ``"1:2"``); teams of several people meet in a room (``create_room``)."""
+    """A team with one person (``"1:1"``, ``"1:2"``, or ``"2:1"`` with ``leader``); teams of several people meet in
+    a room (``create_room``)."""
+    leader: str | None = Field(default=None, max_length=1024)
+    """In a team of several leaders (``"2:1"``): the AI leader that plays every leader seat but this person's (one
+    of ``/api/options``' team ``leaders``); without it the team's people meet in a room."""
     study: StudyRef | None = None
     viewport: Viewport | None = None
     """The page's inner width and height in CSS pixels (recorded in the replay)."""

@@ -7,8 +7,10 @@ from pathlib import Path
 from typing import ClassVar
 
 from colorgrid.configkit import check_bool, check_choice, check_int, check_number, check_strings, fail
+from colorgrid.policies import SCRIPTED, registry
 from colorgrid.presets import PRESETS
 from colorgrid.resources import shipped
+from server.followers import LEADER_INFO
 
 
 @dataclass(frozen=True)
@@ -28,6 +30,11 @@ class ServerSettings:
     followers: tuple[str, ...] = ("bayes-people", "ippo-cautious", "ippo-people", "ippo", "ippo-1L2F", "ippo-2L1F",
                                   "bayes", "copy", "oracle", "idle", "random")
     """Followers a player may choose from (the default is always allowed); each team offers those that play it."""
+    leaders: tuple[str, ...] = ("astar",)
+    """AI leaders a person may lead beside in a team of two leaders (2:1): scripted leaders (``astar``, ``person``
+    with its parameters, ``idle``, ``random``), trained leaders by name (``ippo-leader``) or checkpoint path (a
+    network trained in 1:1, such as one imported from the paper's code, sees the game as 1:1: itself and the
+    follower). Each team offers those that play it; none: people only."""
     preset: str = "default"
     """Default environment preset (see ``colorgrid.presets.PRESETS``)."""
     tick_hz: float = 5.0
@@ -80,6 +87,15 @@ class ServerSettings:
 
     def __post_init__(self) -> None:
         check_strings(self, "followers", allowed="a tuple of follower names")
+        check_strings(self, "leaders", allowed="a tuple of leader names")
+        scripted = sorted(set(SCRIPTED) & set(LEADER_INFO))
+        for name in self.leaders:
+            base = name.partition(":")[0]
+            trained = base in registry.registered_names() and base not in SCRIPTED
+            population = name.startswith("population:") or ".json" in name
+            if base not in scripted and not (trained or population or base.endswith(".pt")):
+                fail(self, "leaders", f"a scripted leader ({', '.join(scripted)}), a trained leader's name, a "
+                                      "population or a checkpoint path ending in .pt (not a follower)", name)
         for name in ("host", "follower"):
             if not isinstance(getattr(self, name), str) or not getattr(self, name):
                 fail(self, name, "a non-empty string")

@@ -51,22 +51,42 @@ function chosenTeam() {
 }
 
 function showTeamChoice() {
-  // the followers that play in the chosen team, and what starting it does
+  // the followers that play in the chosen team, the AI leaders that may lead beside you in it, and what starting
+  // it does
   const team = chosenTeam(), current = $("follower").value;
   const offered = options.follower_info.filter((f) => team.followers.includes(f.value));
   fill($("follower"), offered, team.followers.includes(current) ? current : team.followers[0]);
+  const leaders = options.leader_info.filter((l) => (team.leaders ?? []).includes(l.value));
+  $("leader-choice").hidden = !leaders.length;
+  fill($("leader"), [{ value: "", label: "another person (a room)" }, ...leaders], "");
   // one person with several AI followers may give the second its own kind
   const mixed = team.ai_followers > 1 && !team.room;
   $("second-follower").hidden = !mixed;
   $("follower-heading").textContent = mixed ? "First AI partner" : "Your AI partner";
   if (mixed) fill($("follower-2"), [{ value: "", label: "the same kind" }, ...offered], "");
+  showStart();
+}
+
+function chosenLeader() {
+  // the AI leader you lead beside (a team of several leaders), or "" (the other leaders are people: a room)
+  return $("leader-choice").hidden ? "" : $("leader").value;
+}
+
+function inRoom(team) {
+  return team.room && !chosenLeader();
+}
+
+function showStart() {
+  // what starting the chosen team does, with or without an AI leader beside you
+  const team = chosenTeam();
+  const followers = team.ai_followers === 1 ? "one AI follower" : `${team.ai_followers} AI followers`;
   showFollower();
-  $("start").textContent = team.room ? "Create a room" : "Start";
-  $("team-help").textContent = team.room
+  $("start").textContent = inRoom(team) ? "Create a room" : "Start";
+  $("team-help").textContent = inRoom(team)
     ? `You and ${team.people - 1 === 1 ? "another person" : `${team.people - 1} other people`} lead together ` +
-      `(${team.ai_followers === 1 ? "one AI follower" : `${team.ai_followers} AI followers`}): create a room, ` +
-      "send its link, and the game starts when everyone is ready. In turn-based play the world steps once " +
-      "every person has moved."
+      `(${followers}): create a room, send its link, and the game starts when everyone is ready. In turn-based ` +
+      "play the world steps once every person has moved."
+    : chosenLeader() ? `You lead beside an AI leader, who also knows the goal (${followers}).`
     : team.ai_followers > 1 ? `${team.ai_followers} AI partners assist you; each forms its own belief.` : "";
   $("team-help").hidden = !$("team-help").textContent;  // no empty bullet
 }
@@ -75,10 +95,15 @@ function followerInfo(name) {
   return options.follower_info.find((f) => f.value === name) ?? { value: name, label: name, description: "", has_belief: true };
 }
 
+function leaderInfo(name) {
+  return options.leader_info.find((l) => l.value === name) ?? { value: name, label: name, description: "" };
+}
+
 function showFollower() {
   const second = $("second-follower").hidden ? "" : $("follower-2").value;
+  const leader = chosenLeader() ? `. The other leader: ${leaderInfo(chosenLeader()).description}.` : "";
   $("follower-description").textContent = [$("follower").value, second].filter(Boolean)
-    .map((name) => followerInfo(name).description).join(" ");
+    .map((name) => followerInfo(name).description).join(" ") + leader;
 }
 
 function chosenFollowers() {
@@ -196,6 +221,10 @@ function onMessage(msg) {
     $("follower-label").textContent = follower.label;
     $("follower-label").title = follower.description;
     $("partner-note").firstChild.textContent = followers > 1 ? "your AI partners: " : "your AI partner: ";
+    const leaders = [...new Set(Object.values(msg.leaders ?? {}))].map(leaderInfo);  // AI leaders beside you
+    $("leader-note").hidden = !leaders.length;
+    $("leader-label").textContent = leaders.map((l) => l.label).join(" + ");
+    $("leader-label").title = leaders.map((l) => l.description).join(" ");
     showAgents(game);
     $("belief-whose").textContent = followers > 1 ? "your AI partners believe" : "your AI partner believes";
     $("belief-panel").hidden = !(msg.show_belief && follower.has_belief);
@@ -297,16 +326,16 @@ $("start").addEventListener("click", async () => {
     status(stepsMessage(options.horizon.max), "error");
     return;
   }
-  const team = chosenTeam();
-  const request = { type: team.room ? "create_room" : "new_game", team: team.value, ...chosenFollowers(),
-                    preset: $("preset").value, mode: $("mode").value,
+  const team = chosenTeam(), leader = chosenLeader();
+  const request = { type: inRoom(team) ? "create_room" : "new_game", team: team.value, ...chosenFollowers(),
+                    ...(leader ? { leader } : {}), preset: $("preset").value, mode: $("mode").value,
                     horizon: $("horizon").value ? Number($("horizon").value) : null, show_belief: true,
                     viewport: [window.innerWidth, window.innerHeight] };
   seq = 0;
   game = null;
   room = null;
   status("");
-  if (request.mode === "realtime" && !team.room) {  // a room's countdown is the server's, once all are ready
+  if (request.mode === "realtime" && request.type === "new_game") {  // a room's countdown is the server's
     // The countdown runs before the game exists: the server steps a real-time world from its first
     // moment, so nothing moves, and no key counts, until "go".
     $("setup").hidden = true;
@@ -333,6 +362,7 @@ $("copy-link").addEventListener("click", () => navigator.clipboard?.writeText($(
 $("team").addEventListener("change", showTeamChoice);
 $("follower").addEventListener("change", showFollower);
 $("follower-2").addEventListener("change", showFollower);
+$("leader").addEventListener("change", showStart);
 $("preset").addEventListener("change", showPreset);
 $("mode").addEventListener("change", showMode);
 $("again").addEventListener("click", () => {

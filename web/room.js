@@ -64,9 +64,11 @@ export function showAgents(game) {
 }
 
 // Who an agent is to this page's person: "you", "the other person", "a scripted leader" (in the seat of a
-// person who left) or "your AI partner" (every AI follower of the team).
+// person who left), "the AI leader" (one you lead beside: the welcome's `leaders`) or "your AI partner" (every AI
+// follower of the team).
 export function whoIs(game, name) {
   if (name === game.agent) return "you";
+  if (game.leaders?.[name]) return "the AI leader";
   const seat = game.seats?.find((s) => s.agent === name);
   if (seat) return seat.status === "left" ? "a scripted leader" : "the other person";
   return game.look.agents.find((a) => a.name === name)?.role === "leader" ? "the other person" : "your AI partner";

@@ -12,7 +12,8 @@ from colorgrid.presets import PRESETS, env_config
 from colorgrid.render import look
 from server.backend import CurrentBackend
 from server.connection import Connection
-from server.followers import follower_info
+from server.followers import follower_info, leader_info
+from server.game import PAIR_VIEW
 from server.protocol import KEY_ACTIONS, MAX_HORIZON, ROOM_CODE_LENGTH, Mode, Team
 
 log = logging.getLogger("colorgrid.server")
@@ -21,21 +22,24 @@ router = APIRouter()
 
 @router.get("/api/options")
 async def options(backend: CurrentBackend):
-    """What a new game may choose (followers, with labels and descriptions in ``follower_info``, presets with
-    their rewards, modes, teams, the horizon's limit) and the defaults, plus what the page needs to draw and
-    play: the look of boards and the move keys."""
+    """What a new game may choose (followers, with labels and descriptions in ``follower_info``, AI leaders to lead
+    beside in a team of two leaders, in ``leader_info``, presets with their rewards, modes, teams, the horizon's
+    limit) and the defaults, plus what the page needs to draw and play: the look of boards and the move keys."""
     settings = backend.settings
     presets = {name: env_config(name) for name in sorted(PRESETS)}
     team_followers = {t: backend.hub.team_followers(t) for t in Team}
+    team_leaders = {t: backend.hub.team_leaders(t) for t in Team}
+    fits = {name: fit for offered in team_leaders.values() for name, fit in offered.items()}
     return {"followers": list(settings.follower_choices), "default_follower": settings.follower,
             "follower_info": [follower_info(name) for name in settings.follower_choices],
+            "leader_info": [leader_info(name, fits[name] == PAIR_VIEW) for name in settings.leaders if name in fits],
             "presets": list(presets), "default_preset": settings.preset,
             "preset_settings": {name: {"goal_reward": c.goal_reward, "wrong_penalty": c.wrong_penalty,
                                        "horizon": c.horizon} for name, c in presets.items()},
             "modes": [{"value": m.value, "label": m.label} for m in Mode],
             "teams": [{"value": t.value, "label": t.label, "people": t.people, "ai_followers": t.num_followers,
                        "room": t.room,
-                       "followers": team_followers[t]}
+                       "followers": team_followers[t], "leaders": list(team_leaders[t])}
                       for t in Team if team_followers[t]],
             "room_code_length": ROOM_CODE_LENGTH,
             "horizon": {"default": presets[settings.preset].horizon, "max": MAX_HORIZON},
