@@ -54,6 +54,10 @@ def say(text: str) -> None:
     print(f"colorgrid cluster: {text}", flush=True)
 
 
+class Stopped(Exception):
+    """SIGTERM or Ctrl+C came while the cluster was starting."""
+
+
 class Child:
     """One supervised process: started, watched, started again after a short wait when it dies."""
 
@@ -191,7 +195,8 @@ class Cluster:
                                          f"{child.process.returncode}); its output is above")
                     if time.monotonic() > deadline:
                         raise ValueError(f"backend {member.name} was not ready within {timeout_s:g} s")
-                    time.sleep(0.2)
+                    if self._stop.wait(0.2):
+                        raise Stopped
             self.proxy.start()
             self.wait_for_proxy()
         except BaseException:
@@ -231,7 +236,10 @@ class Cluster:
         """Start, watch until SIGTERM or Ctrl+C, stop; the launcher's whole life."""
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, lambda *_: self._stop.set())
-        self.start()
+        try:
+            self.start()
+        except Stopped:  # Ctrl+C while the backends were loading: everything started is stopped already
+            return 0
         while not self._stop.wait(0.5):
             self.poll()
         say("stopping: the backends save their games, then haproxy stops")
