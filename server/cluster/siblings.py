@@ -73,8 +73,8 @@ async def cluster_health(membership: Membership, own: dict) -> dict:
     up = [b for b in backends if b["up"]]
     return {"backends": backends,
             "cluster": {"size": len(backends), "up": len(up), "ready": sum(bool(b.get("ready")) for b in up),
-                        **{k: sum(b[k] for b in up) for k in SUMMED},
-                        "tick_lateness_p99_ms": max((b["tick_lateness_p99_ms"] for b in up), default=0.0)}}
+                        **{k: sum(b.get(k, 0) for b in up) for k in SUMMED},
+                        "tick_lateness_p99_ms": max((b.get("tick_lateness_p99_ms", 0.0) for b in up), default=0.0)}}
 
 
 async def room_holder(membership: Membership, code: str) -> Member | None:
