@@ -1,7 +1,8 @@
 """Several play-server processes behind HAProxy (``--processes N``), for real: the launcher, Debian's haproxy,
 uvicorn backends. Here: bad input in one line, the HAProxy configuration, and free play over two backends (the
-browser's routing cookie, a room opened on one backend and joined from a page that reached the other). The
-helpers start a cluster the way a researcher does, from the command line, in a process group of its own."""
+browser's routing cookie, a room opened on one backend and joined, by its link or its typed code, from a page that
+reached the other). The helpers start a cluster the way a researcher does, from the command line, in a process
+group of its own."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from pathlib import Path
 
 import httpx
 import pytest
+from playwright.sync_api import expect
 from websockets.sync.client import connect
 
 from colorgrid_apps.cli import main
@@ -213,12 +215,17 @@ def test_a_browser_keeps_its_backend_by_the_cookie_the_play_page_sets(play_clust
     assert play_cluster.request("/").cookies[ROUTE_COOKIE] != key
 
 
-def test_a_room_link_opened_on_the_other_backend_is_sent_to_the_backend_holding_the_room(play_cluster):
+def a_key_on_each_backend(cluster: RunningCluster) -> list[tuple[str, str]]:
+    """(backend, routing key) for each backend of a two-backend cluster: one browser on each."""
     keys = {}
-    for i in range(40):  # one browser on each backend
-        keys.setdefault(backend_of(play_cluster, f"browser-{i}"), f"browser-{i}")
+    for i in range(40):
+        keys.setdefault(backend_of(cluster, f"browser-{i}"), f"browser-{i}")
     assert len(keys) == 2
-    (home, opener), (away, joiner) = sorted(keys.items())
+    return sorted(keys.items())
+
+
+def test_a_room_link_opened_on_the_other_backend_is_sent_to_the_backend_holding_the_room(play_cluster):
+    (home, opener), (away, joiner) = a_key_on_each_backend(play_cluster)
     with socket_to(play_cluster, {ROUTE_COOKIE: opener}) as first:
         assert first.response.headers[BACKEND_HEADER] == home
         first.send(json.dumps({"type": "create_room", "team": "2:1", "mode": "turn", "horizon": 3,
@@ -238,6 +245,24 @@ def test_a_room_link_opened_on_the_other_backend_is_sent_to_the_backend_holding_
     unknown = play_cluster.request("/?room=ABCDEFGH", cookies={ROUTE_COOKIE: joiner})
     assert unknown.status_code == 200 and unknown.headers[BACKEND_HEADER] == away  # the page says so itself
     assert play_cluster.request(f"/api/cluster/rooms/{code}").status_code == 403  # only backends ask each other
+
+
+def test_a_room_code_typed_in_chromium_on_the_other_backend_joins_the_room(play_cluster, browser):
+    (home, opener), (away, joiner) = a_key_on_each_backend(play_cluster)
+    context = browser.new_context()
+    context.add_cookies([{"name": ROUTE_COOKIE, "value": joiner, "url": play_cluster.url}])
+    page = context.new_page()
+    assert page.goto(play_cluster.url + "/").headers[BACKEND_HEADER.lower()] == away
+    with socket_to(play_cluster, {ROUTE_COOKIE: opener}) as first:
+        first.send(json.dumps({"type": "create_room", "team": "2:1", "mode": "turn", "horizon": 3,
+                               "follower": "copy"}))
+        code = receive(first, "room")["code"]
+        page.fill("#join-code", code.lower())  # as typed
+        page.click("#join")
+        expect(page.locator("#joined")).to_be_visible()
+        assert [s["status"] for s in receive(first, "room")["seats"]] == ["joined", "joined"]
+    assert {c["name"]: c["value"] for c in context.cookies()}[BACKEND_COOKIE] == home
+    context.close()
 
 
 def test_health_through_the_proxy_reports_both_backends(play_cluster):

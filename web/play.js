@@ -351,7 +351,11 @@ function joinRoom(code) {
   connect({ type: "join_room", code, viewport: [window.innerWidth, window.innerHeight] });
 }
 
-$("join").addEventListener("click", () => joinRoom($("join-code").value.trim()));
+// A typed code opens the room's link, as a shared link does: behind HAProxy (several backends) the link is sent on
+// to the backend holding the room, which a join over this page's socket might not reach.
+$("join").addEventListener("click", () => {
+  location.assign(`/?room=${encodeURIComponent($("join-code").value.trim())}`);
+});
 $("ready").addEventListener("click", () => socket?.send(JSON.stringify({ type: "ready", ready: !room?.ready })));
 $("leave-room").addEventListener("click", () => {
   socket?.send(JSON.stringify({ type: "quit" }));
@@ -382,5 +386,5 @@ loadOptions().then(() => {
   const saved = sessionStorage.getItem("colorgrid-game");
   const code = queryParam("room");
   if (saved) connect({ type: "rejoin", ...JSON.parse(saved) });
-  else if (code) joinRoom(code);  // a shared room link
+  else if (code !== null) joinRoom(code);  // a shared room link, or a typed code (an empty one: the server says why)
 });
