@@ -34,9 +34,8 @@ def plays(name: str, team) -> bool:
 def leads(name: str, team) -> str | None:
     """How the AI leader ``name`` plays a leader seat of ``team`` (a ``Team``): ``"direct"`` (a scripted policy,
     or a network trained in that team), ``PAIR_VIEW`` (a network trained in the 1:1 team, in a team with one
-    follower), or None (it does not). A checkpoint's acting settings (``x.pt:temperature=0``) change nothing here."""
-    base = name.partition(":")[0]
-    teams = policy_teams(base if base.endswith(".pt") else name)
+    follower), or None (it does not)."""
+    teams = policy_teams(name)
     if teams is None or team.value in teams:
         return "direct"
     return PAIR_VIEW if "1:1" in teams and team.num_followers == 1 else None

@@ -9,7 +9,7 @@ import pytest
 import torch
 
 from colorgrid.config import FOLLOWER, EnvConfig
-from colorgrid.policies import make_policy
+from colorgrid.policies import make_policy, policy_teams
 from colorgrid.rollout import run_episodes
 from train.inputs import step_tensors
 
@@ -118,6 +118,22 @@ def test_an_exported_checkpoint_carries_how_it_acts_and_a_name_can_override_it(t
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "temperature=-2.0 is invalid" in bad.stderr and len(bad.stderr.splitlines()) == 1
     assert not (tmp_path / "bad.pt").exists()
+
+
+def test_a_checkpoint_with_acting_settings_plays_the_teams_its_file_plays():
+    """``x.pt:temperature=0`` is ``x.pt`` acting greedily: offered in the team it was trained in, not in every team
+    (as follower), and as leader where the plain file leads."""
+    from server.followers import leads, plays
+    from server.game import PAIR_VIEW
+    from server.protocol import Team
+
+    team_file = str(Path(CHECKPOINT).with_name("follower_1L2F.pt"))
+    leader_file = str(Path(CHECKPOINT).with_name("leader.pt"))
+    assert policy_teams(f"{team_file}:temperature=0") == policy_teams(team_file) == ("1:2",)
+    assert policy_teams(f"{CHECKPOINT}:temperature=0,min_belief=0.5") == ("1:1",)
+    assert [t for t in Team if plays(f"{team_file}:temperature=0", t)] == [Team.TWO_FOLLOWERS]
+    assert [leads(f"{leader_file}:temperature=0", t) for t in Team] == [leads(leader_file, t) for t in Team] == [
+        "direct", PAIR_VIEW, None]
 
 
 # ------------------------------------------------------------------ min_belief

@@ -38,11 +38,10 @@ def make_policy(name: str, role: str | None = None) -> Policy:
     base, sep, params = name.partition(":")
     if sep and base in SCRIPTED:
         return SCRIPTED[base](parse_params(SCRIPTED[base], params, name))
-    policy = registry.find(name, role)
-    if policy is None and sep:  # a registered name or file with parameters: ``ippo:temperature=0``
-        policy = registry.find(base, role, read_params(params, name), spec=name)
-    if policy is not None:
-        return policy
+    registered = registry.registered_spec(name)  # a registered name or file, with parameters: ``ippo:temperature=0``
+    if registered is not None:
+        target, params = registered
+        return registry.find(target, role, read_params(params, name), spec=name)
     files = "".join(f" or {what}" for what in registry.registered_files())
     raise ValueError(f"unknown policy {name!r}; choose one of {sorted(SCRIPTED) + registry.registered_names()}{files}")
 
@@ -82,7 +81,8 @@ def parse_params(kind, text: str, name: str):
 def policy_teams(name: str) -> tuple[str, ...] | None:
     """The teams (``"LEADERS:FOLLOWERS"``) that the policy ``name`` plays: None for any team (the scripted
     policies play any agent of any team), those its package registered for a trained network (``ippo``:
-    ``("1:1",)``), and for a population those every member plays."""
+    ``("1:1",)``), and for a population those every member plays. Acting settings change nothing here:
+    ``x.pt:temperature=0`` plays the teams ``x.pt`` plays."""
     if name.startswith("population:") or name.endswith(".json") or ".json#" in name:
         teams = None
         for member in load_population(name.removeprefix("population:")).values():
@@ -90,8 +90,10 @@ def policy_teams(name: str) -> tuple[str, ...] | None:
             if found is not None:
                 teams = found if teams is None else tuple(t for t in teams if t in found)
         return teams
-    base = name.partition(":")[0]
-    return None if base in SCRIPTED else registry.teams_of(base if base in registry.registered_names() else name)
+    if name.partition(":")[0] in SCRIPTED:
+        return None
+    registered = registry.registered_spec(name)  # ``x.pt:temperature=0`` plays the teams ``x.pt`` plays
+    return None if registered is None else registry.teams_of(registered[0])
 
 
 _OPENING: list[str] = []  # populations being built, innermost last (one naming itself would never end)
@@ -111,5 +113,5 @@ def make_population(spec: str, role: str | None = None) -> PopulationPolicy:
 
 
 __all__ = ["SCRIPTED", "AgentInput", "AStarLeader", "BayesConfig", "BayesFollower", "CopyFollower", "IdleFollower",
-           "OracleFollower", "PersonLeader", "PersonStyle", "Policy", "PolicyOutput", "PopulationPolicy", "RandomPolicy",
-           "make_policy", "policy_teams"]
+           "OracleFollower", "PersonLeader", "PersonStyle", "Policy", "PolicyOutput", "PopulationPolicy",
+           "RandomPolicy", "make_policy", "policy_teams"]

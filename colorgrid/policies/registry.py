@@ -46,6 +46,21 @@ def register_loader(suffix: str, loader: Loader, what: str, params: tuple[str, .
         _TEAMS[suffix] = teams
 
 
+def registered_spec(spec: str) -> tuple[str, str] | None:
+    """The registered policy or file that ``spec`` names, and the text of the parameters it gives: ``("x.pt",
+    "temperature=0")`` for ``x.pt:temperature=0``, ``("ippo", "")`` for ``ippo``. The whole spec is tried first
+    (a file's path may hold a ``:``), then the part before its first ``:``; None when neither is registered."""
+    discover()
+
+    def registered(name: str) -> bool:
+        return name in _NAMED or any(name.endswith(suffix) for suffix in _LOADERS)
+
+    if registered(spec):
+        return spec, ""
+    base, sep, params = spec.partition(":")
+    return (base, params) if sep and registered(base) else None
+
+
 def teams_of(name: str) -> tuple[str, ...] | None:
     """The teams the registered policy ``name`` (or file) plays, None for any team or an unregistered name."""
     discover()
