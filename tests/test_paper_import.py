@@ -153,7 +153,8 @@ def test_compiled_prefix_imports_the_same(tmp_path, paper_state, imported):
     assert main(["checkpoint", "import-paper", str(pth), "--role", "leader", "--out", str(out), "--symmetric"]) == 0
     ours, plain = (load_policy(p, "leader").model.state_dict() for p in (out, imported["pt"]))
     assert ours.keys() == plain.keys() and all(torch.equal(ours[k], plain[k]) for k in ours)
-    assert "_orig_mod." in (tmp_path / "compiled.md").read_text()
+    card = (tmp_path / "compiled.md").read_text()
+    assert "_orig_mod." in card and "`colorgrid play --leaders compiled.pt`" in card  # the AI leader of a 2:1 game
 
 
 def test_lstm_follower_imports_with_its_recurrent_core(tmp_path, paper_state, episode):
@@ -177,7 +178,8 @@ def test_lstm_follower_imports_with_its_recurrent_core(tmp_path, paper_state, ep
     assert np.abs(logits - paper_format.action_values_from_paper(want_logits)).max() < TOLERANCE
     assert np.abs(value - want_value).max() < TOLERANCE
     assert np.abs(aux - paper_format.colors_from_paper(want_aux)).max() < TOLERANCE
-    assert "iteration 7" in out.with_suffix(".md").read_text()
+    card = out.with_suffix(".md").read_text()
+    assert "iteration 7" in card and "`colorgrid play --follower follower.pt`" in card
 
 
 @pytest.mark.parametrize("content, says", [
