@@ -189,19 +189,21 @@ def process_tree(pid: int) -> list[int]:
     return out
 
 
-def process_name(pid: int) -> str:
+def process_name(pid: int, children: dict[int, list[int]] | None = None) -> str:
+    """What a process of the study is: the launcher or single server, a backend, HAProxy, or a worker."""
     try:
-        cmd = Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0")
+        words = [w.decode(errors="replace") for w in Path(f"/proc/{pid}/cmdline").read_bytes().split(b"\0") if w]
     except OSError:
         return "?"
-    words = [w.decode(errors="replace") for w in cmd if w]
-    if words and "haproxy" in words[0]:
-        return "haproxy"
     joined = " ".join(words)
-    if "--port" in words:
-        return f"server :{words[words.index('--port') + 1]}"
+    if words and "haproxy" in Path(words[0]).name:
+        return "haproxy"
+    if "server.cluster.process" in joined:
+        return f"backend (pid {pid})"
+    if "study run" in joined or " play" in joined:
+        return "launcher or single server"
     if "multiprocessing" in joined:
-        return "worker (inference or replay jobs)"
+        return "workers (inference, replay jobs)"
     return " ".join(words[:3])[:60]
 
 
@@ -245,7 +247,8 @@ def start(args, folder: Path) -> tuple[subprocess.Popen, str]:
     port = free_port()
     command = [sys.executable, "-m", "colorgrid_apps", "study", "run", str(study), "--port", str(port),
                "--replays-dir", str(folder / "recordings"), "--log-level", "warning",
-               "--max-sessions", str(max(100, 2 * args.participants))]
+               "--max-sessions", str(max(100, 2 * args.participants)),
+               "--new-games-per-minute", str(max(30, 20 * args.participants))]  # every participant is on loopback
     if args.processes > 1:
         command += ["--processes", str(args.processes)]
     if args.database:
