@@ -20,8 +20,9 @@ every question. Then prints, with the machine and the CPU time the hypervisor st
   recordings folder (must be 0).
 
 ``--side-load`` runs, during the whole study, 8 GIF/MP4 exports of replays (``colorgrid export``
-processes) and repeated loads of a 150 MB replay file, on the same machine: live games may not
-be late because of them.
+processes) and repeated loads of a 150 MB replay file, on the same machine at ``nice`` 10, the
+priority the play server gives its own export and replay workers: live games may not be late
+because of them.
 
 The participants are asyncio tasks in this process on the same machine as the servers; in a
 deployment they are people's browsers elsewhere, so their CPU use is printed too.
@@ -53,6 +54,8 @@ from common import machine  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 TOKEN = "bench-study-admin-token"
+SIDE_NICE = 10
+"""The side load's CPU priority: the play server's own export and replay workers run at ``nice`` 10 (server/jobs.py)."""
 
 
 def study_file(folder: Path, participants: int, trial_steps: int, tick_hz: float, follower: str | None) -> Path:
@@ -210,7 +213,8 @@ def process_name(pid: int, children: dict[int, list[int]] | None = None) -> str:
 def export(replay: Path, out: Path) -> subprocess.Popen:
     """``colorgrid export`` of ``replay`` to ``out`` (GIF or MP4 by its suffix), as a process of its own."""
     return subprocess.Popen([sys.executable, "-m", "colorgrid_apps", "export", str(replay), "--format", out.suffix[1:],
-                             "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                             "--out", str(out)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                            preexec_fn=lambda: os.nice(SIDE_NICE))
 
 
 def side_load(folder: Path, stop: float) -> list[subprocess.Popen]:
@@ -223,7 +227,8 @@ def side_load(folder: Path, stop: float) -> list[subprocess.Popen]:
     big.write_text(json.dumps(data))
     script = (f"import time, json\nfrom colorgrid.replay import load\nend = {stop!r}\n"
               f"while time.monotonic() < end:\n    load({str(big)!r})\n")
-    running = [subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
+    running = [subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                preexec_fn=lambda: os.nice(SIDE_NICE))]
     exports = []
     for i in range(8):
         out = folder / f"export{i}.{'gif' if i % 2 else 'mp4'}"
@@ -347,8 +352,8 @@ async def run(args) -> None:
         print(f"CPU time stolen by the hypervisor during the run: "
               f"{100 * (machine1[1] - machine0[1]) / (machine1[0] - machine0[0]):.1f}%")
     if args.side_load:
-        print(f"side load: {len(exports_made)} exports finished ({sum(1 for r in exports_made if r == 0)} ok), "
-              f"a 150 MB replay loaded over and over")
+        print(f"side load (nice {SIDE_NICE}): {len(exports_made)} exports finished "
+              f"({sum(1 for r in exports_made if r == 0)} ok), a 150 MB replay loaded over and over")
     print(f"recordings and log: {folder}")
     if not args.keep:
         shutil.rmtree(folder, ignore_errors=True)
