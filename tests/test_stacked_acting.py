@@ -22,6 +22,10 @@ STACKABLE = {
     "three_learners": TWO_FOLLOWERS,
     "two_followers_sharing_one_network": merge(TWO_FOLLOWERS, {"follower": {"share_network": True},
                                                               "leader": {"share_network": False}}),
+    "one_shared_network_beside_a_scripted_leader": merge(TWO_FOLLOWERS, {"leader": {"policy": "astar"},
+                                                                         "follower": {"share_network": True}}),
+    "two_shared_networks": {"env": {"num_leaders": 2, "num_followers": 2}, "leader": {"share_network": True},
+                            "follower": {"share_network": True}},
 }
 
 
@@ -67,6 +71,22 @@ def test_stacked_acting_computes_what_each_network_does(tmp_path, name):
         for key in ("goal", "extras", "starts", "actions"):
             torch.testing.assert_close(a.buffer[key][0], b.buffer[key][0], atol=0, rtol=0)
         assert a.generator.get_state().equal(b.generator.get_state())
+
+
+@pytest.mark.parametrize("name", ["default", "one_shared_network_beside_a_scripted_leader", "two_shared_networks"])
+def test_stacked_learners_update_from_what_they_kept(tmp_path, name):
+    """Every key the update reads is kept, a shared network's row identity too, and the weights move."""
+    t = trainer(tmp_path, STACKABLE[name])
+    before = [{k: v.clone() for k, v in lr.model.state_dict().items()} for lr in t.learners.values()]
+    t.collect_rollout()
+    assert t._stacked is not None
+    t._update_learners()
+    for learner, old in zip(t.learners.values(), before):
+        assert set(learner.views) == set(learner.model.prepare(torch.zeros(1, 1, 5 + len(t.names) - 2, 32, 32,
+                                                                            dtype=torch.uint8),
+                                                               torch.zeros(1, 1, 2, dtype=torch.int64),
+                                                               learner.model.identity(learner.agents, 1)))
+        assert any(not torch.equal(v, old[k]) for k, v in learner.model.state_dict().items())
 
 
 def test_a_stacked_rollout_is_recomputed_by_the_update_s_networks(tmp_path):

@@ -59,6 +59,9 @@ class StackedActing:
         self.head_in = model.policy[0].in_features
         self.weights: list[tuple[torch.Tensor, torch.Tensor]] = []
         self.storage: dict[str, torch.Tensor] = {}
+        for learner in learners:  # a shared network's rows say which agent each is: the same at every step
+            if learner.identity is not None:
+                learner.views["identity"] = learner.identity.expand(learner.ppo.num_steps, -1, -1).contiguous()
 
     # ------------------------------------------------------------------ weights
     @torch.no_grad()
