@@ -174,6 +174,19 @@ def test_a_participant_id_cannot_start_over_and_its_own_browser_resumes(study_da
     assert again.join({"PROLIFIC_PID": "p1"}, None, "browser B")["session"] == first["session"]
 
 
+def test_a_join_sent_again_with_the_key_its_browser_proposed_resumes_instead_of_refusing(study_database):
+    # The proxy (or the page) sends a join again when the process that stored it was killed before answering.
+    study = load_study(EXAMPLE)
+    service = StudyService(study, StudyStore(study_database, study.id, study_hash(study)))
+    proposed = "k" * 32
+    first = service.join({"PROLIFIC_PID": "p1"}, proposed, "browser A")
+    assert first == {"pid": "p1", "session": proposed}
+    assert service.join({"PROLIFIC_PID": "p1"}, proposed, "browser A") == first
+    with pytest.raises(Refused, match="already started"):
+        service.join({"PROLIFIC_PID": "p1"}, "k" * 31, "browser B")
+    assert service.join({"PROLIFIC_PID": "p2"}, "short", "browser C")["session"] != "short"  # not a key: one is made
+
+
 # ---------------------------------------------------------------- the study server
 def post(server, path: str, body: dict, token: str | None = None):
     request = urllib.request.Request(server.url + path, data=json.dumps(body).encode(), method="POST",

@@ -16,10 +16,15 @@ function status(text, kind = "") {
   $("status").className = kind;
 }
 
-async function api(path, body) {
-  const response = await fetch(`/api/study/${path}`, {
-    method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body),
-  });
+async function api(path, body, tries = 1) {
+  let response = null;
+  for (let attempt = 1; ; attempt++) {  // a process stopped mid-request: the proxy's 502/503, or no answer at all
+    response = await fetch(`/api/study/${path}`, {
+      method: "POST", headers: { "Content-Type": "application/json" }, body: JSON.stringify(body),
+    }).catch((err) => { if (attempt >= tries) throw err; return null; });
+    if (attempt >= tries || (response && ![502, 503].includes(response.status))) break;
+    await new Promise((resolve) => setTimeout(resolve, 1000 * attempt));
+  }
   const data = await response.json();
   if (!response.ok) {  // a sentence; answers that cannot be taken: every problem, by question (422)
     const detail = data.detail;
@@ -35,13 +40,22 @@ function storageKey() {
   return `colorgrid-study:${info.id}:${id}`;
 }
 
+function newSession() {
+  const bytes = crypto.getRandomValues(new Uint8Array(24));
+  return btoa(String.fromCharCode(...bytes)).replaceAll("+", "-").replaceAll("/", "_");  // 32 URL-safe characters
+}
+
 async function join() {
   info = await (await fetch("/api/study/info")).json();
   document.title = info.title;
   $("study-title").textContent = info.title;
   const saved = JSON.parse(localStorage.getItem(storageKey()) ?? "null");
-  const sent = { ...params, ...(saved && info.anonymous ? { _pid: saved.pid } : {}) };
-  const joined = await api("join", { params: sent, session: saved?.session ?? null });
+  const sent = { ...params, ...(saved?.pid && info.anonymous ? { _pid: saved.pid } : {}) };
+  // A first join proposes its own session key, kept before it is sent: the same join sent again (its answer
+  // lost to a stopped process) resumes the participant instead of finding them "already started".
+  const session = saved?.session ?? newSession();
+  if (!saved) localStorage.setItem(storageKey(), JSON.stringify({ session }));
+  const joined = await api("join", { params: sent, session }, 3);
   who = { pid: joined.pid, session: joined.session };
   localStorage.setItem(storageKey(), JSON.stringify(who));
   show(joined.view);
@@ -135,7 +149,7 @@ async function next() {
     const body = { ...who, step: view.step, agree: view.kind === "consent" };
     if (view.questions) body.answers = answers();
     showProblems([]);
-    show(await api("advance", body));
+    show(await api("advance", body, 3));
   } catch (err) {
     if (err.problems) {
       showProblems(err.problems);

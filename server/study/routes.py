@@ -33,7 +33,8 @@ class Join(_Body):
     params: dict[str, str] = Field(default_factory=dict, max_length=32)
     """The study link's URL parameters (``PROLIFIC_PID``, ``STUDY_ID``, ``SESSION_ID``, ``pid``)."""
     session: str | None = Field(default=None, max_length=128)
-    """The session key this browser got when it joined before."""
+    """The session key this browser got when it joined before, or the one it proposes for its first join (random
+    URL-safe text of 32 to 128 characters), so that a join sent again after its answer was lost resumes."""
 
 
 class Who(_Body):

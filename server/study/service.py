@@ -13,6 +13,7 @@ import dataclasses
 import hashlib
 import json
 import random
+import re
 import secrets
 import statistics
 import time
@@ -33,7 +34,15 @@ SERVER_LOST = "server_lost"
 starts the game again, on whichever process they reach."""
 LOST = ("disconnected", "server_shutdown", SERVER_LOST)
 """Game endings that do not count: the participant plays that game again."""
+SESSION_PATTERN = re.compile(r"^[A-Za-z0-9_-]{32,128}$")
+"""A session key a browser may propose at its first join: random URL-safe text, 32 to 128 characters."""
 _markdown = MarkdownIt("commonmark", {"html": False})  # raw HTML in a study file is shown as text, never run
+
+
+def own_session(proposed: str | None) -> str | None:
+    """The key a browser proposed for its first join, when it is one (``SESSION_PATTERN``): the page makes it and
+    keeps it before it sends the join, so that the same join sent again resumes instead of being refused."""
+    return proposed if isinstance(proposed, str) and SESSION_PATTERN.match(proposed) else None
 
 
 class Refused(Exception):
@@ -134,7 +143,7 @@ class StudyService:
                 raise Refused("the study is full: thank you for your interest")
             conditions = trial_order(self.study, arm, self.rng)
             kept = {k: str(params[k])[:200] for k in (*self.study.id_params, *self.study.keep_params) if params.get(k)}
-            new, now = secrets.token_urlsafe(24), time.time()
+            new, now = own_session(session) or secrets.token_urlsafe(24), time.time()
             row = tx.add_participant({"pid": pid, "session": new, "arm": arm, "conditions": json.dumps(conditions),
                                       "status": "active", "step": 0, "url_params": json.dumps(kept),
                                       "user_agent": user_agent[:500], "started": now, "updated": now})
@@ -144,7 +153,9 @@ class StudyService:
         return {"pid": pid, "session": new}
 
     def returning(self, tx, row: dict, session: str | None, user_agent: str) -> dict:
-        """A participant who joined before: their own browser (or any, when the study resumes) gets their session."""
+        """A participant who joined before: their own browser (or any, when the study resumes) gets their session.
+        Their own browser includes a join whose answer was lost and is sent again (by the page, or by the proxy
+        when the process that stored it was killed before answering): it carries the key the browser proposed."""
         pid = row["pid"]
         if session and secrets.compare_digest(session, row["session"]):
             tx.log(pid, "resumed")
