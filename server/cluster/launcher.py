@@ -165,7 +165,7 @@ class Cluster:
 
     def backend(self, member) -> Child:
         spec = BackendSpec(self.backend_settings(member), Membership(self.plan_file, member.name), self.log_level,
-                           self.study)
+                           self.study, launcher_pid=os.getpid())
         package_root = str(Path(server.__file__).resolve().parent.parent)  # the child imports this very code
         path = os.pathsep.join(p for p in (package_root, os.environ.get("PYTHONPATH", "")) if p)
         return Child(member.name, [sys.executable, "-m", "server.cluster.process"], pickle.dumps(spec),

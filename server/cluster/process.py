@@ -30,6 +30,8 @@ class BackendSpec:
     log_level: str = "info"
     study: object | None = None
     """The study it serves (``server.study.cli.StudySetup``), or None for free play."""
+    launcher_pid: int = 0
+    """The launcher's process id: the process stops once its parent is another (0: its parent when it starts)."""
 
 
 def stop_with_parent(parent: int, every_s: float = 1.0) -> None:
@@ -40,11 +42,13 @@ def stop_with_parent(parent: int, every_s: float = 1.0) -> None:
 
 
 def main() -> int:
+    parent = os.getppid()  # before the slow imports: a launcher that dies meanwhile is not missed
     from server.run import serve
 
     spec: BackendSpec = pickle.load(sys.stdin.buffer)
     sys.stdin.close()
-    threading.Thread(target=stop_with_parent, args=(os.getppid(),), daemon=True, name="launcher-watch").start()
+    launcher = spec.launcher_pid or parent
+    threading.Thread(target=stop_with_parent, args=(launcher,), daemon=True, name="launcher-watch").start()
     serve(spec.settings, spec.log_level, spec.study, spec.member)
     return 0
 
