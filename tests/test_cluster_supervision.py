@@ -5,10 +5,16 @@ from __future__ import annotations
 
 import os
 import pickle
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
+import pytest
+
+from server.cluster import launcher
+from server.cluster.launcher import Child
 from server.cluster.plan import ClusterPlan, Membership
 from server.cluster.process import BackendSpec
 from server.settings import ServerSettings
@@ -26,3 +32,38 @@ def test_a_backend_whose_launcher_died_before_it_read_its_spec_stops(tmp_path: P
     result = subprocess.run([sys.executable, "-m", "server.cluster.process"], input=pickle.dumps(spec), cwd=ROOT,
                             capture_output=True, timeout=20)  # a backend watching the wrong parent never stops
     assert result.returncode in (0, -15), result.stderr[-500:]
+
+
+def test_a_child_that_cannot_be_started_again_is_tried_again_later_and_the_watch_goes_on(capsys):
+    child = Child("b1", [sys.executable, "-c", "pass"])
+    child.start()
+    child.process.wait()
+    child.wait_s = 0.01
+    child.check()  # noticed: started again after its wait
+    child.argv = [str(ROOT / "no-such-program")]
+    time.sleep(0.05)
+    child.check()  # the start fails: said in one line, tried again after a longer wait
+    assert "b1 could not be started again" in capsys.readouterr().out
+    assert child.restart_at is not None and child.wait_s == 0.04
+    child.argv = [sys.executable, "-c", "pass"]
+    time.sleep(0.05)
+    child.check()
+    assert "b1 started again (restart 2" in capsys.readouterr().out
+    child.process.wait()
+
+
+def test_the_launcher_stops_its_children_whatever_ends_its_watch(monkeypatch, tmp_path):
+    monkeypatch.setattr(launcher, "haproxy_binary", lambda: "haproxy")
+    cluster = launcher.Cluster(ClusterPlan.local("127.0.0.1", free_port(), 1), ServerSettings(), tmp_path)
+    stopped = []
+    monkeypatch.setattr(cluster, "start", lambda: None)
+    monkeypatch.setattr(cluster, "poll", lambda: 1 / 0)
+    monkeypatch.setattr(cluster, "stop", lambda: stopped.append(True))
+    handlers = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        with pytest.raises(ZeroDivisionError):
+            cluster.run()
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+    assert stopped == [True]

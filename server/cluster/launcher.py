@@ -102,7 +102,13 @@ class Child:
             self.wait_s = min(2 * self.wait_s, self.MAX_WAIT_S)
         elif now >= self.restart_at:
             self.restarts += 1
-            self.start()
+            try:
+                self.start()
+            except (OSError, subprocess.SubprocessError) as error:  # no process, or it died before its spec
+                self.restart_at = now + self.wait_s
+                say(f"{self.name} could not be started again ({error}); trying again in {self.wait_s:g} s")
+                self.wait_s = min(2 * self.wait_s, self.MAX_WAIT_S)
+                return
             say(f"{self.name} started again (restart {self.restarts}, pid {self.process.pid})")
 
     def terminate(self) -> None:
@@ -240,10 +246,12 @@ class Cluster:
             self.start()
         except Stopped:  # Ctrl+C while the backends were loading: everything started is stopped already
             return 0
-        while not self._stop.wait(0.5):
-            self.poll()
-        say("stopping: the backends save their games, then haproxy stops")
-        self.stop()
+        try:
+            while not self._stop.wait(0.5):
+                self.poll()
+            say("stopping: the backends save their games, then haproxy stops")
+        finally:  # whatever ends the watch, no child is left running
+            self.stop()
         return 0
 
     def __enter__(self) -> Cluster:
