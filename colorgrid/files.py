@@ -13,17 +13,18 @@ from pathlib import Path
 
 
 @contextmanager
-def atomic_path(path: str | os.PathLike):
+def atomic_path(path: str | os.PathLike, mode: int = 0o666):
     """Yield a temporary path beside ``path``; on success it replaces ``path``, on failure it is removed.
 
     A crash at any point leaves either the old file or no file under the final name,
     never a partial one. The temporary name keeps the suffix (writers pick formats by it).
-    The file gets the mode ``open()`` would give (0o666 less the umask).
+    The file is created with ``mode`` less the umask (by default the mode ``open()`` would give); a private
+    file (0o600) is private from its creation, before anything is written to it.
     """
     path = Path(path)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = _create_temporary(path)
+        tmp = _create_temporary(path, mode)
     except OSError as err:
         raise ValueError(f"cannot write to {path}: {err.strerror}") from None
     try:
@@ -34,12 +35,12 @@ def atomic_path(path: str | os.PathLike):
         raise
 
 
-def _create_temporary(path: Path) -> Path:
-    """A new, empty file beside ``path`` with a name of its own (``mkstemp`` would make it private)."""
+def _create_temporary(path: Path, mode: int = 0o666) -> Path:
+    """A new, empty file beside ``path`` with a name of its own and ``mode`` (``mkstemp`` would make it private)."""
     for _ in range(100):
         tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}{path.suffix}")
         try:
-            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode))
         except FileExistsError:
             continue
         return tmp

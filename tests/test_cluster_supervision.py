@@ -1,5 +1,5 @@
-"""The launcher's care of its children, without HAProxy: a backend whose launcher is gone stops, and one child
-that cannot be started again does not take the others down."""
+"""The launcher's care of its children, without HAProxy: a backend whose launcher is gone stops, one child
+that cannot be started again does not take the others down, and the cluster file is private from its start."""
 
 from __future__ import annotations
 
@@ -67,3 +67,16 @@ def test_the_launcher_stops_its_children_whatever_ends_its_watch(monkeypatch, tm
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
     assert stopped == [True]
+
+
+def test_the_cluster_file_is_private_before_the_secret_is_written_into_it(monkeypatch, tmp_path):
+    modes = []
+    write_text = Path.write_text
+
+    def recording(self, *args, **kwargs):
+        modes.append(self.stat().st_mode & 0o777)
+        return write_text(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "write_text", recording)
+    ClusterPlan.local("127.0.0.1", free_port(), 1).write(tmp_path / "cluster.json")
+    assert modes == [0o600] and (tmp_path / "cluster.json").stat().st_mode & 0o777 == 0o600

@@ -73,9 +73,8 @@ class ClusterPlan:
         """``cluster.json``, atomically, readable by its owner alone (it holds the siblings' secret)."""
         doc = {"public": {"host": self.public_host, "port": self.public_port}, "secret": self.secret,
                "backends": [{"name": m.name, "host": m.host, "port": m.port} for m in self.members]}
-        with atomic_path(path) as tmp:
+        with atomic_path(path, mode=0o600) as tmp:  # private before the secret is in it
             tmp.write_text(json.dumps(doc, indent=2) + "\n")
-            os.chmod(tmp, 0o600)
 
     @classmethod
     def read(cls, path: Path) -> ClusterPlan:
