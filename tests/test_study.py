@@ -13,12 +13,14 @@ import urllib.request
 from collections import Counter
 from itertools import pairwise
 from pathlib import Path
+from types import SimpleNamespace
 
 import pandas as pd
 import pytest
 from websockets.sync.client import connect
 
 from colorgrid.replay import load, verify
+from server.study import service as service_module
 from server.study.assign import williams
 from server.study.config import StudyError, load_study, parse_study
 from server.study.service import Refused, StudyService, study_hash
@@ -185,6 +187,37 @@ def test_a_join_sent_again_with_the_key_its_browser_proposed_resumes_instead_of_
     with pytest.raises(Refused, match="already started"):
         service.join({"PROLIFIC_PID": "p1"}, "k" * 31, "browser B")
     assert service.join({"PROLIFIC_PID": "p2"}, "short", "browser C")["session"] != "short"  # not a key: one is made
+
+
+@pytest.mark.parametrize("failures", [1, 2])
+def test_a_failed_write_of_a_games_end_is_tried_once_more_and_never_leaves_the_game_running(failures, monkeypatch,
+                                                                                             study_database):
+    study = load_study(EXAMPLE)
+    service = StudyService(study, StudyStore(study_database, study.id, study_hash(study)))
+    service.join({"PROLIFIC_PID": "p1"}, None, "browser A")
+    game = SimpleNamespace(game_id="g1", replay_id="r1", to_replay=lambda reason, described: None,
+                           study={"participant": "p1", "step": 0, "attempt": 0, "kind": "trial", "trial_index": 0,
+                                  "condition_index": 0, "condition": {}})
+    service.game_started(game)
+    left = [failures]
+
+    def figures(replay):
+        left[0] -= 1
+        if left[0] >= 0:
+            raise OSError("the database blinked")
+        return {}
+
+    monkeypatch.setattr(service_module, "game_figures", figures)
+    monkeypatch.setattr(service_module, "END_RETRY_WAIT_S", 0)
+    if failures == 1:
+        service.game_over(game, "done", {"team": 3})
+    else:
+        with pytest.raises(OSError):
+            service.game_over(game, "done", {"team": 3})
+    last = service.store.last_game("p1", 0)
+    assert "p1" not in service.live
+    assert last["ended"] == ("done" if failures == 1 else None)
+    assert service.interrupted("p1", last) == (failures == 2)  # not stored: the page offers to play it again
 
 
 # ---------------------------------------------------------------- the study server

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import logging
 import random
 import re
 import secrets
@@ -36,6 +37,10 @@ LOST = ("disconnected", "server_shutdown", SERVER_LOST)
 """Game endings that do not count: the participant plays that game again."""
 SESSION_PATTERN = re.compile(r"^[A-Za-z0-9_-]{32,128}$")
 """A session key a browser may propose at its first join: random URL-safe text, 32 to 128 characters."""
+END_RETRIES = 1
+"""How many more times the end of a game is written when its write fails (a database that blinked)."""
+END_RETRY_WAIT_S = 0.5
+log = logging.getLogger("colorgrid.server")
 _markdown = MarkdownIt("commonmark", {"html": False})  # raw HTML in a study file is shown as text, never run
 
 
@@ -290,13 +295,24 @@ class StudyService:
         """Record the end of a game with its figures (``server.study.figures``), read from the game's own record
         (descriptions of the AI agents do not enter them)."""
         m = game.study
-        figures = game_figures(game.to_replay(reason, defaultdict(dict)))
-        with self.store.transaction() as tx:
-            tx.end_game(m["participant"], m["step"], m["attempt"],
-                        {"replay_id": game.replay_id, "ended": reason, "scores": json.dumps(scores),
-                         "finished": time.time(), **score_figures(scores), **figures})
-        if self.live.get(m["participant"]) is game:  # only once its end is stored: never "interrupted" meanwhile
-            del self.live[m["participant"]]
+        try:
+            for attempt in range(1 + END_RETRIES):
+                try:
+                    figures = game_figures(game.to_replay(reason, defaultdict(dict)))
+                    with self.store.transaction() as tx:
+                        tx.end_game(m["participant"], m["step"], m["attempt"],
+                                    {"replay_id": game.replay_id, "ended": reason, "scores": json.dumps(scores),
+                                     "finished": time.time(), **score_figures(scores), **figures})
+                    return
+                except Exception as error:
+                    if attempt == END_RETRIES:
+                        raise  # the hub logs it; the participant plays the game again (it reads "interrupted")
+                    log.warning("could not record the end of game %s of %s (%s: %s); trying once more",
+                                game.game_id, m["participant"], type(error).__name__, error)
+                    time.sleep(END_RETRY_WAIT_S)
+        finally:  # stored or not, it is not running: once stored never "interrupted" meanwhile, else it is
+            if self.live.get(m["participant"]) is game:
+                del self.live[m["participant"]]
 
     # ---------------------------------------------------------------- the admin's view
     def summary(self, live_games: int) -> dict:
