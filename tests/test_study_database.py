@@ -29,6 +29,7 @@ from server.study.config import parse_study
 from server.study.export import tables
 from server.study.figures import FIGURES, SCORES, game_figures
 from server.study.service import Refused, StudyService, study_hash
+from server.study import store as store_module
 from server.study.store import FIGURE_COLUMNS, SCHEMA_VERSION, StudyStore, games, meta, read_tables
 from tests.conftest import ROOT
 from tests.test_study import SEVERAL_CONDITIONS
@@ -288,3 +289,22 @@ def test_a_version_1_sqlite_file_is_exported_as_before_and_brought_to_version_2(
         rows = db.execute("SELECT team_score, steps FROM games").fetchall()
     assert all(team is not None and steps is None for team, steps in rows)  # scores from their JSON
     pd.testing.assert_frame_equal(tables(study, path, replays_dir)["trials"], current["trials"])
+
+
+def test_the_tables_are_read_as_of_one_moment_while_participants_go_on(study_database, monkeypatch):
+    study = example_study(None)
+    service = open_service(study, study_database)
+    service.join({"PROLIFIC_PID": "p1"}, None, "browser")
+    game = SimpleNamespace(game_id="g1", study={"participant": "p1", "step": 0, "attempt": 0, "kind": "trial",
+                                                "trial_index": 0, "condition_index": 0, "condition": {}})
+    read = store_module.rows_of
+
+    def meanwhile(result):  # a game starts between the read of the participants and that of the games
+        rows = read(result)
+        if rows and "arm" in rows[0] and service.store.last_game("p1", 0) is None:
+            service.game_started(game)
+        return rows
+
+    monkeypatch.setattr(store_module, "rows_of", meanwhile)
+    assert read_tables(study_database, study.id)["games"] == []
+    assert len(read_tables(study_database, study.id)["games"]) == 1

@@ -354,7 +354,8 @@ def migrate_1_to_2(conn: Connection) -> None:
 def read_tables(database: str | Path, study_id: str) -> dict[str, list[dict]]:
     """The ``participants``, ``games`` and ``answers`` of a study's database (schema version 1 or 2), read only:
     participants in the order they joined, games by participant, page and attempt, answers by participant,
-    page and question. A version 1 database's games lack the figure columns."""
+    page and question, all as of one moment (a participant joining meanwhile is in none or in all). A version 1
+    database's games lack the figure columns."""
     url = database_url(database)
     if url.get_backend_name() == "sqlite" and not Path(url.database).is_file():
         raise FileNotFoundError(f"{url.database}: no study database (run the study first, or pass --db, --database "
@@ -365,6 +366,8 @@ def read_tables(database: str | Path, study_id: str) -> dict[str, list[dict]]:
              "answers": lambda r: (r["pid"], r["step"], r["question"])}
     try:
         with engine.connect() as conn:
+            if conn.dialect.name == "postgresql":  # one snapshot for every table (SQLite's one transaction is one)
+                conn.execution_options(isolation_level="REPEATABLE READ", postgresql_readonly=True)
             check_meta(read_meta(conn), study_id, describe(url))
             out = {}
             for table in (participants, games, answers):
