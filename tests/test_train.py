@@ -144,6 +144,40 @@ def test_fast_encoder_patches_compute_its_convolutions_exactly(planes):
     assert torch.allclose(grads[0], grads[1], atol=1e-4)
 
 
+@pytest.mark.parametrize("planes", [False, True])
+def test_fast_encoder_backward_is_autograds_through_the_modules(planes):
+    """The encoder's hand-written backward (train/fast_encoder_fn.py) gives the gradients autograd gives through
+    nn.Conv2d, nn.Flatten and nn.Linear on the window, for every parameter, in float64 (no rounding to hide in)."""
+    torch.manual_seed(1)
+    enc = FastEncoder(EnvConfig(), goal_in=3, hidden=32, planes=planes).double()
+    obs = (torch.rand(24, 5, 32, 32) < 0.2).to(torch.uint8)
+    me = torch.stack([torch.arange(24) % 32, (torch.arange(24) * 5) % 32], dim=1)
+    view = {k: v.double() for k, v in enc.prepare(obs, me).items()}
+    side = torch.randn(24, 3, dtype=torch.float64)
+    g = torch.softmax(torch.randn(24, 3, dtype=torch.float64), dim=1)
+
+    def through_modules():
+        window = egocentric(obs, me, enc.radius).double()
+        coarse = view["coarse"]
+        if planes:
+            window = torch.cat([window, goal_planes(window[:, :3], g)], dim=1)
+            coarse = torch.cat([coarse, goal_planes(coarse.reshape(24, 5, -1)[:, :3], g).flatten(1)], dim=1)
+        return enc.mlp(torch.cat([enc.convs(window), coarse, side], dim=1))
+
+    outs, grads = [], []
+    for run in (through_modules, lambda: enc(view, side, g)):
+        enc.zero_grad()
+        out = run()
+        (out * torch.linspace(-1, 1, out.shape[1], dtype=torch.float64)).sum().backward()
+        outs.append(out)
+        grads.append({name: p.grad.clone() for name, p in enc.named_parameters()})
+    assert (outs[0] > 0).float().mean() > 0.2  # a live ReLU layer: gradients flow through it
+    assert torch.allclose(outs[0], outs[1], rtol=0, atol=1e-12)
+    for name, grad in grads[0].items():
+        assert grad.abs().sum() > 0, name
+        assert torch.allclose(grads[1][name], grad, rtol=0, atol=1e-12), name
+
+
 def test_layers_compute_what_the_modules_do_to_the_bit():
     """``layers`` (the networks' stacks without nn.Module's call overhead) is each stack called as a module,
     forward and backward, for every layer kind it shortcuts and one it calls as usual."""

@@ -17,6 +17,7 @@ from torch.nn import functional as F
 from colorgrid.config import EnvConfig
 from train import views
 from train.config import NetConfig
+from train.fast_encoder_fn import encoder_path
 
 
 def extra_size(env: EnvConfig) -> int:
@@ -142,6 +143,10 @@ class FastEncoder(nn.Module):
         coarse = (P + extra) * -(-env.height // self.pool) * -(-env.width // self.pool)
         self.mlp = nn.Sequential(nn.Linear(local + coarse + goal_in, hidden), nn.ReLU())
         self.out_size = hidden
+        # for each window feature in cell-major order (how the second conv's product lays them out), its
+        # channel-major column of the dense layer (how ``nn.Flatten`` lays them out)
+        order = torch.arange(self.convs[2].out_channels)[None, :] * out2 * out2 + torch.arange(out2 * out2)[:, None]
+        self.register_buffer("local_order", order.reshape(-1), persistent=False)
 
     def prepare(self, obs: torch.Tensor, me: torch.Tensor) -> dict[str, torch.Tensor]:
         """The network's view of ``obs [N, P, H, W]``: computed once per sample, reused by every epoch.
@@ -187,7 +192,11 @@ class FastEncoder(nn.Module):
                                 dim=2)
             grid = coarse.reshape(coarse.shape[0], self.P, -1)
             coarse = torch.cat([coarse, goal_planes(grid[:, :self.C], g).flatten(1)], dim=1)
-        return layers(self.mlp, join([self.local(patches), coarse, side], dim=1))
+        conv1, conv2, dense = self.convs[0], self.convs[2], self.mlp[0]
+        return encoder_path(patches.flatten(2), join([coarse, side], dim=1),
+                            conv1.weight.reshape(conv1.out_channels, -1), conv1.bias,
+                            conv2.weight.permute(0, 2, 3, 1).reshape(conv2.out_channels, -1), conv2.bias,
+                            dense.weight, dense.bias, self.gather2, self.local_order)
 
 
 def layers(stack: nn.Sequential, x: torch.Tensor) -> torch.Tensor:
