@@ -133,11 +133,11 @@ def test_fast_encoder_patches_compute_its_convolutions_exactly(planes):
     if planes:
         window = torch.cat([window, goal_planes(window[:, :3], g)], dim=1)
         patches = torch.cat([patches, goal_planes(patches[:, :, :3].transpose(1, 2), g).transpose(1, 2)], dim=2)
-    reference = enc.convs(window)
+    reference = enc.convs(window)[:, enc.local_order]  # local() gives the window's features cell-major
     assert reference.abs().sum() > 0
     assert torch.allclose(enc.local(patches), reference, atol=1e-5)
     grads = []
-    for out in (enc.local(patches), enc.convs(window)):
+    for out in (enc.local(patches), enc.convs(window)[:, enc.local_order]):
         enc.zero_grad()
         (out * torch.linspace(-1, 1, out.shape[1])).sum().backward()
         grads.append(torch.cat([p.grad.flatten() for p in enc.convs.parameters()]))
@@ -145,9 +145,10 @@ def test_fast_encoder_patches_compute_its_convolutions_exactly(planes):
 
 
 @pytest.mark.parametrize("planes", [False, True])
-def test_fast_encoder_backward_is_autograds_through_the_modules(planes):
-    """The encoder's hand-written backward (train/fast_encoder_fn.py) gives the gradients autograd gives through
-    nn.Conv2d, nn.Flatten and nn.Linear on the window, for every parameter, in float64 (no rounding to hide in)."""
+def test_fast_encoder_computes_the_modules_and_their_gradients(planes):
+    """The fast encoder's forward (convs as products on patches, the dense layer in two parts) and its gradients are
+    those of nn.Conv2d, nn.Flatten and nn.Linear on the window, for every parameter, in float64 (no rounding to hide
+    in)."""
     torch.manual_seed(1)
     enc = FastEncoder(EnvConfig(), goal_in=3, hidden=32, planes=planes).double()
     obs = (torch.rand(24, 5, 32, 32) < 0.2).to(torch.uint8)
