@@ -148,6 +148,29 @@ def test_missing_file_and_folders_that_are_not_sweeps(tmp_path, capsys):
         assert "not a sweep folder (no sweep.toml)" in err and err.count("\n") == 1
 
 
+def test_checkpoint_files_the_trials_name_must_exist(tmp_path, capsys, monkeypatch):
+    """A learner's init and a frozen partner's .pt file, named in the base settings or in one option, are read
+    from the folder the sweep starts in; missing ones are named in one line (exit code 2) before anything starts.
+    A shipped policy's name is not a file."""
+    monkeypatch.chdir(tmp_path)
+    text = GOOD.replace('set = ["total_steps=4096", "env.asymmetric=false"]',
+                        'set = ["total_steps=4096", "leader.policy=ippo-leader"]').replace(
+        '[params.annealing.options]\nnone = {}',
+        '[params.annealing.options]\nnone = { "follower.init" = "source/latest.pt" }')
+    path = write(tmp_path, text)
+    assert load_sweep(path).missing_files() == ["follower.init=source/latest.pt"]
+    partner = write(tmp_path, text.replace("leader.policy=ippo-leader", "leader.policy=frozen/leader.pt"))
+    assert load_sweep(partner).missing_files() == ["leader.policy=frozen/leader.pt", "follower.init=source/latest.pt"]
+    assert main(["sweep", "check", str(partner)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "leader.policy=frozen/leader.pt, follower.init=source/latest.pt" in err
+    assert "do not exist (read from " + str(tmp_path) in err
+    for made in ("source/latest.pt", "frozen/leader.pt"):
+        (tmp_path / made).parent.mkdir()
+        (tmp_path / made).write_bytes(b"")
+    assert main(["sweep", "check", str(partner)]) == 0
+
+
 def test_eval_address_needs_a_population_matrix(capsys):
     assert main(["eval", "--address", "auto", "--episodes", "1"]) == 2
     err = capsys.readouterr().err

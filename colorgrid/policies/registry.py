@@ -61,6 +61,13 @@ def registered_spec(spec: str) -> tuple[str, str] | None:
     return (base, params) if sep and registered(base) else None
 
 
+def file_of(spec: str) -> str | None:
+    """The file a policy ``spec`` names (one that a loader reads: ``x.pt`` of ``x.pt:temperature=0``), None for a
+    registered name or a spec that is neither."""
+    found = registered_spec(spec)
+    return found[0] if found is not None and found[0] not in _NAMED else None
+
+
 def teams_of(name: str) -> tuple[str, ...] | None:
     """The teams the registered policy ``name`` (or file) plays, None for any team or an unregistered name."""
     discover()

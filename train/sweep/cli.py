@@ -28,6 +28,7 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         raise ValueError(f"--num-cpus must be >= 1, got {args.num_cpus}")
     if args.action == "check":
         spec = load_sweep(args.path, args.out)
+        spec.check_files()
         print(f"{spec.path}: {spec.summary()}, metric {spec.metric} ({spec.mode}), into {spec.out}")
         return 0
     if args.action == "report":

@@ -101,6 +101,7 @@ def run_sweep(spec: SweepSpec, address: str | None = None, num_cpus: int | None 
     if (folder / SPEC_FILE).exists() and tune.Tuner.can_restore(str(folder)):
         raise SweepError(f"{folder} already holds a sweep; finish it with colorgrid sweep resume {spec.out}, or "
                          f"choose another --out")
+    spec.check_files()
     connect(address, num_cpus)
     check_resources(spec)
     folder.mkdir(parents=True, exist_ok=True)

@@ -151,6 +151,37 @@ class SweepSpec:
                 data = merge(data, parse_override(line))
         return from_dict({**data, "seed": seed})
 
+    def missing_files(self) -> list[str]:
+        """``SETTING=PATH`` for each checkpoint file a trial names (a learner's ``init``, a frozen partner's file) that
+        does not exist, read from the current folder as a trial reads it: every listed value of every parameter,
+        each on the file's base settings (no value of one parameter changes a path another names)."""
+        from colorgrid.policies.registry import file_of
+
+        configs = [from_dict({**self.base, "seed": self.seeds[0]})]
+        for param in (p for p in self.params if not p.random):
+            for value in param.values:
+                data = self.base
+                for line in param.overrides(value):
+                    data = merge(data, parse_override(line))
+                configs.append(from_dict({**data, "seed": self.seeds[0]}))
+        missing = {}
+        for config in configs:
+            for role in ("leader", "follower"):
+                section = config.section(role)
+                named = [(f"{role}.init", section.init)] + [(f"{role}.policy", file_of(policy))
+                                                            for policy in (section.policies or (section.policy,))]
+                missing.update({f"{key}={path}": None for key, path in named if path and not Path(path).exists()})
+        return list(missing)
+
+    def check_files(self) -> None:
+        """Refuse, in one line, a sweep whose trials name checkpoint files that do not exist (``missing_files``):
+        every trial would fail at its start."""
+        missing = self.missing_files()
+        if missing:
+            raise SweepError(f"{self.path}: the trials name checkpoint files that do not exist (read from "
+                             f"{Path.cwd()}): {', '.join(missing)}; make them first (the file's description may "
+                             f"say how) or name others")
+
     def grid_size(self) -> int:
         return math.prod(len(p.values) for p in self.params if not p.random)
 
