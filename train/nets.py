@@ -178,8 +178,8 @@ class FastEncoder(nn.Module):
         ``nn.Flatten``'s channel-major column of each is ``local_order``)."""
         N, cells = patches.shape[:2]
         conv1, conv2 = self.convs[0], self.convs[2]
-        # ``addmm`` with the transposed weight: autograd then forms the weight's gradient as patches^T x grad, twice
-        # as fast here as ``linear``'s grad^T x patches (16 output columns)
+        # ``addmm`` on the transposed weight: autograd forms the weight's gradient as patches^T x grad, the faster of
+        # the two layouts at the update's shape (16 output columns)
         x = torch.addmm(conv1.bias, patches.reshape(N * cells, -1), conv1.weight.reshape(conv1.out_channels, -1).T)
         x = x.relu_().view(N, cells, -1).index_select(1, self.gather2)  # [N, out2^2 * 9, 16]: each cell's 3x3 inputs
         w2 = conv2.weight.permute(0, 2, 3, 1).reshape(conv2.out_channels, -1)  # (kh, kw, c) order, as gathered

@@ -76,11 +76,8 @@ class StackedActing:
         dense layer with its window inputs in the order ``act`` lays them out, the heads joined."""
         enc: FastEncoder = model.encoder
         conv1, conv2, dense = enc.convs[0], enc.convs[2], enc.mlp[0]
-        # ``FastEncoder.local`` flattens the window channel-major (c * cells + cell); here it stays cell-major
-        cells, channels = enc.out2 ** 2, conv2.out_channels
-        local = cells * channels
-        order = (torch.arange(channels)[None, :] * cells + torch.arange(cells)[:, None]).reshape(-1)
-        dense_w = torch.cat([dense.weight[:, order], dense.weight[:, local:]], dim=1)
+        channels, order = conv2.out_channels, enc.local_order  # the window's features cell-major, as in the encoder
+        dense_w = torch.cat([dense.weight[:, order], dense.weight[:, len(order):]], dim=1)
         # the goal head reads the encoder's output only: zero weights for any other head input (the goal)
         aux = model.aux[0]
         aux_w = torch.cat([aux.weight, aux.weight.new_zeros(aux.out_features, self.head_in - aux.in_features)], 1)
