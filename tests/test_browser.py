@@ -115,6 +115,32 @@ def board_pixels(page) -> str:
     return page.locator("#board").evaluate("c => c.toDataURL()")
 
 
+def test_replay_list_shows_the_latest_filters_answer_when_an_older_one_comes_back_last(server, browser):
+    """A filter changed while the list's earlier request is still out: the earlier answer, held back on its way to
+    the page until the new one is shown, must not replace it (the real server answers both)."""
+    page = browser.new_page()
+    held = []
+
+    def hold_unfiltered(route):
+        if "setting=" in route.request.url:
+            route.continue_()
+        else:  # every request before the setting is chosen reaches the page last
+            held.append(route)
+
+    page.route("**/api/replays?*", hold_unfiltered)
+    page.goto(server.url + "/replays")
+    page.select_option("#collection", "released")
+    page.select_option("#setting", "default")
+    expect(page.locator("#list tbody tr")).to_have_count(6)
+    assert len(held) >= 2  # the first load and the collection's
+    for route in held:
+        route.continue_()
+    page.wait_for_timeout(500)  # the held answers arrive
+    expect(page.locator("#list tbody tr")).to_have_count(6)
+    assert set(page.locator("#list tbody tr td:nth-child(3)").all_text_contents()) == {"default"}
+    page.close()
+
+
 def test_replay_player_scrubs_plays_links_and_downloads(server, browser, tmp_path):
     page = browser.new_page(accept_downloads=True)
     errors = []

@@ -5,13 +5,18 @@ import { queryParam } from "./params.js";
 const $ = (id) => document.getElementById(id);
 const PAGE = 25;
 let offset = 0;
+let latest = 0; // the last list request sent: only its answer is shown
 
 async function load() {
+  const request = ++latest;
   const params = new URLSearchParams({ sort: $("sort").value, order: $("order").value, offset, limit: PAGE });
   for (const name of ["source", "follower", "collection", "setting", "branch_of"]) {
     if ($(name).value) params.set(name, $(name).value);
   }
   const data = await (await fetch(`/api/replays?${params}`)).json();
+  // answers can come back out of order (a busy server, a larger page): one to an older filter is dropped, so the
+  // list always shows what the filters say now
+  if (request !== latest) return;
   const highlight = queryParam("id");
   $("list").tBodies[0].replaceChildren(...data.items.map((item) => row(item, item.id === highlight)));
   $("page").textContent = `${data.total ? offset + 1 : 0}-${Math.min(offset + PAGE, data.total)} of ${data.total}`;
