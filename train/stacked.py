@@ -59,6 +59,7 @@ class StackedActing:
         self.head_in = model.policy[0].in_features
         self.weights: list[tuple[torch.Tensor, torch.Tensor]] = []
         self.storage: dict[str, torch.Tensor] = {}
+        self.parts: dict[str, list[torch.Tensor]] = {}  # storage[key][i], learner i's rollout storage of view key
         for learner in learners:  # a shared network's rows say which agent each is: the same at every step
             if learner.identity is not None:
                 learner.views["identity"] = learner.identity.expand(learner.ppo.num_steps, -1, -1).contiguous()
@@ -98,9 +99,10 @@ class StackedActing:
         if stored is None or stored.shape[3:] != shape:
             with torch.inference_mode(False):  # a normal tensor: the update reads it with autograd on
                 stored = self.storage[key] = torch.empty(len(self.learners), steps, rows, *shape)
-        for i, learner in enumerate(self.learners):
-            if learner.views.get(key) is not stored[i]:
-                learner.views[key] = stored[i]
+                self.parts[key] = list(stored)  # each learner's part, one tensor object each, kept
+        for learner, part in zip(self.learners, self.parts[key]):
+            if learner.views.get(key) is not part:  # (set once, unless something replaced it)
+                learner.views[key] = part
         return stored
 
     @torch.inference_mode()
