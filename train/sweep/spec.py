@@ -153,17 +153,12 @@ class SweepSpec:
 
     def missing_files(self) -> list[str]:
         """``SETTING=PATH`` for each checkpoint file a trial names (a learner's ``init``, a frozen partner's file) that
-        does not exist, read from the current folder as a trial reads it: every listed value of every parameter,
-        each on the file's base settings (no value of one parameter changes a path another names)."""
+        does not exist, read from the current folder as a trial reads it, over every configuration of the sweep."""
         from colorgrid.policies.registry import file_of
 
-        configs = [from_dict({**self.base, "seed": self.seeds[0]})]
-        for param in (p for p in self.params if not p.random):
-            for value in param.values:
-                data = self.base
-                for line in param.overrides(value):
-                    data = merge(data, parse_override(line))
-                configs.append(from_dict({**data, "seed": self.seeds[0]}))
+        fixed = [p for p in self.params if not p.random]
+        configs = [self.config({**dict(zip((p.name for p in fixed), combo)), **sample}, self.seeds[0])
+                   for combo in itertools.product(*(p.values for p in fixed)) for sample in self.samples()]
         missing = {}
         for config in configs:
             for role in ("leader", "follower"):
