@@ -120,7 +120,7 @@ def main() -> None:
     for name in args.setup:
         work = flops_per_env_step(name)
         ceiling = rate / work
-        print(f"{name:<10} {work / 1e9:>15.3f} {ceiling:>20.0f} {measured[name]['sps'] / ceiling:>21.0%}", flush=True)
+        print(f"{name:<10} {work / 1e9:>15.4f} {ceiling:>20.0f} {measured[name]['sps'] / ceiling:>21.0%}", flush=True)
     print("(the ceiling: every operation at the matmul rate; nothing else costs time)")
     if args.profile:
         profile_update(args.setup[0], args.threads, args.device)

@@ -195,9 +195,15 @@ class FastEncoder(nn.Module):
                                 dim=2)
             grid = coarse.reshape(coarse.shape[0], self.P, -1)
             coarse = torch.cat([coarse, goal_planes(grid[:, :self.C], g).flatten(1)], dim=1)
-        dense, n = self.mlp[0], len(self.local_order)
-        rest = F.linear(join([coarse, side], dim=1), dense.weight[:, n:], dense.bias)
-        return torch.addmm(rest, self.local(patches), dense.weight.index_select(1, self.local_order).T).relu_()
+        window_w, rest_w = self.dense_weights()
+        rest = F.linear(join([coarse, side], dim=1), rest_w, self.mlp[0].bias)
+        return torch.addmm(rest, self.local(patches), window_w.T).relu_()
+
+    def dense_weights(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """The dense layer's weight in two parts: the columns of the window's features in ``local``'s cell-major
+        order, and the columns of the other inputs (coarse view, side inputs)."""
+        weight = self.mlp[0].weight
+        return weight.index_select(1, self.local_order), weight[:, len(self.local_order):]
 
 
 def layers(stack: nn.Sequential, x: torch.Tensor) -> torch.Tensor:

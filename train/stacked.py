@@ -77,8 +77,8 @@ class StackedActing:
         dense layer with its window inputs in the order ``act`` lays them out, the heads joined."""
         enc: FastEncoder = model.encoder
         conv1, conv2, dense = enc.convs[0], enc.convs[2], enc.mlp[0]
-        channels, order = conv2.out_channels, enc.local_order  # the window's features cell-major, as in the encoder
-        dense_w = torch.cat([dense.weight[:, order], dense.weight[:, len(order):]], dim=1)
+        channels = conv2.out_channels
+        dense_w = torch.cat(enc.dense_weights(), dim=1)  # the window's features cell-major, as in the encoder
         # the goal head reads the encoder's output only: zero weights for any other head input (the goal)
         aux = model.aux[0]
         aux_w = torch.cat([aux.weight, aux.weight.new_zeros(aux.out_features, self.head_in - aux.in_features)], 1)

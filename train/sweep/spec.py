@@ -161,10 +161,8 @@ class SweepSpec:
                    for combo in itertools.product(*(p.values for p in fixed)) for sample in self.samples()]
         missing = {}
         for config in configs:
-            for role in ("leader", "follower"):
-                section = config.section(role)
-                named = [(f"{role}.init", section.init)] + [(f"{role}.policy", file_of(policy))
-                                                            for policy in (section.policies or (section.policy,))]
+            for role, agent in zip(config.env.roles, config.agents):
+                named = ((f"{role}.init", agent.init), (f"{role}.policy", file_of(agent.policy)))
                 missing.update({f"{key}={path}": None for key, path in named if path and not Path(path).exists()})
         return list(missing)
 
