@@ -81,15 +81,22 @@ def test_a_backend_killed_mid_game_loses_nothing_finished_and_is_started_again(s
     ws.send(json.dumps({"type": "new_game", "study": ref}))
     welcome = receive(ws, "welcome")
     play_keys(ws, 2)
-    os.kill(before[home]["pid"], signal.SIGKILL)  # mid-game: two of its four steps played
-    with pytest.raises(Exception):
-        receive(ws, "state", timeout=5)  # the socket is gone with its process
-    ws.close()
+    # The launcher is held (SIGSTOP) until the page has reconnected: started again within its 1 s wait, the
+    # killed backend could take the reconnect itself, and this test is about the other backend taking it.
+    os.kill(study_cluster.process.pid, signal.SIGSTOP)
+    try:
+        os.kill(before[home]["pid"], signal.SIGKILL)  # mid-game: two of its four steps played
+        with pytest.raises(Exception):
+            receive(ws, "state", timeout=5)  # the socket is gone with its process
+        ws.close()
 
-    # The page reconnects (socket.js: a second later): the proxy sends it to the other backend, which has no
-    # such game; the page asks for its page again and is offered the game again.
-    time.sleep(1)
-    with socket_to(study_cluster, cookies) as again:
+        # The page reconnects (socket.js: a second later): the proxy sends it to the other backend, which has
+        # no such game; the page asks for its page again and is offered the game again.
+        time.sleep(1)
+        again = socket_to(study_cluster, cookies)
+    finally:
+        os.kill(study_cluster.process.pid, signal.SIGCONT)
+    with again:
         away = again.response.headers[BACKEND_HEADER]
         assert away != home
         again.send(json.dumps({"type": "rejoin", "game_id": welcome["game_id"], "token": welcome["token"]}))
