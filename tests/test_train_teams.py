@@ -204,24 +204,29 @@ def test_team_evaluations_log_every_agent_and_save_replays_that_verify(tmp_path)
 
 
 def test_three_learners_updating_side_by_side_match_one_after_the_other(tmp_path):
+    """On two torch threads three learners update on two threads; on three, two of them in processes of their own;
+    either way as one after the other on one thread, bit for bit."""
     threads = torch.get_num_threads()
     config = tiny(RUNS["2L1F"], ppo={"num_steps": 8})
-    side_by_side = Trainer(config, tmp_path / "a", progress=False, tensorboard=False)
-    one_by_one = Trainer(config, tmp_path / "b", progress=False, tensorboard=False)
+    trainers = {n: Trainer(config, tmp_path / str(n), progress=False, tensorboard=False) for n in (2, 3, 1)}
     try:
-        for trainer in (side_by_side, one_by_one):
+        results = {}
+        for n, trainer in trainers.items():
             trainer.collect_rollout()
-        torch.set_num_threads(2)
-        parallel = side_by_side._update_learners()  # two worker threads for three learners, one torch thread each
-        torch.set_num_threads(1)
-        sequential = one_by_one._update_learners()
+            torch.set_num_threads(n)
+            results[n] = trainer._update_learners()  # 2: two threads for three learners; 3: two processes
+        assert trainers[2]._pool is not None and not trainers[2]._processes
+        assert sorted(trainers[3]._processes) == sorted(trainers[3].learners)[1:] and trainers[3]._pool is None
+        assert trainers[1]._pool is None and not trainers[1]._processes
+        for trainer in trainers.values():
+            trainer.close()
     finally:
         torch.set_num_threads(threads)
-    assert side_by_side._pool is not None and one_by_one._pool is None
-    assert parallel == sequential
-    for i in side_by_side.learners:
-        after = one_by_one.learners[i].model.state_dict()
-        assert all(torch.equal(v, after[k]) for k, v in weights(side_by_side.learners[i].model).items()), i
+    for n in (2, 3):
+        assert results[n] == results[1], n
+        for i in trainers[n].learners:
+            after = trainers[1].learners[i].model.state_dict()
+            assert all(torch.equal(v, after[k]) for k, v in weights(trainers[n].learners[i].model).items()), (n, i)
 
 
 def test_checkpoints_name_what_they_hold(tmp_path):

@@ -285,6 +285,11 @@ class TrainConfig:
     device: str = "auto"
     threads: int = 0
     """Torch CPU threads (0: all cores)."""
+    update_processes: bool = True
+    """Where learners update side by side on a CPU at one torch thread each (as many learners as threads: two on
+    two cores), each learner after the first updates in a forked process of its own, its weights in shared
+    memory (``train/update_process.py``): threads of one process hand Python's GIL to each other at every
+    operation and update about 15% slower. The same results bit for bit; false: threads."""
     keep_freed_memory: bool = False
     """On a CPU, ask glibc's malloc to keep freed memory (``train/memory.py``): large networks (the
     paper's) reuse their ~100 MB activations instead of page-faulting them in every minibatch,
@@ -309,6 +314,7 @@ class TrainConfig:
                          ("replay_episodes", 0), ("save_every", 1), ("threads", 0)):
             check_int(self, name, lo)
         check_bool(self, "keep_freed_memory")
+        check_bool(self, "update_processes")
         if self.replay_episodes > self.eval_episodes:
             fail(self, "replay_episodes", f"at most eval_episodes={self.eval_episodes}")
 

@@ -41,6 +41,7 @@ from train.metrics import MetricsLog, episode_columns, evaluation_row
 from train.nets import ActorCritic, with_leader_progress
 from train.policy import NetPolicy, check_compatible
 from train.stacked import StackedActing, can_stack
+from train.update_process import AVAILABLE as UPDATE_PROCESSES, Unavailable, UpdateProcess
 
 
 R = TypeVar("R")
@@ -123,6 +124,8 @@ class Trainer:
         self.tensorboard = tensorboard
         self.log: MetricsLog | None = None
         self._pool: ThreadPoolExecutor | None = None
+        self._processes: dict[int, UpdateProcess] = {}  # by learner key: where that learner updates (update_processes)
+        self._processes_work = UPDATE_PROCESSES  # false once one could not start here (``Unavailable``)
         self._stacked: StackedActing | None = None
 
     def _make_learner(self, name: str, agents: tuple[int, ...]) -> Learner:
@@ -192,10 +195,24 @@ class Trainer:
             if bar is not None:
                 bar.close()
             self.log.close()
-            if self._pool is not None:
-                self._pool.shutdown()
-                self._pool = None
+            self.close()
         return last
+
+    def close(self) -> None:
+        """End the threads and processes the learners update on (``train`` does when it ends); the next update
+        starts them again."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+        self._close_processes()
+
+    def _close_processes(self) -> None:
+        """End the learners' update processes, each learner's optimizer state brought back from its own."""
+        processes, self._processes = self._processes, {}
+        for i, process in processes.items():
+            if process.alive:  # (one that died took its optimizer state with it: the run has already failed)
+                self.learners[i].optimizer.load_state_dict(process.optimizer_state())
+            process.close()
 
     def train_iteration(self) -> dict:
         cfg = self.config
@@ -233,6 +250,13 @@ class Trainer:
         inputs = {lr.name: self._learner_tensors(lr) for lr in self.learners.values()}
         work = lambda lr: lr.update(lr.value(inputs[lr.name]))  # noqa: E731
         each, threads = self._threads_each(), torch.get_num_threads()
+        if each == 1 and len(self.learners) <= threads and self.config.update_processes and self._processes_work:
+            try:
+                return self._update_in_processes(inputs)
+            except Unavailable as error:
+                self._processes_work = False
+                warnings.warn(f"{error}: the learners update on threads instead (update_processes)", stacklevel=2)
+        self._close_processes()  # (a learner that updated in its process: its optimizer state comes back first)
         if each is None:
             return side_by_side(self.learners, work, None)
         if self._pool is None:
@@ -240,6 +264,25 @@ class Trainer:
         torch.set_num_threads(each)
         try:
             return side_by_side(self.learners, work, self._pool)
+        finally:
+            torch.set_num_threads(threads)
+
+    def _update_in_processes(self, inputs: dict) -> dict[int, dict]:
+        """``_update_learners`` with the first learner on this thread and each other in its process
+        (``UpdateProcess``), all at one torch thread."""
+        first, *others = self.learners
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            for i in others:
+                if i not in self._processes:
+                    self._processes[i] = UpdateProcess(self.learners[i])
+            for i in others:
+                learner = self.learners[i]
+                self._processes[i].start(learner, learner.value(inputs[learner.name]))
+            learner = self.learners[first]
+            results = {first: learner.update(learner.value(inputs[learner.name]))}
+            return {**results, **{i: self._processes[i].finish(self.learners[i]) for i in others}}
         finally:
             torch.set_num_threads(threads)
 
@@ -420,6 +463,8 @@ class Trainer:
         return out
 
     def checkpoint_payload(self) -> dict:
+        for i, process in self._processes.items():  # a learner updating in its process: its optimizer's state
+            self.learners[i].optimizer.load_state_dict(process.optimizer_state())
         agents = {}
         for i, name in enumerate(self.names):
             if i in self.learners:
@@ -452,6 +497,7 @@ class Trainer:
     def restore(self, path: str | Path) -> None:
         """Continue from a checkpoint of this run: weights, optimizers, env, recurrent states, RNGs."""
         ckpt = load_checkpoint(path)
+        self.close()  # the learners' update processes start again from the restored optimizers
         if ckpt.get("trainer_state") is None:
             raise ValueError(f"{path} is an exported policy (no trainer state); resume from a run's checkpoints/")
         for learner in self.learners.values():
