@@ -31,6 +31,7 @@ from train.trainer import Trainer  # noqa: E402
 
 SETUPS = {
     "fast": {},
+    "fast-threads": {"update_processes": False},  # the learners' updates on two threads of one process
     "fast-lstm": {"follower": {"net": {"lstm": True, "extra_inputs": True, "belief_input": True}}},
     # as the paper_* presets run it (keep_freed_memory; see docs/PERFORMANCE.md and bench/bench_memory.py)
     "paper": {"leader": {"net": {"arch": "paper"}}, "follower": {"net": {"arch": "paper"}}, "keep_freed_memory": True},

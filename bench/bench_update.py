@@ -1,5 +1,6 @@
 """What bounds the PPO update of two learners side by side: one learner's update alone, the two updates on two
-threads of one process (as the trainer runs them), and on two processes at once.
+threads of one process (the trainer with ``update_processes=false``), and on two processes at once (as the trainer
+runs them by default: ``train/update_process.py``).
 
 Each figure is the median over ``--repeats`` updates of the same rollout from the same weights (the fast
 network, the paper's batch: 16 envs x 128 steps, 4 epochs of 4 minibatches, no early stop), one torch
@@ -99,7 +100,7 @@ def main() -> None:
             per_process = [r.get() for r in results]
     both = [max(a, b) for a, b in zip(*per_process)]
     print(f"{'one learner alone':<40} {statistics.median(alone):.3f} s ({min(alone):.3f}-{max(alone):.3f})")
-    print(f"{'two learners, two threads (the trainer)':<40} {statistics.median(threads):.3f} s "
+    print(f"{'two learners, two threads of one process':<40} {statistics.median(threads):.3f} s "
           f"({min(threads):.3f}-{max(threads):.3f})")
     print(f"{'two learners, two processes':<40} {statistics.median(both):.3f} s ({min(both):.3f}-{max(both):.3f})")
     print("(median over repeats of one update: 16 envs x 128 steps, 4 epochs of 4 minibatches; two at once: until "
