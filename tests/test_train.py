@@ -5,9 +5,11 @@ import json
 import math
 import os
 import re
+import signal
 import subprocess
 import sys
 import threading
+import time
 from pathlib import Path
 
 import numpy as np
@@ -589,6 +591,38 @@ def test_cli_trains_exports_and_evaluates_a_checkpoint(tmp_path):
     bad = subprocess.run([sys.executable, "-m", "colorgrid_apps", "train", "--set", "ppo.clip_coef=-1"],
                          capture_output=True, text=True, timeout=120)
     assert bad.returncode == 2 and "ppo.clip_coef=-1 is invalid" in bad.stderr
+
+
+def test_ctrl_c_stops_training_after_the_iteration_with_a_checkpoint_that_resumes(tmp_path):
+    """Ctrl+C (SIGINT) on ``colorgrid train`` at two torch threads (the follower's update in its process): the
+    iteration ends, its checkpoint is written, the command names the step and how to go on (exit code 130), no
+    process is left, and ``--resume`` continues from that step."""
+    run = tmp_path / "run"
+    tiny_run = ["--set", "ppo.num_envs=4", "--set", "ppo.num_steps=16", "--set", "env.horizon=12", "--set",
+                "eval_every=0", "--set", "threads=2", "--no-progress", "--no-tensorboard"]
+    train = subprocess.Popen([sys.executable, "-m", "colorgrid_apps", "train", "--out", str(run), "--set",
+                              "total_steps=640000", *tiny_run], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                             text=True)
+    metrics = run / "metrics.jsonl"
+    deadline = time.monotonic() + 120
+    while not (metrics.is_file() and metrics.read_text().count('"train"') >= 3):
+        assert train.poll() is None and time.monotonic() < deadline, train.communicate()
+        time.sleep(0.1)
+    children = [int(p) for p in Path(f"/proc/{train.pid}/task/{train.pid}/children").read_text().split()]
+    assert children  # the follower's update process
+    train.send_signal(signal.SIGINT)
+    out, err = train.communicate(timeout=120)
+    assert train.returncode == 130, err
+    step = int(re.search(r"stopped at step (\d+) of 640000; continue with: colorgrid train --resume (\S+)",
+                         out).group(1))
+    assert "stopping after this iteration" in err and "Traceback" not in err
+    assert load_checkpoint(run / "checkpoints" / "latest.pt")["step"] == step > 0
+    assert not [p for p in children if Path(f"/proc/{p}").exists()]
+    resumed = subprocess.run([sys.executable, "-m", "colorgrid_apps", "train", "--resume", str(run), "--set",
+                              f"total_steps={step + 128}", "--no-progress", "--no-tensorboard"],
+                             capture_output=True, text=True, timeout=300)
+    assert resumed.returncode == 0, resumed.stderr
+    assert f"resuming {run} at step {step}" in resumed.stdout and f"done at step {step + 128}" in resumed.stdout
 
 
 def test_model_card_evaluates_against_the_baselines_on_the_same_seeds(tmp_path):

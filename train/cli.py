@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import signal
+import sys
+import threading
 import time
 from pathlib import Path
 
@@ -120,7 +123,28 @@ def cmd_train(args: argparse.Namespace) -> int:
         print(f"resuming {run_dir} at step {trainer.step}")
     print(f"training {config.num_iterations} iterations of {config.batch_steps} steps on {trainer.device}; "
           f"run directory {run_dir}")
-    last = trainer.train()
+    interrupted = threading.Event()
+
+    def on_ctrl_c(signum, frame):
+        if interrupted.is_set():
+            raise KeyboardInterrupt  # the second Ctrl+C: at once (the last checkpoint stays)
+        interrupted.set()
+        print("\nstopping after this iteration, with a checkpoint; Ctrl+C again to stop at once", file=sys.stderr,
+              flush=True)
+
+    previous = signal.signal(signal.SIGINT, on_ctrl_c)
+    try:
+        last = trainer.train(stop=interrupted.is_set)
+    except KeyboardInterrupt:
+        print(f"stopped at once; continue from the last checkpoint with: colorgrid train --resume {run_dir}",
+              file=sys.stderr)
+        return 130
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if interrupted.is_set():
+        print(f"stopped at step {trainer.step} of {config.num_iterations * config.batch_steps}; continue with: "
+              f"colorgrid train --resume {run_dir}")
+        return 130
     shown = {k: round(v, 3) for k, v in last.items() if isinstance(v, float) and ("eval/" in k or k == "sps")}
     print(f"done at step {trainer.step}: {shown}")
     print(f"checkpoints in {run_dir / 'checkpoints'}")

@@ -165,9 +165,11 @@ class Trainer:
         self.shaped_sum = np.zeros((B, A))  # each env's training reward so far this episode
 
     # ------------------------------------------------------------------ loop
-    def train(self, on_iteration: Callable[[dict, Path | None], None] | None = None) -> dict:
+    def train(self, on_iteration: Callable[[dict, Path | None], None] | None = None,
+              stop: Callable[[], bool] | None = None) -> dict:
         """Train to ``total_steps``; ``on_iteration(row, saved)`` is called after each iteration with its log row
-        (and evaluation) and the checkpoint it saved (``latest.pt``), or None."""
+        (and evaluation) and the checkpoint it saved (``latest.pt``), or None. ``stop()``, asked after each
+        iteration: true ends training there, with a checkpoint of that iteration (``colorgrid train``'s Ctrl+C)."""
         cfg = self.config
         self.run_dir.mkdir(parents=True, exist_ok=True)
         (self.run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2))
@@ -186,11 +188,14 @@ class Trainer:
                     bar.set_postfix(sps=f"{last['sps']:.0f}", team=f"{last.get('team_reward', float('nan')):.2f}")
                 if cfg.eval_every and self.iteration % cfg.eval_every == 0:
                     last.update(self.evaluate())
+                stopping = stop is not None and stop()
                 saved = None
-                if self.iteration % cfg.save_every == 0 or self.iteration == cfg.num_iterations:
+                if self.iteration % cfg.save_every == 0 or self.iteration == cfg.num_iterations or stopping:
                     saved = self.save()
                 if on_iteration is not None:
                     on_iteration(last, saved)
+                if stopping:
+                    break
         finally:
             if bar is not None:
                 bar.close()
