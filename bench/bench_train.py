@@ -159,6 +159,7 @@ def profile_update(name: str, threads: int, device: str) -> None:
         bootstrap = learner.value(trainer._learner_tensors(learner))
         with profile(activities=[ProfilerActivity.CPU]) as prof:
             learner.update(bootstrap)
+        trainer.close()
         trainer.log.close()
     print(f"profile of one {name} update (leader):")
     print(prof.key_averages().table(sort_by="self_cpu_time_total", row_limit=12))

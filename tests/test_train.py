@@ -389,6 +389,30 @@ def test_an_update_process_that_dies_fails_the_next_update_in_one_line(tmp_path)
     assert not trainer._processes
 
 
+def test_ctrl_c_during_an_update_ends_the_update_processes_at_once(tmp_path):
+    """SIGINT while the learners update (the follower in its process): the KeyboardInterrupt comes through, the
+    process is ended at once rather than asked for a state it is still changing, and closing raises nothing."""
+    threads = torch.get_num_threads()
+    trainer = Trainer(from_dict({"threads": 2, "eval_every": 0}), tmp_path, progress=False, tensorboard=False)
+    try:
+        trainer.collect_rollout()
+        trainer._update_learners()  # the process starts; an update of the paper's batch takes about 0.2 s
+        process = trainer._processes[1].process
+        trainer.collect_rollout()
+        signal.setitimer(signal.ITIMER_REAL, 0.05)
+        previous = signal.signal(signal.SIGALRM, signal.default_int_handler)  # raises KeyboardInterrupt
+        try:
+            with pytest.raises(KeyboardInterrupt):
+                trainer._update_learners()
+        finally:
+            signal.setitimer(signal.ITIMER_REAL, 0)
+            signal.signal(signal.SIGALRM, previous)
+        assert not trainer._processes and not process.is_alive() and process.exitcode == -signal.SIGKILL
+        trainer.close()
+    finally:
+        torch.set_num_threads(threads)
+
+
 def test_learners_acting_side_by_side_collect_what_acting_in_turn_does(tmp_path):
     """With two torch threads the learners act on two threads, one torch thread each; the rollout is the one they
     collect acting in turn on one thread, to the bit (the follower recurrent, so its state is carried too)."""
@@ -594,7 +618,7 @@ def test_cli_trains_exports_and_evaluates_a_checkpoint(tmp_path):
 
 
 def test_ctrl_c_stops_training_after_the_iteration_with_a_checkpoint_that_resumes(tmp_path):
-    """Ctrl+C (SIGINT) on ``colorgrid train`` at two torch threads (the follower's update in its process): the
+    """Ctrl+C (SIGINT to the process group) on ``colorgrid train`` at two torch threads (the follower's update in its process): the
     iteration ends, its checkpoint is written, the command names the step and how to go on (exit code 130), no
     process is left, and ``--resume`` continues from that step."""
     run = tmp_path / "run"
@@ -602,7 +626,7 @@ def test_ctrl_c_stops_training_after_the_iteration_with_a_checkpoint_that_resume
                 "eval_every=0", "--set", "threads=2", "--no-progress", "--no-tensorboard"]
     train = subprocess.Popen([sys.executable, "-m", "colorgrid_apps", "train", "--out", str(run), "--set",
                               "total_steps=640000", *tiny_run], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                             text=True)
+                             text=True, start_new_session=True)
     metrics = run / "metrics.jsonl"
     deadline = time.monotonic() + 120
     while not (metrics.is_file() and metrics.read_text().count('"train"') >= 3):
@@ -610,7 +634,7 @@ def test_ctrl_c_stops_training_after_the_iteration_with_a_checkpoint_that_resume
         time.sleep(0.1)
     children = [int(p) for p in Path(f"/proc/{train.pid}/task/{train.pid}/children").read_text().split()]
     assert children  # the follower's update process
-    train.send_signal(signal.SIGINT)
+    os.killpg(train.pid, signal.SIGINT)  # as a terminal's Ctrl+C: to the process group, the update process too
     out, err = train.communicate(timeout=120)
     assert train.returncode == 130, err
     step = int(re.search(r"stopped at step (\d+) of 640000; continue with: colorgrid train --resume (\S+)",

@@ -218,10 +218,10 @@ def test_three_learners_updating_side_by_side_match_one_after_the_other(tmp_path
         assert trainers[2]._pool is not None and not trainers[2]._processes
         assert sorted(trainers[3]._processes) == sorted(trainers[3].learners)[1:] and trainers[3]._pool is None
         assert trainers[1]._pool is None and not trainers[1]._processes
-        for trainer in trainers.values():
-            trainer.close()
     finally:
         torch.set_num_threads(threads)
+        for trainer in trainers.values():
+            trainer.close()
     for n in (2, 3):
         assert results[n] == results[1], n
         for i in trainers[n].learners:

@@ -126,7 +126,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     interrupted = threading.Event()
 
     def on_ctrl_c(signum, frame):
-        if interrupted.is_set():
+        if interrupted.is_set() and trainer.iteration < config.num_iterations:
             raise KeyboardInterrupt  # the second Ctrl+C: at once (the last checkpoint stays)
         interrupted.set()
         print("\nstopping after this iteration, with a checkpoint; Ctrl+C again to stop at once", file=sys.stderr,
@@ -141,7 +141,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         return 130
     finally:
         signal.signal(signal.SIGINT, previous)
-    if interrupted.is_set():
+    if interrupted.is_set() and trainer.iteration < config.num_iterations:
         print(f"stopped at step {trainer.step} of {config.num_iterations * config.batch_steps}; continue with: "
               f"colorgrid train --resume {run_dir}")
         return 130

@@ -16,7 +16,7 @@ import json
 import time
 import warnings
 from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from typing import Callable, Iterator, TypeVar
 
@@ -180,6 +180,7 @@ class Trainer:
             bar = tqdm(total=cfg.num_iterations * cfg.batch_steps, initial=self.step, unit="step", smoothing=0.1)
         last = {}
         self._tick = time.perf_counter()
+        ended = False
         try:
             while self.iteration < cfg.num_iterations:
                 last = self.train_iteration()
@@ -196,11 +197,16 @@ class Trainer:
                     on_iteration(last, saved)
                 if stopping:
                     break
+            ended = True
         finally:
             if bar is not None:
                 bar.close()
             self.log.close()
-            self.close()
+            if ended:
+                self.close()
+            else:  # (an error or Ctrl+C is on its way out: nothing here may hide it)
+                with suppress(Exception):
+                    self.close()
         return last
 
     def close(self) -> None:
@@ -212,12 +218,19 @@ class Trainer:
         self._close_processes()
 
     def _close_processes(self) -> None:
-        """End the learners' update processes, each learner's optimizer state brought back from its own."""
+        """End the learners' update processes, each learner's optimizer state brought back from its own (a process
+        in an update, or one that died, has none to give: it is ended, and the first such error raised after)."""
         processes, self._processes = self._processes, {}
+        errors = []
         for i, process in processes.items():
-            if process.alive:  # (one that died took its optimizer state with it: the run has already failed)
+            try:
                 self.learners[i].optimizer.load_state_dict(process.optimizer_state())
-            process.close()
+            except RuntimeError as error:
+                errors.append(error)
+            finally:
+                process.close()
+        if errors:
+            raise errors[0]
 
     def train_iteration(self) -> dict:
         cfg = self.config
@@ -278,6 +291,7 @@ class Trainer:
         first, *others = self.learners
         threads = torch.get_num_threads()
         torch.set_num_threads(1)
+        failed = True
         try:
             for i in others:
                 if i not in self._processes:
@@ -287,9 +301,15 @@ class Trainer:
                 self._processes[i].start(learner, learner.value(inputs[learner.name]))
             learner = self.learners[first]
             results = {first: learner.update(learner.value(inputs[learner.name]))}
-            return {**results, **{i: self._processes[i].finish(self.learners[i]) for i in others}}
+            results.update({i: self._processes[i].finish(self.learners[i]) for i in others})
+            failed = False
+            return results
         finally:
             torch.set_num_threads(threads)
+            if failed:  # (the learners' states are those of an update cut short: end the processes now)
+                processes, self._processes = self._processes, {}
+                for process in processes.values():
+                    process.kill()
 
     def _threads_each(self) -> int | None:
         """Torch threads per learner when the learners act and update side by side, else None.

@@ -1,8 +1,8 @@
 """A learner's PPO update in a process of its own, for learners that update side by side on a CPU.
 
 Two learners updating on two threads of one process hand Python's GIL to each other at every tensor
-operation: each hand-over is a context switch, about 1,300 of them per update at the paper's batch, and
-the updates take about 20% longer than one alone; on two processes they take what one takes alone
+operation: each hand-over is a context switch, about 1,100 of them for two updates at the paper's batch,
+and the updates take about 15% longer than on two processes, which take about what one takes alone
 (``bench/bench_update.py``; docs/PERFORMANCE.md, "Each learner's update in a process of its own").
 
 The process is forked from the trainer (so a script that trains needs no ``__main__`` guard) and holds a
@@ -13,24 +13,27 @@ bootstrap value go out, the learner's random generator goes out and comes back, 
 back. The optimizer's state lives in the process; ``optimizer_state`` fetches it (for a checkpoint, and
 when the process ends) and ``load_optimizer`` sets it. The process runs the same operations on the same
 inputs at one torch thread, as the trainer's thread would: the results are the same bit for bit
-(``tests/test_train.py`` checks). Where it cannot start (no fork, no shared memory left), ``Unavailable``
-says why and the trainer updates on threads.
+(``tests/test_train.py`` checks). Where it cannot start (not Linux, no shared memory left, no process to be
+had, a daemonic parent), ``Unavailable`` says why and the trainer updates on threads.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import signal
+import sys
 import traceback
+import weakref
 
 import numpy as np
 import torch
 
 from train.learner import Learner
 
-AVAILABLE = "fork" in multiprocessing.get_all_start_methods()
-"""Whether this platform forks processes (Linux, macOS; not Windows). A forked process needs no import of the
-script that trains (a spawned one would run a script without an ``if __name__ == "__main__"`` guard again)."""
+AVAILABLE = sys.platform.startswith("linux")
+"""Whether update processes start here: forked, on Linux (macOS's system libraries are not safe to use after a
+fork; Windows has none). A forked process needs no import of the script that trains (a spawned one would run
+a script without an ``if __name__ == "__main__"`` guard again)."""
 
 
 def _out(t):
@@ -55,12 +58,14 @@ class Unavailable(RuntimeError):
 
 
 class UpdateProcess:
-    """``learner``'s updates in a process of its own (forked here; ``close`` ends it)."""
+    """``learner``'s updates in a process of its own (forked here; ``close`` ends it, ``kill`` at once)."""
 
     def __init__(self, learner: Learner):
         if learner.device.type != "cpu" or not AVAILABLE:
-            raise Unavailable(f"an update process is forked and shares a CPU learner's memory; {learner.name} is on "
-                              f"{learner.device}, and this platform {'forks' if AVAILABLE else 'does not fork'}")
+            raise Unavailable(f"an update process is forked (Linux) and shares a CPU learner's memory; "
+                              f"{learner.name} is on {learner.device}, on {sys.platform}")
+        if multiprocessing.current_process().daemon:
+            raise Unavailable("this trainer runs in a daemonic process, which may not start processes")
         self.name = learner.name
         try:  # before the fork: the process's network is this one
             learner.model.share_memory()
@@ -71,15 +76,22 @@ class UpdateProcess:
         self.conn, theirs = context.Pipe()
         lr = learner.optimizer.param_groups[0]["lr"]
         self.process = context.Process(target=_serve, name=f"update-{learner.name}", daemon=True,
-                                       args=(theirs, self.conn, learner.model, learner.ppo, learner.weights, lr,
-                                             learner.name))
-        self.process.start()
-        theirs.close()
-        self.pending = False  # an update started and not yet finished
+                                       args=(theirs, learner.model, learner.ppo, learner.weights, lr, learner.name))
+        _OPEN.add(self)  # (before the fork: the process closes its copy of this end)
+        try:
+            self.process.start()
+        except OSError as error:  # no process to be had (a limit on processes, no memory)
+            _OPEN.discard(self)
+            self.conn.close()
+            raise Unavailable(f"no process for the {learner.name} learner's update ({error})") from error
+        finally:
+            theirs.close()
+        self.pending = False  # an update started and its answer not yet read
         self.load_optimizer(learner.optimizer.state_dict())
 
     def start(self, learner: Learner, bootstrap_value: torch.Tensor) -> None:
         """Start ``learner.update(bootstrap_value)`` at one torch thread; ``finish`` waits for it."""
+        self._idle("start an update")
         share_views(learner)
         self._send("update", {"batch": _out(learner.stacked()), "bootstrap": _out(bootstrap_value),
                               "initial_state": _out(learner.initial_state),
@@ -88,22 +100,18 @@ class UpdateProcess:
 
     def finish(self, learner: Learner) -> dict[str, float]:
         """The update's statistics; ``learner``'s generator continues where the update left it."""
+        reply = self._receive()  # (interrupted here, the answer is still owed: ``pending`` stays set)
         self.pending = False
-        reply = self._receive()
         learner.generator.set_state(_in(reply["generator"]))
         return reply["stats"]
 
     def optimizer_state(self) -> dict:
-        if self.pending:  # (the trainer failed between start and finish): the update's answer comes first
-            self.pending = False
-            try:
-                self._receive()
-            except RuntimeError:
-                pass
+        self._idle("read its optimizer state")
         self._send("optimizer_state", None)
         return _in(self._receive())
 
     def load_optimizer(self, state: dict) -> None:
+        self._idle("set its optimizer state")
         self._send("load_optimizer", _out(state))
         self._receive()
 
@@ -112,16 +120,28 @@ class UpdateProcess:
         return self.process.is_alive()
 
     def close(self) -> None:
+        """Ask the process to end (at once if it is in an update: ``kill``)."""
+        if self.pending:
+            return self.kill()
         if self.process.is_alive():
             try:
                 self._send("stop", None)
-            except OSError:
+            except RuntimeError:  # gone already
                 pass
         self.process.join(10)
+        self.kill()
+
+    def kill(self) -> None:
+        """End the process now (an update it is in is lost with it)."""
         if self.process.is_alive():
             self.process.kill()
-            self.process.join()
+        self.process.join()
         self.conn.close()
+        _OPEN.discard(self)
+
+    def _idle(self, what: str) -> None:
+        if self.pending:
+            raise RuntimeError(f"the {self.name} learner's update process is still in an update: cannot {what}")
 
     def _send(self, what: str, payload) -> None:
         try:
@@ -144,17 +164,23 @@ class UpdateProcess:
                 f"{type(error).__name__}")
 
 
+_OPEN: weakref.WeakSet[UpdateProcess] = weakref.WeakSet()
+"""The update processes this process has started and not ended: a process forked later closes its copies of
+their pipe ends, so that each one sees its own trainer end (EOF) rather than waiting for its siblings."""
+
+
 def share_views(learner: Learner) -> None:
     """The learner's rollout storage in shared memory (moved once, then kept: the process reads it in place)."""
     for view in learner.views.values():
         view.share_memory_()
 
 
-def _serve(conn, trainers_end, model, ppo, weights, lr: float, name: str) -> None:
+def _serve(conn, model, ppo, weights, lr: float, name: str) -> None:
     """The process: a learner on the shared network, answering ``UpdateProcess``'s requests until ``stop`` or
     until the trainer's end of the pipe closes (the trainer ended)."""
-    trainers_end.close()  # (forked with it): the trainer's end closing is then this end's EOF
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C is the trainer's to handle: it ends this process
+    for other in list(_OPEN):  # (forked with them): the trainer's ends of every update process's pipe, this one's
+        other.conn.close()     # too, so that the trainer's closing its end is this end's EOF
     torch.set_num_threads(1)  # one thread: OpenMP's threads do not survive a fork, and none are started here
     learner = Learner(model, ppo, weights, lr, seed=0, device=torch.device("cpu"), name=name)
     while True:

@@ -31,7 +31,9 @@ def trial_config(spec: SweepSpec, params: dict):
     config = spec.config(spec.values(params), int(params["seed"]))
     threads = max(1, math.ceil(spec.resources.cpus_per_trial))
     device = "cuda" if spec.resources.gpus_per_trial > 0 else "cpu"
-    return dataclasses.replace(config, threads=threads, device=device)
+    # learners update on threads, never in forked processes: a Ray worker runs gRPC's threads, which are not
+    # safe to fork (the same results bit for bit; docs/TRAINING.md)
+    return dataclasses.replace(config, threads=threads, device=device, update_processes=False)
 
 
 def run_trial(params: dict, spec: SweepSpec, workdir: str) -> None:
