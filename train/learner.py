@@ -89,20 +89,29 @@ class Learner:
     def record(self, reward: np.ndarray, done: np.ndarray, true_goal: np.ndarray,
                final_value: torch.Tensor | None, aux_target: np.ndarray | None = None) -> None:
         """The outcome of the last action, per row (``[rows]``); ``final_value`` holds V(final observation)
-        where ``done``; ``aux_target [rows, C]`` the goal head's soft target (None: ``true_goal`` is its target)."""
-        as_t = lambda a, dt: torch.as_tensor(np.asarray(a), dtype=dt, device=self.device)  # noqa: E731
-        self.buffer["rewards"].append(as_t(reward, torch.float32))
-        self.buffer["dones"].append(as_t(done, torch.bool))
-        self.buffer["true_goal"].append(as_t(true_goal, torch.int64))
-        fv = final_value if final_value is not None else torch.zeros(len(done), device=self.device)
-        self.buffer["final_values"].append(fv)
+        where ``done`` (None: no episode ended); ``aux_target [rows, C]`` the goal head's soft target (None:
+        ``true_goal`` is its target). Kept as arrays, made tensors once for the whole rollout (``stacked``)."""
+        self.buffer["rewards"].append(np.array(reward, dtype=np.float32))
+        self.buffer["dones"].append(np.array(done, dtype=bool))
+        self.buffer["true_goal"].append(np.array(true_goal, dtype=np.int64))
+        self.buffer["final_values"].append(final_value)
         if aux_target is not None:
-            self.buffer["aux_target"].append(as_t(aux_target, torch.float32))
+            self.buffer["aux_target"].append(np.array(aux_target, dtype=np.float32))
 
     # ------------------------------------------------------------- update
     def stacked(self) -> dict:
         """The rollout as ``[T, B, ...]`` tensors (``view`` is a dict of them)."""
-        b = {k: torch.stack(v) for k, v in self.buffer.items() if v}
+        b = {}
+        for key, steps in self.buffer.items():
+            if not steps:
+                continue
+            if key == "final_values":
+                zeros = torch.zeros(self.rows, device=self.device)
+                b[key] = torch.stack([zeros if v is None else v for v in steps])
+            elif isinstance(steps[0], np.ndarray):  # (``record``'s)
+                b[key] = torch.from_numpy(np.stack(steps)).to(self.device)
+            else:
+                b[key] = torch.stack(steps)
         b["view"] = {k: v[:self.steps] for k, v in self.views.items()}
         return b
 

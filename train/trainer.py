@@ -364,7 +364,7 @@ class Trainer:
             learner.start_rollout()
         done_eps: dict[str, list] = {}
         shaped_sum = self.shaped_sum
-        hits = {a: 0.0 for learner in self.learners.values() for a in learner.agents}
+        hits = {a: 0 for learner in self.learners.values() for a in learner.agents}  # steps its goal head was right
         stacked = self._stacked_acting()
         with self._acting_side_by_side(stacked is None) as acting:
             if stacked is not None:
@@ -383,7 +383,7 @@ class Trainer:
                     chosen, probs = acted[i]
                     for k, a in enumerate(learner.agents):  # rows are agent-major: agent k's envs are rows kB..(k+1)B
                         actions[:, a] = chosen[k * B:(k + 1) * B]
-                        hits[a] += float((probs[k * B:(k + 1) * B].argmax(axis=1) == true_goal).mean())
+                        hits[a] += np.count_nonzero(probs[k * B:(k + 1) * B].argmax(axis=1) == true_goal)
                 for i, partner in self.partners.items():
                     actions[:, i] = partner.act(self._inputs(i, true_goal)).actions
                 self.obs, rewards, terms, truncs, infos = env.step(actions)
@@ -410,7 +410,7 @@ class Trainer:
         episodes = {k: float(np.mean(v)) for k, v in done_eps.items()}
         if done_eps:
             episodes["episodes"] = len(done_eps["team_reward"])
-        return episodes, {a: h / cfg.ppo.num_steps for a, h in hits.items()}
+        return episodes, {a: h / (cfg.ppo.num_steps * B) for a, h in hits.items()}
 
     def _aux_targets(self, learner: Learner, true_goal: np.ndarray) -> np.ndarray | None:
         """The teachers' beliefs over the goal for ``learner``'s rows (agent-major), or None: the true goal."""
