@@ -126,7 +126,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     interrupted = threading.Event()
 
     def on_ctrl_c(signum, frame):
-        if interrupted.is_set() and trainer.iteration < config.num_iterations:
+        if interrupted.is_set():
             raise KeyboardInterrupt  # the second Ctrl+C: at once (the last checkpoint stays)
         interrupted.set()
         print("\nstopping after this iteration, with a checkpoint; Ctrl+C again to stop at once", file=sys.stderr,

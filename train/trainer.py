@@ -217,20 +217,28 @@ class Trainer:
             self._pool = None
         self._close_processes()
 
-    def _close_processes(self) -> None:
+    def _close_processes(self, keep_state: bool = True) -> None:
         """End the learners' update processes, each learner's optimizer state brought back from its own (a process
-        in an update, or one that died, has none to give: it is ended, and the first such error raised after)."""
+        in an update, or one that died, has none to give: it is ended, and the first such error raised after);
+        ``keep_state=False``: killed at once, their states lost (an update cut short)."""
         processes, self._processes = self._processes, {}
         errors = []
         for i, process in processes.items():
+            if not keep_state:
+                process.kill()
+                continue
             try:
-                self.learners[i].optimizer.load_state_dict(process.optimizer_state())
+                self._fetch_optimizer(i, process)
             except RuntimeError as error:
                 errors.append(error)
             finally:
                 process.close()
         if errors:
             raise errors[0]
+
+    def _fetch_optimizer(self, i: int, process: UpdateProcess) -> None:
+        """Learner ``i``'s optimizer state from the process it updates in (whose state it is)."""
+        self.learners[i].optimizer.load_state_dict(process.optimizer_state())
 
     def train_iteration(self) -> dict:
         cfg = self.config
@@ -307,9 +315,7 @@ class Trainer:
         finally:
             torch.set_num_threads(threads)
             if failed:  # (the learners' states are those of an update cut short: end the processes now)
-                processes, self._processes = self._processes, {}
-                for process in processes.values():
-                    process.kill()
+                self._close_processes(keep_state=False)
 
     def _threads_each(self) -> int | None:
         """Torch threads per learner when the learners act and update side by side, else None.
@@ -489,7 +495,7 @@ class Trainer:
 
     def checkpoint_payload(self) -> dict:
         for i, process in self._processes.items():  # a learner updating in its process: its optimizer's state
-            self.learners[i].optimizer.load_state_dict(process.optimizer_state())
+            self._fetch_optimizer(i, process)
         agents = {}
         for i, name in enumerate(self.names):
             if i in self.learners:

@@ -1,9 +1,9 @@
 """A learner's PPO update in a process of its own, for learners that update side by side on a CPU.
 
 Two learners updating on two threads of one process hand Python's GIL to each other at every tensor
-operation: each hand-over is a context switch, about 1,100 of them for two updates at the paper's batch,
-and the updates take about 15% longer than on two processes, which take about what one takes alone
-(``bench/bench_update.py``; docs/PERFORMANCE.md, "Each learner's update in a process of its own").
+operation: each hand-over is a context switch, about 900-1,100 of them for two updates at the paper's
+batch, and the updates take about 15% longer than on two processes, which take about what one takes alone
+(``bench/bench_update.py`` prints both; docs/PERFORMANCE.md, "Each learner's update in a process of its own").
 
 The process is forked from the trainer (so a script that trains needs no ``__main__`` guard) and holds a
 ``Learner`` on the same network: its parameters are moved to shared memory first, so its updates are the
