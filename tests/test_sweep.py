@@ -99,6 +99,30 @@ def test_tiny_sweep_writes_tables_and_report(tmp_path):
         run_sweep(spec)
 
 
+def test_kept_trials_are_not_run_again(tmp_path):
+    """A sweep publishes its finished trials into its results folder; the same sweep with more seeds, started in a
+    fresh folder (a new machine), trains only the trials not kept, and its tables hold both."""
+    from train.sweep.report import publish_report
+
+    results = tmp_path / "kept"
+    first = sweep_file(tmp_path, "kept", '[params]\n"ppo.lr" = [1e-4, 1e-3]', seeds="[0]", top=f'results = "{results}"')
+    assert run_sweep(load_sweep(first, out=tmp_path / "one")) == 0
+    _, count, _ = publish_report(tmp_path / "one")
+    assert count == 2 and len(pd.read_csv(results / "trials.csv")) == 2
+    more = sweep_file(tmp_path, "kept", '[params]\n"ppo.lr" = [1e-4, 1e-3]', seeds="[0, 1]",
+                      top=f'results = "{results}"')
+    assert run_sweep(load_sweep(more, out=tmp_path / "two")) == 0
+    trained = sorted(json.loads((log.parent.parent / "params.json").read_text())["seed"]
+                     for log in (tmp_path / "two").glob("trial_*/run/metrics.jsonl"))
+    assert trained == [1, 1]  # seed 0 of each configuration is kept: not trained again
+    trials, curves = read_tables(tmp_path / "two")
+    assert sorted(zip(trials["ppo.lr"], trials["seed"])) == [(1e-4, 0), (1e-4, 1), (1e-3, 0), (1e-3, 1)]
+    assert trials["finished"].all() and curves.groupby("trial").size().tolist() == [8, 8, 8, 8]
+    kept = pd.read_csv(results / "trials.csv").set_index("trial")
+    for _, row in trials[trials["seed"] == 0].iterrows():
+        assert row["final_team_reward"] == pytest.approx(kept.loc[row["trial"], "final_team_reward"])
+
+
 def parent(pid: int) -> int:
     return int((Path("/proc") / str(pid) / "stat").read_text().rsplit(")", 1)[1].split()[1])
 

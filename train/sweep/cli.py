@@ -10,10 +10,13 @@ def add_sweep_commands(sub) -> None:
                                        "and the seeds; each trial is an ordinary training run. Example: colorgrid "
                                        "sweep run sweeps/paper_table1_small.toml, then colorgrid sweep report "
                                        "runs/sweeps/paper_table1_small")
-    sweep.add_argument("action", choices=["run", "resume", "report", "check"],
-                       help="run FILE | resume DIR | report DIR | check FILE (validate and list the trials)")
+    sweep.add_argument("action", choices=["run", "resume", "report", "publish", "check"],
+                       help="run FILE | resume DIR | report DIR or FILE | publish DIR (keep its finished trials' "
+                            "results in the file's results folder, and report them there) | check FILE (validate "
+                            "and list the trials)")
     sweep.add_argument("path", help="run, check: a sweep file (.toml) or a shipped one's name (paper_table1_small); "
-                                          "resume, report: a sweep's folder")
+                                    "resume, publish: a sweep's folder; report: a sweep's folder, or a sweep file "
+                                    "(the results kept in its results folder)")
     sweep.add_argument("--out", help="run: the sweep's folder (default: the file's 'out', runs/sweeps/<name>)")
     sweep.add_argument("--address", help="run, resume: join the Ray cluster at this address (e.g. 10.0.0.5:6379, "
                                           "or 'auto'); default: start a local Ray instance")
@@ -29,13 +32,22 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if args.action == "check":
         spec = load_sweep(args.path, args.out)
         spec.check_files()
-        print(f"{spec.path}: {spec.summary()}, metric {spec.metric} ({spec.mode}), into {spec.out}")
+        print(f"{spec.path}: {spec.summary()}, metric {spec.metric} ({spec.mode}), into {spec.out}"
+              + (f", {len(spec.claims)} claims" if spec.claims else "")
+              + (f", results kept in {spec.results}" if spec.results else ""))
         return 0
     if args.action == "report":
         from train.sweep.report import write_report
 
         text, _ = write_report(args.path)
         print(text)
+        return 0
+    if args.action == "publish":
+        from train.sweep.report import publish_report
+
+        where, count, _ = publish_report(args.path)
+        print(f"{count} finished trials kept in {where} (trials.csv, curves.csv, report.md, summary.csv"
+              f"{', claims.csv' if (where / 'claims.csv').exists() else ''}); commit that folder")
         return 0
     from train.sweep.runner import resume_sweep, run_sweep
 

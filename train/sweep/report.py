@@ -2,7 +2,10 @@
 paper's figure where the sweep file gives one, and learning curves (mean with a 95% band across seeds).
 
 It reads the tables of ``results`` (collected afresh, so the report of a running sweep shows the
-trials that have reported so far) and writes ``report.md`` and ``curves_<metric>.png`` beside them.
+trials that have reported so far) and writes ``report.md`` and ``curves_<metric>.png`` beside them,
+with each of the sweep file's claims decided (``claims``: the difference, its interval, p and the
+verdict), also as ``claims.csv``. Given a sweep file instead of a folder, it reports the finished
+trials kept in the file's ``results`` folder, and writes there.
 """
 
 from __future__ import annotations
@@ -13,16 +16,15 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from train.sweep.results import collect
-from train.sweep.spec import SweepSpec, load_folder, same_value
-
-T_975 = (12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131,
-         2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042)
-"""Student's t 97.5% quantiles for 1..30 degrees of freedom (a two-sided 95% interval)."""
-
+from train.sweep import claims as claim_rules
+from train.sweep.results import collect, committed, publish, results_folder
+from train.sweep.spec import SweepError, SweepSpec, load_folder, load_sweep, same_value
 
 def t_quantile(df: int) -> float:
-    return T_975[df - 1] if df <= len(T_975) else 1.96
+    """Student's t 97.5% quantile for ``df`` degrees of freedom (a two-sided 95% interval)."""
+    from scipy import stats
+
+    return float(stats.t.ppf(0.975, df))
 
 
 def mean_interval(values) -> tuple[float, float, int]:
@@ -127,26 +129,63 @@ def plot_curves(spec: SweepSpec, curves: pd.DataFrame, column: str, out: Path) -
     return out
 
 
-def write_report(folder: str | Path) -> tuple[str, list[Path]]:
-    """Collect the tables, then write ``report.md`` and the curve pictures; returns the text and the pictures."""
-    folder = Path(folder)
+def write_report(path: str | Path) -> tuple[str, list[Path]]:
+    """Report a sweep: a sweep's folder (its tables collected afresh, kept trials included; written there), or a
+    sweep file (the trials kept in its ``results`` folder; written there). Returns the text and the pictures."""
+    path = Path(path)
+    if (path / "sweep.toml").is_file() or path.is_dir():
+        spec = load_folder(path)
+        trials, curves = collect(path)
+        return render(spec, trials, curves, path)
+    spec = load_sweep(path)
+    out = results_folder(spec)
+    if out is None:
+        raise SweepError(f"{spec.path}: the sweep file names no 'results' folder; report a sweep's folder instead "
+                         f"(colorgrid sweep report runs/sweeps/{spec.name})")
+    trials, curves = committed(spec)
+    return render(spec, trials, curves, out)
+
+
+def publish_report(folder: str | Path) -> tuple[Path, int, str]:
+    """Keep the finished trials of the sweep in ``folder`` in its results folder, and report them there."""
     spec = load_folder(folder)
-    trials, curves = collect(folder)
+    where, count = publish(folder)
+    trials, curves = committed(spec, Path(folder))
+    text, _ = render(spec, trials, curves, where)
+    return where, count, text
+
+
+def render(spec: SweepSpec, trials: pd.DataFrame, curves: pd.DataFrame, out: Path) -> tuple[str, list[Path]]:
+    """Write ``report.md``, ``summary.csv``, ``claims.csv`` and the curve pictures of these tables into ``out``."""
     if trials.empty:
-        return f"sweep {folder.name}: no trial has reported yet", []
+        return f"sweep {spec.name}: no trial has reported yet", []
+    out.mkdir(parents=True, exist_ok=True)
     table = summary(spec, trials)
     pictures = [p for c in dict.fromkeys([spec.metric, "team_reward"])
-                if (p := plot_curves(spec, curves, c, folder / f"curves_{c.replace('/', '_')}.png"))]
+                if (p := plot_curves(spec, curves, c, out / f"curves_{c.replace('/', '_')}.png"))]
+    outcomes = claim_rules.evaluate(spec, trials)
     done = int(trials["finished"].sum())
+    claims_text = [] if not outcomes else [
+        "## Claims", "",
+        f"Each side's values are its finished trials' finals (one per seed); a - b with the 95% interval of "
+        f"Welch's t-test (against a constant: the one-sample t-test), its two-sided p, and for '~' the p of two "
+        f"one-sided tests within the margin. Verdicts by one rule (train/sweep/claims.py, docs/SWEEPS.md): "
+        f"reproduced (the paper's direction, p < {claim_rules.ALPHA}), in direction only (the paper's direction, "
+        f"p >= {claim_rules.ALPHA}), not reproduced (the opposite, p < {claim_rules.ALPHA}), inconclusive "
+        f"otherwise.", "",
+        claim_rules.format_claims(outcomes), ""]
     text = "\n".join([
-        f"# Sweep {folder.name}", "",
+        f"# Sweep {spec.name}", "",
         spec.description, "",
         f"{len(trials)} of {spec.num_trials()} trials have reported; {done} ran to the end. A final value is a "
         f"trial's mean over its last {spec.final_window} iterations (an evaluation column: its evaluations "
         f"there, or its last one); ± is the half-width of a 95% Student-t interval "
         f"across seeds.", "",
         format_summary(spec, table), "",
+        *claims_text,
         *[f"![{p.stem}]({p.name})" for p in pictures], ""])
-    (folder / "report.md").write_text(text)
-    table.to_csv(folder / "summary.csv", index=False)
+    (out / "report.md").write_text(text)
+    table.to_csv(out / "summary.csv", index=False)
+    if outcomes:
+        claim_rules.table(outcomes).to_csv(out / "claims.csv", index=False)
     return text, pictures

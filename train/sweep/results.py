@@ -8,6 +8,10 @@
   evaluation column with no value there, its last value), and the best value of the sweep's metric.
 
 Both are written as CSV and Parquet beside the trials (``curves.csv``, ``trials.parquet``, ...).
+
+A sweep file's ``results`` folder keeps finished trials' results with the project (``publish``: the
+trials table and the curves' main columns, as CSV): ``collect`` adds them to the sweep's own, and
+``sweep run`` skips those trials, so a sweep spread over machines continues where it stands.
 The rows come from each trial's own training log (``run/metrics.jsonl``, written as it trains and
 appended to across restarts; Tune's ``result.json`` of a restarted trial holds only the reports
 since its restart). A trial restarted from a checkpoint logs some iterations twice; the later row
@@ -23,7 +27,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from train.sweep.spec import SweepSpec, load_folder
+from train.sweep.spec import WORKDIR_FILE, SweepError, SweepSpec, load_folder
 from train.sweep.trial import RUN_FOLDER
 
 SUMMARY_SUFFIXES = ("team_reward", "_goal_pickups", "_wrong_pickups", "_net_pickups", "_goal_accuracy")
@@ -65,8 +69,97 @@ def training_rows(trial_dir: Path) -> dict[int, dict]:
     return by_step
 
 
+CURVE_COLUMNS = ("wall_time_s", "sps", "penalty_coef", "team_reward")
+"""Columns the kept curves hold besides the identity, the step, the metric and the summarised columns."""
+KEY = ("configuration", "seed")
+"""What identifies a trial across machines: its configuration's label and its seed."""
+
+
+def results_folder(spec: SweepSpec, folder: Path | None = None) -> Path | None:
+    """The sweep's ``results`` folder, a relative one read from where the sweep was started (or the current
+    folder)."""
+    if spec.results is None or spec.results.is_absolute():
+        return spec.results
+    start = folder / WORKDIR_FILE if folder is not None else None
+    base = Path(start.read_text().strip()) if start is not None and start.is_file() else Path.cwd()
+    return base / spec.results
+
+
+def committed(spec: SweepSpec, folder: Path | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The kept results (``trials``, ``curves``) of the sweep's finished trials; empty tables if none."""
+    where = results_folder(spec, folder)
+    if where is None or not (where / "trials.csv").is_file():
+        return pd.DataFrame(), pd.DataFrame()
+    trials = pd.read_csv(where / "trials.csv")
+    curves = pd.read_csv(where / "curves.csv") if (where / "curves.csv").is_file() else pd.DataFrame()
+    for table in (trials, curves):
+        if "configuration" in table:
+            table["configuration"] = table["configuration"].astype(str)
+    return trials, curves
+
+
+def committed_keys(spec: SweepSpec, folder: Path | None = None) -> set[tuple[str, int]]:
+    """(configuration, seed) of every finished trial the results folder keeps."""
+    trials, _ = committed(spec, folder)
+    if trials.empty:
+        return set()
+    done = trials[trials["finished"].astype(bool)]
+    return {(str(c), int(s)) for c, s in zip(done["configuration"], done["seed"])}
+
+
+def merge_committed(spec: SweepSpec, folder: Path, trials: pd.DataFrame,
+                    curves: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """The sweep's own tables with the kept trials it does not hold finished itself."""
+    kept_trials, kept_curves = committed(spec, folder)
+    if kept_trials.empty:
+        return trials, curves
+    own = set() if trials.empty else {(str(c), int(s)) for c, s, f in
+                                       zip(trials["configuration"], trials["seed"], trials["finished"]) if f}
+    keys = [(str(c), int(s)) for c, s in zip(kept_trials["configuration"], kept_trials["seed"])]
+    extra = kept_trials[[k not in own for k in keys]]
+    if not trials.empty:  # an unfinished run of a kept trial gives way to the kept one
+        kept = set(keys)
+        trials = trials[[(str(c), int(s)) not in kept or (str(c), int(s)) in own
+                         for c, s in zip(trials["configuration"], trials["seed"])]]
+    trials = pd.concat([trials, extra], ignore_index=True)
+    if not kept_curves.empty:
+        extra_ids = set(extra["trial"])
+        if not curves.empty:
+            curves = curves[curves["trial"].isin(set(trials["trial"]))]
+        curves = pd.concat([curves, kept_curves[kept_curves["trial"].isin(extra_ids)]], ignore_index=True)
+    return trials, curves
+
+
+def publish(folder: str | Path) -> tuple[Path, int]:
+    """Keep the finished trials of the sweep in ``folder`` in its ``results`` folder (``trials.csv`` and the
+    main columns of ``curves.csv``), beside those kept before; returns the folder and the trials kept."""
+    folder = Path(folder)
+    spec = load_folder(folder)
+    where = results_folder(spec, folder)
+    if where is None:
+        raise SweepError(f"{spec.path}: the sweep file names no 'results' folder to keep its trials' results in")
+    trials, curves = collect(folder)
+    if trials.empty:
+        return where, 0
+    done = trials[trials["finished"].astype(bool)]
+    keep = [c for c in curves.columns if c in (*ID_COLUMNS, *spec.param_names, "step", spec.metric, *CURVE_COLUMNS)
+            or c.removeprefix("eval/").endswith(SUMMARY_SUFFIXES)]
+    where.mkdir(parents=True, exist_ok=True)
+    write_csv(done, where / "trials.csv")
+    write_csv(curves[curves["trial"].isin(set(done["trial"]))][keep], where / "curves.csv")
+    return where, len(done)
+
+
+def write_csv(table: pd.DataFrame, path: Path) -> None:
+    from colorgrid.files import atomic_path
+
+    with atomic_path(path) as tmp:
+        table.to_csv(tmp, index=False, float_format="%.6g")
+
+
 def collect(folder: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Build (and write) the ``trials`` and ``curves`` tables of the sweep in ``folder``; works while it runs."""
+    """Build (and write) the ``trials`` and ``curves`` tables of the sweep in ``folder``, the trials kept in its
+    ``results`` folder included; works while it runs."""
     folder = Path(folder)
     spec = load_folder(folder)
     curves, trials = [], []
@@ -82,7 +175,7 @@ def collect(folder: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
         curves.extend(rows)
         trials.append({**summarize_trial(spec, ident, rows, config.num_iterations * config.batch_steps),
                        "node": by_step[max(by_step)].get("node_id", "")})
-    curves_df, trials_df = pd.DataFrame(curves), pd.DataFrame(trials)
+    trials_df, curves_df = merge_committed(spec, folder, pd.DataFrame(trials), pd.DataFrame(curves))
     write_table(curves_df, folder / "curves")
     write_table(trials_df, folder / "trials")
     return trials_df, curves_df

@@ -19,11 +19,9 @@ from pathlib import Path
 import ray
 from ray import tune
 
-from train.sweep.spec import SPEC_FILE, SweepError, SweepSpec, load_folder
+from train.sweep.spec import SPEC_FILE, WORKDIR_FILE, SweepError, SweepSpec, load_folder
 from train.sweep.trial import run_trial, trial_folder
 
-WORKDIR_FILE = "workdir"
-"""The folder the sweep was started in: paths in the sweep file are read from there, on resume too."""
 MAX_FAILURES = 3
 """Restarts of a trial from its last checkpoint before it counts as failed."""
 
@@ -77,11 +75,24 @@ def scheduler(spec: SweepSpec):
                          reduction_factor=spec.scheduler.reduction_factor)
 
 
-def trainable(spec: SweepSpec, workdir: str | None = None):
+def trainable(spec: SweepSpec, workdir: str | None = None, kept: frozenset = frozenset()):
+    """Tune's trainable for ``spec``; a trial whose (configuration, seed) is in ``kept`` (its results are in
+    the sweep's results folder) ends at once."""
     resources = {"cpu": spec.resources.cpus_per_trial, "gpu": spec.resources.gpus_per_trial}
     spec = dataclasses.replace(spec, out=spec.out.resolve())  # trials write their run folders there
-    return tune.with_resources(tune.with_parameters(run_trial, spec=spec, workdir=workdir or os.getcwd()),
-                               resources)
+    return tune.with_resources(tune.with_parameters(run_trial, spec=spec, workdir=workdir or os.getcwd(),
+                                                    kept=kept), resources)
+
+
+def kept_trials(spec: SweepSpec, folder: Path | None = None) -> frozenset:
+    """The trials whose results the sweep's results folder keeps, said in a line when there are any."""
+    from train.sweep.results import committed_keys, results_folder
+
+    kept = frozenset(committed_keys(spec, folder))
+    if kept:
+        print(f"{len(kept)} of {spec.num_trials()} trials are kept in {results_folder(spec, folder)}: "
+              f"they are not run again", flush=True)
+    return kept
 
 
 def trial_label(spec: SweepSpec, params: dict) -> str:
@@ -110,7 +121,7 @@ def run_sweep(spec: SweepSpec, address: str | None = None, num_cpus: int | None 
     concurrent = spec.resources.max_concurrent or None
     print(f"sweep {spec.name}: {spec.summary()} into {folder}", flush=True)
     tuner = tune.Tuner(
-        trainable(spec), param_space=param_space(spec),
+        trainable(spec, kept=kept_trials(spec)), param_space=param_space(spec),
         tune_config=tune.TuneConfig(metric=spec.metric, mode=spec.mode, scheduler=scheduler(spec),
                                     max_concurrent_trials=concurrent, trial_dirname_creator=trial_folder_name,
                                     reuse_actors=True),  # a worker process imports torch and compiles once
@@ -129,7 +140,8 @@ def resume_sweep(folder: str | Path, address: str | None = None, num_cpus: int |
     connect(address, num_cpus)
     check_resources(spec)
     print(f"resuming sweep {folder.name} in {folder}", flush=True)
-    tuner = tune.Tuner.restore(str(folder), trainable=trainable(spec, workdir), resume_unfinished=True,
+    tuner = tune.Tuner.restore(str(folder), trainable=trainable(spec, workdir, kept_trials(spec, folder)),
+                               resume_unfinished=True,
                                resume_errored=True)
     return finish(tuner, spec, folder)
 
@@ -196,7 +208,8 @@ class ProgressLines(tune.Callback):
             print(self._line(trial, result, "trial") + (f", {sps:,.0f} steps/s" if sps else ""), flush=True)
 
     def on_trial_complete(self, iteration, trials, trial, **info):
-        print(self._line(trial, trial.last_result or {}, "ended"), flush=True)
+        result = trial.last_result or {}
+        print(self._line(trial, result, "kept (not run again)" if result.get("kept") else "ended"), flush=True)
 
     def on_trial_error(self, iteration, trials, trial, **info):
         print(f"failed [{trial_label(self.spec, trial.config)}]: see {Path(trial.path) / 'error.txt'}", flush=True)

@@ -28,12 +28,14 @@ MODES = ("max", "min")
 SCHEDULERS = ("none", "asha")
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 TOP_LEVEL = ("description", "preset", "set", "seeds", "params", "num_samples", "metric", "mode", "final_window",
-             "out", "resources", "scheduler", "paper")
+             "out", "resources", "scheduler", "paper", "claim", "results")
 MAX_COMBINATIONS = 10_000
 RESERVED = ("seed", "sample", "trial", "configuration", "step", "steps", "total_steps", "finished", "node")
 """Names a parameter may not take: Tune's axes and the columns of the sweep's tables."""
 SPEC_FILE = "sweep.toml"
 """The sweep file as read, kept in the sweep's folder (``sweep resume`` and ``sweep report`` read it)."""
+WORKDIR_FILE = "workdir"
+"""The folder the sweep was started in: paths in the sweep file are read from there, on resume too."""
 
 
 class SweepError(ConfigError):
@@ -123,6 +125,11 @@ class SweepSpec:
     resources: Resources = field(default_factory=Resources)
     scheduler: Scheduler = field(default_factory=Scheduler)
     paper: tuple[PaperFigure, ...] = ()
+    claims: tuple = ()
+    """The paper's claims to decide (``train.sweep.claims.Claim``), each with its verdict in the report."""
+    results: Path | None = None
+    """A folder of finished trials' results kept with the project (``sweep publish`` writes it): ``sweep run``
+    skips the trials whose results it holds, and ``sweep report`` reads them with the sweep's own."""
     description: str = ""
     text: str = ""
     """The file as read (kept in the sweep's folder, so that ``sweep resume`` rebuilds the same trials)."""
@@ -275,9 +282,16 @@ def parse_sweep(data: dict, path: Path, text: str = "", out: str | Path | None =
         out=Path(out) if out is not None else Path(_string(data, "out", f"runs/sweeps/{path.stem}")),
         resources=parse_resources(_table(data, "resources")), scheduler=parse_scheduler(_table(data, "scheduler")),
         paper=(), description=_string(data, "description", ""), text=text)
+    results = data.get("results")
+    if results is not None and (not isinstance(results, str) or not results.strip()):
+        raise bad("results", results, "a folder for the finished trials' results, e.g. 'docs/reproduction/x'")
     check_configs(spec)
     check_metric(spec)
-    return _with_paper(spec, data.get("paper", []))
+    spec = _with_paper(spec, data.get("paper", []))
+    from train.sweep.claims import parse_claims  # claims builds on this module
+
+    return dataclasses.replace(spec, claims=parse_claims(spec, data.get("claim", [])),
+                               results=Path(results) if results else None)
 
 
 def base_config(data: dict) -> dict:

@@ -36,14 +36,19 @@ def trial_config(spec: SweepSpec, params: dict):
     return dataclasses.replace(config, threads=threads, device=device, update_processes=False)
 
 
-def run_trial(params: dict, spec: SweepSpec, workdir: str) -> None:
-    """Tune's function trainable: train one configuration and seed, reporting as it goes."""
+def run_trial(params: dict, spec: SweepSpec, workdir: str, kept: frozenset = frozenset()) -> None:
+    """Tune's function trainable: train one configuration and seed, reporting as it goes; a trial whose
+    (configuration, seed) is in ``kept`` (its results kept in the sweep's results folder) ends at once."""
     import ray
     from ray import tune
 
     if Path(workdir).is_dir():  # paths in the sweep file (checkpoints, populations) read as where it was started
         os.chdir(workdir)
     config = trial_config(spec, params)
+    if (spec.label(spec.values(params)), int(params["seed"])) in kept:
+        total = config.num_iterations * config.batch_steps
+        tune.report({spec.metric: math.nan, "step": total, "total_steps": total, "kept": 1.0})
+        return
     limit_threads(config.threads)
     from train.trainer import Trainer
 

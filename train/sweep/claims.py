@@ -1,0 +1,326 @@
+"""A sweep's claims, and the verdict on each computed from its trials' finals (docs/SWEEPS.md, "Claims").
+
+A claim compares two sides of a sweep on one final column (the sweep's metric by default): side ``a``
+is a configuration (``{parameter: value}``; a parameter left out, or given a list of values, pools
+the seeds of every matching configuration), side ``b`` another, or a constant (a baseline's score).
+The paper's direction is ``a > b``, ``a < b``, or ``a ~ b`` (no difference beyond ``margin``, in the
+column's units). Each side's values are the per-seed finals of its finished trials.
+
+The statistics are scipy's: Welch's t-test (two-sided) and its 95% interval for the difference of
+means, or the one-sample t-test against a constant; for ``~``, two one-sided tests (TOST) against
+``-margin`` and ``+margin``. The verdict, by one rule (``verdict``):
+
+* ``>`` or ``<``: **reproduced** if the difference has the paper's sign and p < 0.05; **in direction
+  only** if it has the paper's sign and p >= 0.05; **not reproduced** if it has the opposite sign and
+  p < 0.05; **inconclusive** otherwise.
+* ``~``: **reproduced** if the TOST p < 0.05 (the difference is shown to lie within the margin);
+  **in direction only** if the difference of means lies within the margin without that; **not
+  reproduced** if it lies outside and Welch's p < 0.05; **inconclusive** otherwise.
+
+A side with fewer than two finished seeds, or two sides without spread, gives no p-value and is
+inconclusive.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from dataclasses import dataclass
+from enum import Enum
+
+import numpy as np
+import pandas as pd
+
+from train.sweep.spec import SweepError, SweepSpec, bad, same_value
+
+ALPHA = 0.05
+"""The significance level of every verdict."""
+
+
+class Direction(str, Enum):
+    GREATER = ">"
+    LESS = "<"
+    SAME = "~"
+
+
+class Verdict(str, Enum):
+    REPRODUCED = "reproduced"
+    IN_DIRECTION = "in direction only"
+    NOT_REPRODUCED = "not reproduced"
+    INCONCLUSIVE = "inconclusive"
+
+
+@dataclass(frozen=True)
+class Claim:
+    """One claim of a sweep file (``[[claim]]``)."""
+
+    name: str
+    """A short name, e.g. ``annealing helps``."""
+    a: dict
+    """Side a: ``{parameter: value or [values]}`` (a parameter left out pools over all its values)."""
+    b: dict | float
+    """Side b: a configuration as ``a``, or a constant."""
+    direction: Direction
+    margin: float = 0.0
+    """``~`` only: the largest difference that counts as none, in the column's units (> 0)."""
+    metric: str = ""
+    """The final column compared (the sweep's metric when empty)."""
+    paper: str = ""
+    """The paper's words (or figures) for the claim."""
+    b_name: str = ""
+    """What a constant side b is (``the copy follower beside the same leader``)."""
+
+    def side_name(self, side: dict | float, name: str = "") -> str:
+        if not isinstance(side, dict):
+            return name or f"{side:+g}"
+        if not side:
+            return "every configuration"
+        return ", ".join(f"{k}={'|'.join(map(str, v)) if isinstance(v, list) else v}" for k, v in side.items())
+
+
+FIELDS = ("name", "a", "b", "expect", "margin", "metric", "paper", "b_name")
+
+
+def parse_claims(spec: SweepSpec, rows) -> tuple[Claim, ...]:
+    """The ``[[claim]]`` tables of a sweep file, checked against its parameters."""
+    if not isinstance(rows, list):
+        raise bad("claim", rows, "a list of tables: [[claim]] name = ..., a = {...}, b = {...} or a number, "
+                                 "expect = '>', '<' or '~'")
+    claims, names = [], set()
+    for i, row in enumerate(rows):
+        where = f"claim[{i}]"
+        if not isinstance(row, dict):
+            raise bad(where, row, "a table with name, a, b and expect")
+        unknown = sorted(set(row) - set(FIELDS))
+        if unknown:
+            raise SweepError(f"{where}: unknown field {unknown[0]!r}; allowed: {list(FIELDS)}")
+        name = row.get("name")
+        if not isinstance(name, str) or not name.strip() or name in names:
+            raise bad(f"{where}.name", name, "a non-empty name no other claim has")
+        names.add(name)
+        try:
+            direction = Direction(row.get("expect"))
+        except ValueError:
+            raise bad(f"{where}.expect", row.get("expect"),
+                      "'>' (a above b), '<' (a below b) or '~' (no difference beyond margin)") from None
+        margin = row.get("margin", 0.0)
+        if direction is Direction.SAME:
+            if not _positive(margin):
+                raise bad(f"{where}.margin", margin, "a number > 0 in the metric's units (expect = '~' needs one)")
+        elif "margin" in row:
+            raise bad(f"{where}.margin", margin, "given only with expect = '~'")
+        metric = row.get("metric", spec.metric)
+        if metric != spec.metric and metric not in summarised_columns(spec):
+            raise bad(f"{where}.metric", metric, f"the sweep's metric or a column the trials table summarises: "
+                                                 f"{sorted(summarised_columns(spec))}")
+        a = _side(spec, f"{where}.a", row.get("a"), constant_ok=False)
+        b = _side(spec, f"{where}.b", row.get("b"), constant_ok=True)
+        if isinstance(b, dict) and _overlap(spec, a, b):
+            raise bad(f"{where}.b", row.get("b"), "a side sharing no configuration with a")
+        for text in ("paper", "b_name"):
+            if not isinstance(row.get(text, ""), str):
+                raise bad(f"{where}.{text}", row.get(text), "a string")
+        claims.append(Claim(name, a, b, direction, float(margin), metric, row.get("paper", ""),
+                            row.get("b_name", "")))
+    return tuple(claims)
+
+
+def summarised_columns(spec: SweepSpec) -> set[str]:
+    """The training-log columns whose finals the trials table holds besides the metric."""
+    from train.sweep.results import SUMMARY_SUFFIXES
+    from train.sweep.spec import metric_columns
+
+    fixed = {p.name: p.values[0] for p in spec.params if not p.random}
+    columns = metric_columns(spec.config({**fixed, **spec.samples()[0]}, spec.seeds[0]))
+    return {c for c in columns if c.endswith(SUMMARY_SUFFIXES)}
+
+
+def _positive(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+
+
+def _side(spec: SweepSpec, where: str, value, constant_ok: bool) -> dict | float:
+    if constant_ok and isinstance(value, (int, float)) and not isinstance(value, bool):
+        if not math.isfinite(value):
+            raise bad(where, value, "a finite number")
+        return float(value)
+    if not isinstance(value, dict):
+        allowed = "a table {parameter = value or [values]}" + (" or a number (a baseline)" if constant_ok else "")
+        raise bad(where, value, allowed)
+    side = {}
+    for name, wanted in value.items():
+        param = next((p for p in spec.params if p.name == name and not p.random), None)
+        if param is None:
+            raise bad(where, name, f"one of the listed parameters {[p.name for p in spec.params if not p.random]}")
+        chosen = []
+        for v in wanted if isinstance(wanted, list) else [wanted]:
+            listed = [p for p in param.values if same_value(p, v)]
+            if not listed:
+                raise bad(f"{where}.{name}", v, f"one of {list(param.values)}")
+            chosen.append(listed[0])
+        side[name] = chosen if isinstance(wanted, list) else chosen[0]
+    return side
+
+
+def _overlap(spec: SweepSpec, a: dict, b: dict) -> bool:
+    """Whether some configuration would be on both sides."""
+    for param in spec.params:
+        if param.random:
+            continue
+        in_a = [v for v in param.values if _matches_value(a.get(param.name, param.values), v)]
+        in_b = [v for v in param.values if _matches_value(b.get(param.name, param.values), v)]
+        if not any(same_value(x, y) for x in in_a for y in in_b):
+            return False
+    return True
+
+
+def _matches_value(wanted, value) -> bool:
+    options = wanted if isinstance(wanted, (list, tuple)) else [wanted]
+    return any(same_value(w, value) for w in options)
+
+
+def side_values(trials: pd.DataFrame, side: dict, column: str) -> list[float]:
+    """The finals of ``column`` of the finished trials of a configuration side, in seed order."""
+    if trials.empty or column not in trials.columns:
+        return []
+    rows = trials[trials["finished"].astype(bool)]
+    keep = [all(_matches_value(wanted, row[name]) for name, wanted in side.items()) for _, row in rows.iterrows()]
+    chosen = rows[keep].sort_values(["seed"] + (["configuration"] if "configuration" in rows else []))
+    return [float(v) for v in chosen[column] if math.isfinite(v)]
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """A claim decided: each side's values, the difference of means with its 95% interval, p and the verdict."""
+
+    claim: Claim
+    a: list[float]
+    b: list[float] | float
+    difference: float
+    low: float
+    high: float
+    p: float
+    p_equivalence: float
+    verdict: Verdict
+
+    @property
+    def mean_a(self) -> float:
+        return float(np.mean(self.a)) if self.a else math.nan
+
+    @property
+    def mean_b(self) -> float:
+        if isinstance(self.b, float):
+            return self.b
+        return float(np.mean(self.b)) if self.b else math.nan
+
+
+def verdict(direction: Direction, difference: float, p: float, p_equivalence: float = math.nan,
+            margin: float = 0.0) -> Verdict:
+    """The one rule (module docstring): the verdict from the difference of means (a - b) and the p-values."""
+    if not math.isfinite(difference):
+        return Verdict.INCONCLUSIVE
+    if direction is Direction.SAME:
+        if math.isfinite(p_equivalence) and p_equivalence < ALPHA:
+            return Verdict.REPRODUCED
+        if abs(difference) <= margin:
+            return Verdict.IN_DIRECTION
+        return Verdict.NOT_REPRODUCED if math.isfinite(p) and p < ALPHA else Verdict.INCONCLUSIVE
+    agrees = difference > 0 if direction is Direction.GREATER else difference < 0
+    if not math.isfinite(p):
+        return Verdict.INCONCLUSIVE
+    if agrees:
+        return Verdict.REPRODUCED if p < ALPHA else Verdict.IN_DIRECTION
+    return Verdict.NOT_REPRODUCED if p < ALPHA and difference != 0 else Verdict.INCONCLUSIVE
+
+
+def decide(claim: Claim, a: list[float], b: list[float] | float) -> Outcome:
+    """Test ``a`` against ``b`` (values, or a constant) as the claim says, and give the verdict."""
+    from scipy import stats
+
+    nan = math.nan
+    difference = low = high = p = p_eq = nan
+    a_arr = np.asarray(a, dtype=float)
+    constant = isinstance(b, float)
+    b_arr = None if constant else np.asarray(b, dtype=float)
+    if len(a_arr) and (constant or len(b_arr)):
+        difference = float(a_arr.mean() - (b if constant else b_arr.mean()))
+    enough = len(a_arr) >= 2 and (constant or len(b_arr) >= 2)
+    if enough:
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)
+            if constant:
+                test = stats.ttest_1samp(a_arr, b)
+                interval = test.confidence_interval(0.95)
+                low, high = interval.low - b, interval.high - b
+            else:
+                test = stats.ttest_ind(a_arr, b_arr, equal_var=False)
+                interval = test.confidence_interval(0.95)
+                low, high = interval.low, interval.high
+            p = float(test.pvalue)
+            if claim.direction is Direction.SAME:
+                m = claim.margin
+                if constant:
+                    above = stats.ttest_1samp(a_arr, b - m, alternative="greater").pvalue
+                    below = stats.ttest_1samp(a_arr, b + m, alternative="less").pvalue
+                else:
+                    above = stats.ttest_ind(a_arr, b_arr - m, equal_var=False, alternative="greater").pvalue
+                    below = stats.ttest_ind(a_arr, b_arr + m, equal_var=False, alternative="less").pvalue
+                p_eq = float(max(above, below))
+    if not enough:
+        return Outcome(claim, list(a), b if constant else list(b), difference, nan, nan, nan, nan,
+                       Verdict.INCONCLUSIVE)
+    return Outcome(claim, list(a), b if constant else list(b), difference, float(low), float(high), p, p_eq,
+                   verdict(claim.direction, difference, p, p_eq, claim.margin))
+
+
+def evaluate(spec: SweepSpec, trials: pd.DataFrame) -> list[Outcome]:
+    """Every claim of ``spec`` decided on the ``trials`` table (its ``final_<metric>`` columns)."""
+    outcomes = []
+    for claim in spec.claims:
+        column = f"final_{claim.metric}"
+        a = side_values(trials, claim.a, column)
+        b = claim.b if isinstance(claim.b, float) else side_values(trials, claim.b, column)
+        outcomes.append(decide(claim, a, b))
+    return outcomes
+
+
+def table(outcomes: list[Outcome]) -> pd.DataFrame:
+    """The decided claims as a tidy table (``claims.csv``)."""
+    rows = []
+    for o in outcomes:
+        c = o.claim
+        rows.append({
+            "claim": c.name, "paper": c.paper, "metric": c.metric, "expect": c.direction.value, "margin": c.margin,
+            "a": c.side_name(c.a), "b": c.side_name(c.b, c.b_name), "n_a": len(o.a),
+            "n_b": 0 if isinstance(o.b, float) else len(o.b), "mean_a": o.mean_a, "mean_b": o.mean_b,
+            "a_values": " ".join(f"{v:.3f}" for v in o.a),
+            "b_values": "" if isinstance(o.b, float) else " ".join(f"{v:.3f}" for v in o.b),
+            "difference": o.difference, "ci95_low": o.low, "ci95_high": o.high, "p": o.p,
+            "p_equivalence": o.p_equivalence, "verdict": o.verdict.value})
+    return pd.DataFrame(rows)
+
+
+def format_claims(outcomes: list[Outcome]) -> str:
+    """The claims as Markdown: a table of verdicts, then each side's per-seed finals."""
+    if not outcomes:
+        return ""
+    head = ["claim", "the paper", "a", "b", "a - b (95% CI)", "p", "verdict"]
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    for o in outcomes:
+        c = o.claim
+        shown_b = c.side_name(c.b, c.b_name)
+        diff = "-" if not math.isfinite(o.difference) else (
+            f"{o.difference:+.2f}" + (f" [{o.low:+.2f}, {o.high:+.2f}]" if math.isfinite(o.low) else ""))
+        p = "-" if not math.isfinite(o.p) else f"{o.p:.3g}"
+        if c.direction is Direction.SAME:
+            p += f"; within ±{c.margin:g}: " + ("-" if not math.isfinite(o.p_equivalence) else f"{o.p_equivalence:.3g}")
+        lines.append("| " + " | ".join([
+            f"{c.name} (a {c.direction.value} b{', ' + c.metric if c.metric else ''})", c.paper,
+            f"{c.side_name(c.a)}: {o.mean_a:+.2f} (n={len(o.a)})",
+            f"{shown_b}: {o.mean_b:+.2f}" + ("" if isinstance(o.b, float) else f" (n={len(o.b)})"),
+            diff, p, f"**{o.verdict.value}**"]) + " |")
+    lines += ["", "Per-seed finals:", ""]
+    for o in outcomes:
+        b = "" if isinstance(o.b, float) else f"; b: {', '.join(f'{v:+.2f}' for v in o.b)}"
+        lines.append(f"- {o.claim.name}: a: {', '.join(f'{v:+.2f}' for v in o.a) or 'none finished'}{b}")
+    return "\n".join(lines)
