@@ -2,13 +2,16 @@
 
 Prints the median over ``--iterations`` iterations (after one warm-up) and CPU seconds per
 iteration, split into rollout and update, for the fast default network and the paper's
-architecture, at the paper's batch (16 envs x 128 steps).
+architecture, at the paper's batch (16 envs x 128 steps) or another number of envs (``--num-envs``).
 
 Also prints each setup's arithmetic: floating-point operations per env-step (counted with
 torch's FlopCounterMode on a short rollout and one update epoch, scaled to the configured
 epochs) and the ceiling this machine's own matrix-multiply rate puts on env-steps/s.
 
 Usage: python bench/bench_train.py [--setup fast fast-lstm paper] [--iterations 5] [--threads 0] [--device auto]
+                                  [--num-envs 16]
+
+On a GPU (``--device cuda``) the ceiling is the GPU's own float32 matrix-multiply rate.
 """
 
 from __future__ import annotations
@@ -39,9 +42,16 @@ SETUPS = {
 }
 
 
-def measure(name: str, iterations: int, threads: int, device: str) -> dict:
-    config = from_dict({**SETUPS[name], "threads": threads, "device": device, "eval_every": 0,
-                        "total_steps": 10**9})
+def setup_config(name: str, num_envs: int, **settings) -> dict:
+    """A setup's training config as plain data, at ``num_envs`` envs a rollout (the same number of minibatches,
+    each of more envs)."""
+    ppo = {"num_envs": num_envs, **settings.pop("ppo", {})}
+    return {**SETUPS[name], "ppo": ppo, **settings}
+
+
+def measure(name: str, iterations: int, threads: int, device: str, num_envs: int = 16) -> dict:
+    config = from_dict(setup_config(name, num_envs, threads=threads, device=device, eval_every=0,
+                                    total_steps=10**9))
     with tempfile.TemporaryDirectory() as tmp:
         trainer = Trainer(config, tmp, progress=False, tensorboard=False)
         from train.metrics import MetricsLog
@@ -62,7 +72,7 @@ def measure(name: str, iterations: int, threads: int, device: str) -> dict:
         "sps": statistics.median(r["sps"] for r in rows),
         "rollout_sps": statistics.median(r["rollout_sps"] for r in rows),
         "update_sps": statistics.median(r["update_sps"] for r in rows),
-        "cpu_s_per_iter": statistics.median(cpus), "steps_per_iter": steps,
+        "cpu_s_per_iter": statistics.median(cpus), "steps_per_iter": steps, "num_envs": config.ppo.num_envs,
     }
 
 
@@ -99,16 +109,22 @@ def flops_per_env_step(name: str) -> float:
     return (rollout.get_total_flops() + epochs * update.get_total_flops()) / samples
 
 
-def matmul_rate(threads: int, size: int = 2048, repeats: int = 5) -> float:
-    """This machine's float32 matrix-multiply rate (FLOP/s): the practical ceiling for dense layers."""
+def matmul_rate(threads: int, size: int = 2048, repeats: int = 5, device: str = "cpu") -> float:
+    """This machine's float32 matrix-multiply rate (FLOP/s) on ``device``: the practical ceiling for dense layers."""
     if threads:
         torch.set_num_threads(threads)
-    a, b = torch.randn(size, size), torch.randn(size, size)
+    on_gpu = device.startswith("cuda")
+    size = 8192 if on_gpu else size  # a GPU needs a larger product to reach its rate
+    a, b = torch.randn(size, size, device=device), torch.randn(size, size, device=device)
     torch.mm(a, b)
     times = []
     for _ in range(repeats):
+        if on_gpu:
+            torch.cuda.synchronize()
         t = time.perf_counter()
         torch.mm(a, b)
+        if on_gpu:
+            torch.cuda.synchronize()
         times.append(time.perf_counter() - t)
     return 2 * size ** 3 / statistics.median(times)
 
@@ -119,6 +135,7 @@ def main() -> None:
     parser.add_argument("--iterations", type=int, default=5)
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: all cores)")
     parser.add_argument("--device", default="auto")
+    parser.add_argument("--num-envs", type=int, default=16, help="envs a rollout (the paper's 16 by default)")
     parser.add_argument("--profile", action="store_true", help="print torch's profile of one update (first setup)")
     args = parser.parse_args()
     print(f"machine: {machine()}; torch {torch.__version__}; cuda: {torch.cuda.is_available()}")
@@ -126,13 +143,15 @@ def main() -> None:
           f"{'CPU s/iter':>10}")
     measured = {}
     for name in args.setup:
-        r = measured[name] = measure(name, args.iterations, args.threads, args.device)
+        r = measured[name] = measure(name, args.iterations, args.threads, args.device, args.num_envs)
         print(f"{r['setup']:<10} {r['device']:<7} {r['threads']:>7} {r['sps']:>12.0f} {r['rollout_sps']:>10.0f} "
               f"{r['update_sps']:>10.0f} {r['cpu_s_per_iter']:>10.2f}", flush=True)
-    print("(median over iterations of 16 envs x 128 steps, both agents learning; the paper's public trainer: "
-          "about 36 env-steps/s on a 2-core CPU)")
-    rate = matmul_rate(args.threads)
-    print(f"\nthis CPU's float32 matmul rate (2048x2048, {torch.get_num_threads()} threads): {rate / 1e9:.0f} GFLOP/s")
+    print(f"(median over iterations of {args.num_envs} envs x 128 steps, both agents learning; the paper's public "
+          "trainer: about 36 env-steps/s on a 2-core CPU)")
+    device = measured[args.setup[0]]["device"]
+    rate = matmul_rate(args.threads, device=device)
+    where = torch.cuda.get_device_name() if device.startswith("cuda") else f"this CPU ({torch.get_num_threads()} threads)"
+    print(f"\n{where}: float32 matmul rate {rate / 1e9:.0f} GFLOP/s")
     print(f"{'setup':<10} {'GFLOP/env-step':>15} {'ceiling env-steps/s':>20} {'share of the ceiling':>21}")
     for name in args.setup:
         work = flops_per_env_step(name)
