@@ -176,3 +176,42 @@ def test_eval_address_needs_a_population_matrix(capsys):
     err = capsys.readouterr().err
     assert err == ("colorgrid eval: error: --address runs the cells of a --leaders matrix on Ray; add --leaders "
                    "POPULATION\n")
+
+
+def flat(data: dict, prefix: str = "") -> dict:
+    out = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            out.update(flat(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+ABLATED = {
+    "no memory": {"follower.net.lstm", "follower.net.extra_inputs", "follower.net.belief_input"},
+    "LSTM without last-step inputs": {"follower.net.extra_inputs", "follower.net.belief_input"},
+    "goal as a vector": {"follower.net.goal_fusion", "follower.net.belief_input"},
+    "team reward": {"follower.train_reward"},
+    "auxiliary loss 0": {"follower.aux_coef"},
+    "no annealing": {"schedule.penalty_start", "schedule.penalty_end"},
+    "ippo-leader partner": {"leader.policy"},
+}
+
+
+@pytest.mark.parametrize("name", ["assistant_recipe", "assistant_recipe_small"])
+def test_each_recipe_arm_takes_exactly_one_ingredient_away(name):
+    import dataclasses
+
+    spec = load_sweep(ROOT / "sweeps" / f"{name}.toml")
+    recipe = flat(dataclasses.asdict(spec.config({"arm": "recipe"}, 0)))
+    assert recipe["follower.net.lstm"] and recipe["follower.net.belief_input"] and recipe["leader.policy"] == "astar"
+    assert (recipe["follower.train_reward"], recipe["follower.aux_coef"], recipe["schedule.penalty_start"]) == \
+        ("own", 0.5, 300_000)
+    arms = [v for v in spec.params[0].values if v != "recipe"]
+    assert sorted(arms) == sorted(ABLATED)
+    for arm in arms:
+        config = flat(dataclasses.asdict(spec.config({"arm": arm}, 0)))
+        assert {k for k in recipe if recipe[k] != config[k]} == ABLATED[arm], arm
+    claimed = {c.a["arm"] for c in spec.claims}
+    assert claimed == set(arms)  # one claim per ingredient, and one for the paper's kind of partner
