@@ -1,10 +1,10 @@
 """The package's optional parts ("extras", ``pip install 'colorgrid[train]'``) and one line for a missing one.
 
 ``pip install colorgrid`` installs the core: the environment, its PettingZoo and Gymnasium views, scripted
-and Bayesian policies, replays, rendering and export, and the ``colorgrid`` command. The applications need
-more: ``train`` (torch, TensorBoard), ``play`` (the play server), ``study``, ``viewer``, ``sweep``. What
-each extra holds is read from the installed package's own metadata (``pyproject.toml``), so this module
-lists no dependency a second time.
+and Bayesian policies, replays, rendering and GIF export, and the ``colorgrid`` command. The applications need
+more: ``train`` (torch, TensorBoard), ``play`` (the play server), ``study``, ``viewer``, ``sweep``, ``video``
+(MP4 export: imageio-ffmpeg's bundled ffmpeg). What each extra holds is read from the installed package's
+own metadata (``pyproject.toml``), so this module lists no dependency a second time.
 """
 
 from __future__ import annotations

@@ -152,13 +152,15 @@ def cmd_export(args: argparse.Namespace) -> int:
         raise ValueError("--out must be a folder when exporting a folder of replays")
     bar = tqdm(files, unit="replay", disable=len(files) == 1)
     for path in bar:
-        target = default_output(path, args.format)
+        target = default_output(path, args.format)  # in the current folder
         if out is not None:
             target = out if len(files) == 1 and out.suffix else out / target.name
         written = export(load(path), target, args.format, fps=args.fps, cell=args.scale,
                          start=args.start, end=args.end, path=path)
-        if len(files) == 1:
-            print(f"wrote {written}")
+    if len(files) == 1:
+        print(f"wrote {written.resolve()}")
+    else:
+        print(f"wrote {len(files)} {args.format.upper()} files in {written.resolve().parent}")
     return 0
 
 
@@ -247,7 +249,8 @@ def add_replay_commands(sub) -> None:
     exp = sub.add_parser("export", help="export replays to GIF or MP4 without a display")
     exp.add_argument("target", help="a replay file or a folder of them, or a released replay's name (replay list)")
     exp.add_argument("--format", required=True, choices=["gif", "mp4"])
-    exp.add_argument("--out", help="output file (one replay) or folder (default: beside each replay)")
+    exp.add_argument("--out", help="output file (one replay) or folder (default: the current folder, a file "
+                                   "named after each replay)")
     exp.add_argument("--fps", type=float, default=8.0)
     exp.add_argument("--scale", type=int, default=12, help="pixels per grid cell (4..64)")
     exp.add_argument("--start", type=int, default=0, help="first step to draw")

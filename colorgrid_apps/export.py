@@ -4,8 +4,9 @@ The panel names every agent of the team (1:1: ``leader``, ``follower``; else by 
 ``L1 (leader_0)``), draws one belief chart per agent that logged goal probabilities, and a
 timeline with one row of pickup ticks per agent.
 
-No display or browser: frames come from ``colorgrid.render``, GIFs are written by
-imageio (Pillow), MP4s by imageio-ffmpeg, which carries its own ffmpeg binary.
+No display or browser: frames come from ``colorgrid.render``, GIFs are written by Pillow (in
+the core), MP4s by imageio with imageio-ffmpeg, which carries its own ffmpeg binary (the
+``video`` extra: 165 MB installed, so the core leaves it out).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import numpy as np
 from PIL import Image, ImageDraw
 
 from colorgrid.config import EnvConfig
+from colorgrid.extras import require
 from colorgrid.render import PALETTE, _font, render_rgb
 from colorgrid.roles import scores
 from colorgrid.files import atomic_path
@@ -164,9 +166,12 @@ def episode_frames(replay: Replay, cell: int = 12, start: int = 0, end: int | No
 
 def export(replay: Replay, out: str | os.PathLike, fmt: str, fps: float = 8.0, cell: int = 12,
            start: int = 0, end: int | None = None, path=None) -> Path:
-    """Write the replay as a GIF or MP4 at ``out`` (atomically); returns the path."""
+    """Write the replay as a GIF or MP4 at ``out`` (atomically); returns the path. An MP4 needs the ``video``
+    extra (``MissingExtra`` without it)."""
     if fmt not in FORMATS:
         raise ValueError(f"unknown format {fmt!r}; choose one of {list(FORMATS)}")
+    if fmt == "mp4":
+        require("video", "MP4 export")
     if not fps > 0:
         raise ValueError(f"--fps must be > 0, got {fps}")
     if not 4 <= cell <= 64:
@@ -201,9 +206,11 @@ def gif_frames(frames: list[np.ndarray]) -> list[Image.Image]:
 
 
 def default_output(replay_path: Path, fmt: str) -> Path:
+    """Where a replay is exported without ``--out``: in the current folder, named after the replay
+    (``astar+bayes_seed2026.gif``), never beside it: a released replay lies inside the installed package."""
     name = replay_path.name
     stem = name[: -len(".replay.json")] if name.endswith(".replay.json") else replay_path.stem
-    return replay_path.with_name(f"{stem}.{fmt}")
+    return Path(f"{stem}.{fmt}")
 
 
 __all__ = ["FORMATS", "agent_label", "believers", "default_output", "draw_panel", "episode_frames", "export",

@@ -8,13 +8,15 @@ installed (not editable) into fresh virtualenvs outside the repository and run f
   of the extra offline (it would fail on one that is missing there) and installs only the wheel.
 * The core alone, installed by pip with its own dependencies (the versions this environment has, from the
   package index or pip's cache): the env and its PettingZoo and Gymnasium views and ``colorgrid eval`` work,
-  and the commands and policies of the other extras say in one line which extra to install.
+  the documents' core examples run, a released replay exports to GIF in the current folder, and the
+  commands and policies of the other extras (MP4 export too) say in one line which extra to install.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
+import re
 import subprocess
 import sys
 import sysconfig
@@ -155,6 +157,9 @@ def test_installed_with_all_extras_the_shipped_study_starts_and_a_released_repla
     run([python, "-m", "colorgrid_apps", "export", "default/astar+bayes_seed2026", "--format", "gif", "--out",
          "episode.gif"], cwd=work)
     assert (work / "episode.gif").read_bytes()[:6] in (b"GIF87a", b"GIF89a")
+    run([python, "-m", "colorgrid_apps", "export", "default/astar+bayes_seed2026", "--format", "mp4", "--out",
+         "episode.mp4", "--end", "8"], cwd=work)  # the video extra, in all
+    assert (work / "episode.mp4").read_bytes()[4:8] == b"ftyp"
 
 
 CORE_CHECK = """
@@ -182,6 +187,47 @@ def test_the_core_alone_runs_the_env_its_views_and_scripted_evaluation(core):
     assert "core ok" in run([python, "-c", CORE_CHECK], cwd=work).stdout
     done = run([python, "-m", "colorgrid_apps", "eval", "--compare", "copy", "bayes", "--episodes", "2"], cwd=work)
     assert "bayes" in done.stdout and "copy" in done.stdout
+
+
+# A ```python block right after this marker in README.md or docs/ECOSYSTEM.md runs on the core alone.
+CORE_EXAMPLE_MARK = "<!-- core example"
+CORE_EXAMPLE = re.compile(re.escape(CORE_EXAMPLE_MARK) + r"[^\n]*-->\n```python\n(.*?)\n```\n", re.DOTALL)
+
+
+@pytest.mark.parametrize("document", ["README.md", "docs/ECOSYSTEM.md"])
+def test_the_core_alone_runs_the_documents_core_examples(core, document):
+    python, work = core
+    text = (ROOT / document).read_text()
+    examples = CORE_EXAMPLE.findall(text)
+    assert examples and len(examples) == text.count(CORE_EXAMPLE_MARK), \
+        f"{document}: each '{CORE_EXAMPLE_MARK} ... -->' line must stand right above a ```python block"
+    assert run([python, "-c", "import importlib.util; print(importlib.util.find_spec('torch'))"],
+               cwd=work).stdout.strip() == "None"
+    for i, code in enumerate(examples):
+        script = work / f"{Path(document).stem}_core_example_{i}.py"
+        script.write_text(code + "\nprint('example ran')\n")
+        assert run([python, script], cwd=work).stdout.endswith("example ran\n")
+
+
+def test_the_core_alone_exports_a_released_replay_to_gif_in_the_current_folder(core, tmp_path):
+    python, _ = core
+    done = run([python, "-m", "colorgrid_apps", "export", "default/astar+bayes_seed2026", "--format", "gif"],
+               cwd=tmp_path)
+    written = tmp_path / "astar+bayes_seed2026.gif"
+    assert written.read_bytes()[:6] in (b"GIF87a", b"GIF89a")
+    assert done.stdout.strip() == f"wrote {written.resolve()}"
+    package = Path(run([python, "-c", "import colorgrid; print(colorgrid.__file__)"], cwd=tmp_path).stdout.strip())
+    assert "site-packages" in str(package)
+    assert (package.parent / "_data" / "replays" / "default" / "astar+bayes_seed2026.replay.json").is_file()
+    assert not list(package.parent.rglob("*.gif"))  # the wheel ships none; the export left none beside the replay
+
+    refused = run([python, "-m", "colorgrid_apps", "export", "default/astar+bayes_seed2026", "--format", "mp4"],
+                  cwd=tmp_path, check=False)
+    assert refused.returncode == 2 and refused.stdout == ""
+    (line,) = refused.stderr.strip().splitlines()
+    assert line.startswith("colorgrid export: error: MP4 export needs the 'video' extra (imageio")
+    assert line.endswith("pip install 'colorgrid[video]'")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["astar+bayes_seed2026.gif"]
 
 
 @pytest.mark.parametrize("args, extra", [
