@@ -27,11 +27,10 @@ from pathlib import Path
 
 import pandas as pd
 
+from train.sweep.checks import SUMMARY_SUFFIXES
 from train.sweep.spec import WORKDIR_FILE, SweepError, SweepSpec, load_folder
 from train.sweep.trial import RUN_FOLDER
 
-SUMMARY_SUFFIXES = ("team_reward", "_goal_pickups", "_wrong_pickups", "_net_pickups", "_goal_accuracy")
-"""Columns the ``trials`` table summarises besides the sweep's metric."""
 ID_COLUMNS = ("trial", "configuration", "seed")
 
 

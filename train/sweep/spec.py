@@ -16,9 +16,10 @@ import re
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from colorgrid.configkit import ConfigError, merge
+from train.sweep.checks import SUMMARY_SUFFIXES, SweepError, bad, same_value
+from train.sweep.claim_spec import parse_claims
 from train.config import TrainConfig, from_dict, load_preset, parse_override
 
 GRID_KINDS = ("grid", "options")
@@ -36,14 +37,6 @@ SPEC_FILE = "sweep.toml"
 """The sweep file as read, kept in the sweep's folder (``sweep resume`` and ``sweep report`` read it)."""
 WORKDIR_FILE = "workdir"
 """The folder the sweep was started in: paths in the sweep file are read from there, on resume too."""
-
-
-class SweepError(ConfigError):
-    """The sweep file is wrong; the message names the place in the file and what is allowed."""
-
-
-def bad(where: str, value: Any, allowed: str) -> SweepError:
-    return SweepError(f"{where}={value!r} is invalid: {allowed}")
 
 
 @dataclass(frozen=True)
@@ -288,9 +281,8 @@ def parse_sweep(data: dict, path: Path, text: str = "", out: str | Path | None =
     check_configs(spec)
     check_metric(spec)
     spec = _with_paper(spec, data.get("paper", []))
-    from train.sweep.claims import parse_claims  # claims builds on this module
-
-    return dataclasses.replace(spec, claims=parse_claims(spec, data.get("claim", [])),
+    return dataclasses.replace(spec, claims=parse_claims(spec.params, spec.metric, summarised_columns(spec),
+                                                         data.get("claim", [])),
                                results=Path(results) if results else None)
 
 
@@ -425,6 +417,13 @@ def check_configs(spec: SweepSpec) -> None:
                       f"fewer env steps than total_steps={min(totals)}")
 
 
+def summarised_columns(spec: SweepSpec) -> set[str]:
+    """The training-log columns whose finals the trials table holds besides the metric (claims may compare them)."""
+    fixed = {p.name: p.values[0] for p in spec.params if not p.random}
+    columns = metric_columns(spec.config({**fixed, **spec.samples()[0]}, spec.seeds[0]))
+    return {c for c in columns if c.endswith(SUMMARY_SUFFIXES)}
+
+
 def metric_columns(config: TrainConfig) -> set[str]:
     """The columns of the training log a sweep can take as its metric (learner statistics, ``NAME/key``, aside)."""
     from train.metrics import episode_columns
@@ -487,18 +486,6 @@ def _with_paper(spec: SweepSpec, rows) -> SweepSpec:
             raise bad(f"{where}.value", value, "a number")
         figures.append(PaperFigure(dict(match), float(value), _string(row, "note", "")))
     return dataclasses.replace(spec, paper=tuple(figures))
-
-
-def same_value(a, b) -> bool:
-    """Whether two parameter values are the same (``0`` and ``0.0`` are; ``'0'`` and ``0`` are not)."""
-    import numbers
-
-    def number(v) -> bool:
-        return isinstance(v, numbers.Real) and not isinstance(v, bool)
-
-    if number(a) and number(b):
-        return float(a) == float(b)
-    return not (number(a) or number(b)) and str(a) == str(b)  # labels, booleans
 
 
 def _table(data: dict, name: str) -> dict:

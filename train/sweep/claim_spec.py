@@ -1,0 +1,136 @@
+"""A sweep file's claims as declared (``[[claim]]``): what each compares and the paper's direction, checked
+against the file's parameters. ``train.sweep.claims`` decides them; docs/SWEEPS.md, "Claims and their verdicts"."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import Enum
+
+from train.sweep.checks import SweepError, bad, same_value
+
+
+class Direction(str, Enum):
+    GREATER = ">"
+    LESS = "<"
+    SAME = "~"
+
+
+@dataclass(frozen=True)
+class Claim:
+    """One claim of a sweep file (``[[claim]]``)."""
+
+    name: str
+    """A short name, e.g. ``annealing helps``."""
+    a: dict
+    """Side a: ``{parameter: value or [values]}`` (a parameter left out pools over all its values)."""
+    b: dict | float
+    """Side b: a configuration as ``a``, or a constant."""
+    direction: Direction
+    margin: float = 0.0
+    """``~`` only: the largest difference that counts as none, in the column's units (> 0)."""
+    metric: str = ""
+    """The final column compared (the sweep's metric when empty)."""
+    paper: str = ""
+    """The paper's words (or figures) for the claim."""
+    b_name: str = ""
+    """What a constant side b is (``the copy follower beside the same leader``)."""
+
+    def side_name(self, side: dict | float, name: str = "") -> str:
+        if not isinstance(side, dict):
+            return name or f"{side:+g}"
+        if not side:
+            return "every configuration"
+        return ", ".join(f"{k}={'|'.join(map(str, v)) if isinstance(v, list) else v}" for k, v in side.items())
+
+
+FIELDS = ("name", "a", "b", "expect", "margin", "metric", "paper", "b_name")
+
+
+def parse_claims(params: tuple, metric: str, summarised: set[str], rows) -> tuple[Claim, ...]:
+    """The ``[[claim]]`` tables of a sweep file, checked against its parameters (``Param``s), its ``metric`` and the
+    columns its trials table ``summarised``."""
+    if not isinstance(rows, list):
+        raise bad("claim", rows, "a list of tables: [[claim]] name = ..., a = {...}, b = {...} or a number, "
+                                 "expect = '>', '<' or '~'")
+    claims, names = [], set()
+    for i, row in enumerate(rows):
+        where = f"claim[{i}]"
+        if not isinstance(row, dict):
+            raise bad(where, row, "a table with name, a, b and expect")
+        unknown = sorted(set(row) - set(FIELDS))
+        if unknown:
+            raise SweepError(f"{where}: unknown field {unknown[0]!r}; allowed: {list(FIELDS)}")
+        name = row.get("name")
+        if not isinstance(name, str) or not name.strip() or name in names:
+            raise bad(f"{where}.name", name, "a non-empty name no other claim has")
+        names.add(name)
+        try:
+            direction = Direction(row.get("expect"))
+        except ValueError:
+            raise bad(f"{where}.expect", row.get("expect"),
+                      "'>' (a above b), '<' (a below b) or '~' (no difference beyond margin)") from None
+        margin = row.get("margin", 0.0)
+        if direction is Direction.SAME:
+            if not _positive(margin):
+                raise bad(f"{where}.margin", margin, "a number > 0 in the metric's units (expect = '~' needs one)")
+        elif "margin" in row:
+            raise bad(f"{where}.margin", margin, "given only with expect = '~'")
+        column = row.get("metric", metric)
+        if column != metric and column not in summarised:
+            raise bad(f"{where}.metric", column, f"the sweep's metric or a column the trials table summarises: "
+                                                 f"{sorted(summarised)}")
+        a = _side(params, f"{where}.a", row.get("a"), constant_ok=False)
+        b = _side(params, f"{where}.b", row.get("b"), constant_ok=True)
+        if isinstance(b, dict) and _overlap(params, a, b):
+            raise bad(f"{where}.b", row.get("b"), "a side sharing no configuration with a")
+        for text in ("paper", "b_name"):
+            if not isinstance(row.get(text, ""), str):
+                raise bad(f"{where}.{text}", row.get(text), "a string")
+        claims.append(Claim(name, a, b, direction, float(margin), column, row.get("paper", ""),
+                            row.get("b_name", "")))
+    return tuple(claims)
+
+
+def _positive(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+
+
+def _side(params: tuple, where: str, value, constant_ok: bool) -> dict | float:
+    if constant_ok and isinstance(value, (int, float)) and not isinstance(value, bool):
+        if not math.isfinite(value):
+            raise bad(where, value, "a finite number")
+        return float(value)
+    if not isinstance(value, dict):
+        allowed = "a table {parameter = value or [values]}" + (" or a number (a baseline)" if constant_ok else "")
+        raise bad(where, value, allowed)
+    side = {}
+    for name, wanted in value.items():
+        param = next((p for p in params if p.name == name and not p.random), None)
+        if param is None:
+            raise bad(where, name, f"one of the listed parameters {[p.name for p in params if not p.random]}")
+        chosen = []
+        for v in wanted if isinstance(wanted, list) else [wanted]:
+            listed = [p for p in param.values if same_value(p, v)]
+            if not listed:
+                raise bad(f"{where}.{name}", v, f"one of {list(param.values)}")
+            chosen.append(listed[0])
+        side[name] = chosen if isinstance(wanted, list) else chosen[0]
+    return side
+
+
+def _overlap(params: tuple, a: dict, b: dict) -> bool:
+    """Whether some configuration would be on both sides."""
+    for param in params:
+        if param.random:
+            continue
+        in_a = [v for v in param.values if matches_value(a.get(param.name, param.values), v)]
+        in_b = [v for v in param.values if matches_value(b.get(param.name, param.values), v)]
+        if not any(same_value(x, y) for x in in_a for y in in_b):
+            return False
+    return True
+
+
+def matches_value(wanted, value) -> bool:
+    options = wanted if isinstance(wanted, (list, tuple)) else [wanted]
+    return any(same_value(w, value) for w in options)
