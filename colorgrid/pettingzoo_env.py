@@ -22,18 +22,27 @@ class ColorGridParallelEnv(ParallelEnv):
     [P, H, W], "goal_info": float32 [num_colors]}``. In the 1:1 team ``P = num_colors + 2`` (one plane
     per color, then leader, then follower), the same for both agents. In other teams there is one plane
     per agent in index order and a last plane marking the observing agent's own cell, so that an agent
-    can tell which one it is: ``P = num_colors + A + 1``. Infos carry the unshaped block rewards,
-    pickups and the true goal color (for evaluation: it is not an observation).
+    can tell which one it is: ``P = num_colors + A + 1``. With ``flatten=True`` the observation is instead
+    one float32 ``Box`` of ``P * H * W + num_colors`` values: those planes flattened in C order (plane,
+    row, column), then ``goal_info``, the layout of the Gymnasium view's ``flatten=True``.
+
+    Infos carry the unshaped block rewards, pickups, shaping terms, the true goal color (for evaluation:
+    it is not an observation) and the episode's seed. Reset and every step give the same keys, with the
+    same types (reset's are neutral: zero rewards, no pickups, no switch), so that libraries that build
+    their info spec from the reset (TorchRL) see every step's infos.
     ``render_mode="human"`` prints the ANSI view to the terminal.
     """
 
     metadata = {"name": ENV_ID, "render_modes": list(RENDER_MODES), "is_parallelizable": True, "render_fps": 5}
 
-    def __init__(self, config: EnvConfig | None = None, render_mode: str | None = None):
+    def __init__(self, config: EnvConfig | None = None, render_mode: str | None = None, flatten: bool = False):
         if render_mode is not None and render_mode not in RENDER_MODES:
             raise ValueError(f"render_mode must be one of {list(RENDER_MODES)} or None, got {render_mode!r}")
+        if not isinstance(flatten, (bool, np.bool_)):
+            raise ValueError(f"flatten must be True (one float32 Box) or False (the Dict), got {flatten!r}")
         self.config = config if config is not None else EnvConfig()
         self.render_mode = render_mode
+        self.flatten = bool(flatten)
         self.batch = BatchEnv(self.config, num_envs=1, autoreset=False)
         cfg = self.config
         self.names = cfg.agent_names
@@ -42,10 +51,13 @@ class ColorGridParallelEnv(ParallelEnv):
         self.metadata = {**self.metadata, "name": cfg.env_id}
         self._self_plane = not cfg.one_to_one
         planes = cfg.num_planes + self._self_plane
-        obs_space = spaces.Dict({
-            "observation": spaces.Box(0, 1, (planes, cfg.height, cfg.width), dtype=np.uint8),
-            "goal_info": spaces.Box(0.0, 1.0, (cfg.num_colors,), dtype=np.float32),
-        })
+        if self.flatten:
+            obs_space = spaces.Box(0.0, 1.0, (planes * cfg.height * cfg.width + cfg.num_colors,), dtype=np.float32)
+        else:
+            obs_space = spaces.Dict({
+                "observation": spaces.Box(0, 1, (planes, cfg.height, cfg.width), dtype=np.uint8),
+                "goal_info": spaces.Box(0.0, 1.0, (cfg.num_colors,), dtype=np.float32),
+            })
         self._observation_spaces = {a: obs_space for a in self.names}
         self._action_spaces = {a: spaces.Discrete(cfg.num_actions) for a in self.names}
 
@@ -56,10 +68,14 @@ class ColorGridParallelEnv(ParallelEnv):
         return self._action_spaces[agent]
 
     def reset(self, seed: int | None = None, options: dict | None = None):
-        obs, _ = self.batch.reset(seed=seed)
+        obs, info = self.batch.reset(seed=seed)
         self.agents = list(self.names)
-        seed_used = int(self.batch.state.seed[0])
-        return self._split(obs), {a: {"seed": seed_used} for a in self.names}
+        A = self.config.num_agents
+        zeros, nothing = np.zeros((1, A), dtype=np.float32), np.zeros((1, A), dtype=np.bool_)
+        neutral = {"block_reward": zeros, "team_reward": zeros[:, 0], "goal_pickup": nothing, "wrong_pickup": nothing,
+                   "distance_shaping": zeros, "potential_shaping": zeros, "goal_color": info["goal_color"],
+                   "goal_switched": nothing[:, 0]}
+        return self._split(obs), self._infos(neutral)
 
     def step(self, actions: dict):
         if not self.agents:
@@ -69,25 +85,13 @@ class ColorGridParallelEnv(ParallelEnv):
             raise ValueError(f"actions missing for agent(s) {missing}; expected one per agent in {self.agents}")
         joint = np.array([[actions[a] for a in self.names]], dtype=np.int64)
         obs, rewards, terms, truncs, info = self.batch.step(joint)
-        out_obs = self._split(obs)
-        # one .tolist() per array: Python scalars without per-element numpy conversions
-        block, shaping_d, shaping_p = (info[k][0].tolist() for k in ("block_reward", "distance_shaping",
-                                                                       "potential_shaping"))
-        hit, wrong = info["goal_pickup"][0].tolist(), info["wrong_pickup"][0].tolist()
-        team, goal, switched = float(info["team_reward"][0]), int(info["goal_color"][0]), bool(info["goal_switched"][0])
-        infos = {
-            a: {"block_reward": block[i], "team_reward": team, "goal_pickup": hit[i], "wrong_pickup": wrong[i],
-                "distance_shaping": shaping_d[i], "potential_shaping": shaping_p[i], "goal_color": goal,
-                "goal_switched": switched}
-            for i, a in enumerate(self.names)
-        }
         reward_list, term_list, trunc_list = rewards[0].tolist(), terms[0].tolist(), truncs[0].tolist()
         out = (
-            out_obs,
+            self._split(obs),
             dict(zip(self.names, reward_list)),
             dict(zip(self.names, term_list)),
             dict(zip(self.names, trunc_list)),
-            infos,
+            self._infos(info),
         )
         if all(trunc_list) or all(term_list):
             self.agents = []
@@ -113,6 +117,22 @@ class ColorGridParallelEnv(ParallelEnv):
     def close(self) -> None:
         pass
 
+    def _infos(self, info: dict) -> dict:
+        """Each agent's infos from the batch's (a batch of one), as Python scalars: the same keys at reset and
+        every step."""
+        # one .tolist() per array: Python scalars without per-element numpy conversions
+        block, shaping_d, shaping_p = (info[k][0].tolist() for k in ("block_reward", "distance_shaping",
+                                                                       "potential_shaping"))
+        hit, wrong = info["goal_pickup"][0].tolist(), info["wrong_pickup"][0].tolist()
+        team, goal, switched = float(info["team_reward"][0]), int(info["goal_color"][0]), bool(info["goal_switched"][0])
+        seed = int(self.batch.state.seed[0])
+        return {
+            a: {"block_reward": block[i], "team_reward": team, "goal_pickup": hit[i], "wrong_pickup": wrong[i],
+                "distance_shaping": shaping_d[i], "potential_shaping": shaping_p[i], "goal_color": goal,
+                "goal_switched": switched, "seed": seed}
+            for i, a in enumerate(self.names)
+        }
+
     def _split(self, obs: dict) -> dict:
         planes = obs["observation"][0]
         out = {}
@@ -120,18 +140,25 @@ class ColorGridParallelEnv(ParallelEnv):
             own = planes.copy()
             if self._self_plane:  # the observer's own cell, again, as the last plane
                 own = np.concatenate([own, own[self.config.num_colors + i][None]])
-            out[a] = {"observation": own, "goal_info": obs["goal_info"][0, i].copy()}
+            goal = obs["goal_info"][0, i].copy()
+            if self.flatten:
+                out[a] = np.concatenate([own.reshape(-1).astype(np.float32), goal])
+            else:
+                out[a] = {"observation": own, "goal_info": goal}
         return out
 
 
-def parallel_env(config: EnvConfig | None = None, render_mode: str | None = None, **overrides) -> ColorGridParallelEnv:
-    """A ``ParallelEnv``; ``overrides`` are EnvConfig fields applied on top of ``config``."""
+def parallel_env(config: EnvConfig | None = None, render_mode: str | None = None, flatten: bool = False,
+                 **overrides) -> ColorGridParallelEnv:
+    """A ``ParallelEnv``; ``overrides`` are EnvConfig fields applied on top of ``config``. ``flatten=True``: each
+    observation one float32 vector (the planes, then the goal one-hot), for libraries whose default networks
+    take no ``Dict`` (RLlib)."""
     config = config if config is not None else EnvConfig()
     if overrides:
         config = config.replace(**overrides)
-    return ColorGridParallelEnv(config, render_mode=render_mode)
+    return ColorGridParallelEnv(config, render_mode=render_mode, flatten=flatten)
 
 
-def env(config: EnvConfig | None = None, render_mode: str | None = None, **overrides):
+def env(config: EnvConfig | None = None, render_mode: str | None = None, flatten: bool = False, **overrides):
     """The AEC version, through PettingZoo's ``parallel_to_aec`` conversion."""
-    return parallel_to_aec(parallel_env(config, render_mode=render_mode, **overrides))
+    return parallel_to_aec(parallel_env(config, render_mode=render_mode, flatten=flatten, **overrides))
