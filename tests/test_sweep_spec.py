@@ -213,5 +213,10 @@ def test_each_recipe_arm_takes_exactly_one_ingredient_away(name):
     for arm in arms:
         config = flat(dataclasses.asdict(spec.config({"arm": arm}, 0)))
         assert {k for k in recipe if recipe[k] != config[k]} == ABLATED[arm], arm
-    claimed = {c.a["arm"] for c in spec.claims}
-    assert claimed == set(arms)  # one claim per ingredient, and one for the paper's kind of partner
+    ablations = {c.a["arm"] for c in spec.claims if c.b == {"arm": "recipe"}}
+    assert ablations == set(arms) - {"ippo-leader partner"}  # one claim per ingredient ...
+    assert [c.metric for c in spec.claims if c.a == {"arm": "ippo-leader partner"}] == ["eval/follower_net_pickups"]
+    judged = {c.metric for c in spec.claims if isinstance(c.b, float) and c.a == {"arm": "recipe"}}
+    assert judged == {"eval_astar/follower_net_pickups", "eval_population_people_held_out/follower_net_pickups"}
+    config = spec.config({"arm": "ippo-leader partner"}, 0)  # ... and every arm judged beside the same partners
+    assert config.eval_partners == ("astar", "population:people#held_out") and spec.metric.startswith("eval_astar/")

@@ -801,3 +801,33 @@ def test_resume_with_a_population_partner_continues_exactly(tmp_path):
     assert (straight.partners[0].member == resumed.partners[0].member).all()
     for key, value in weights(straight.learners[1].model).items():
         assert torch.equal(value, resumed.learners[1].model.state_dict()[key]), key
+
+
+def test_eval_partners_judge_the_learner_beside_other_partners_on_the_same_seeds(tmp_path):
+    """Each evaluation partner plays the agents that do not learn, on the evaluation's own seeds: beside the idle
+    leader the leader collects nothing, beside A* it collects, and the learner's own play is the same network's."""
+    from train.config import eval_stream
+    from train.metrics import MetricsLog
+
+    config = tiny(total_steps=64, eval_every=1, eval_episodes=3, replay_episodes=0,
+                  leader={"policy": "astar"}, env={"asymmetric": True, "horizon": 32},
+                  eval_partners=["idle", "astar", "population:people#held_out"])
+    trainer = Trainer(config, tmp_path, progress=False, tensorboard=False)
+    trainer.log = MetricsLog(tmp_path, tensorboard=False)
+    row = trainer.evaluate()
+    trainer.close()
+    trainer.log.close()
+    assert eval_stream("population:people#held_out") == "eval_population_people_held_out"
+    idle, astar = row["eval_idle/leader_goal_pickups"], row["eval_astar/leader_goal_pickups"]
+    assert idle == 0 and row["eval_idle/leader_wrong_pickups"] == 0 and astar > 0
+    assert astar == row["eval/leader_goal_pickups"]  # the training partner is A*: the same seeds, the same play
+    assert "eval_population_people_held_out/follower_net_pickups" in row
+    for stream in ("eval_idle", "eval_astar", "eval_population_people_held_out"):
+        assert (tmp_path / f"{stream}.csv").read_text().startswith("step,")
+
+
+def test_eval_partners_need_an_agent_that_does_not_learn():
+    with pytest.raises(TrainConfigError, match="eval_partners=\\('astar',\\) is invalid: \\[\\] when every agent learns"):
+        tiny(eval_partners=["astar"])
+    with pytest.raises(TrainConfigError, match="'nope' is not a policy to evaluate beside"):
+        tiny(leader={"policy": "astar"}, eval_partners=["nope"])

@@ -40,6 +40,14 @@ def _between(low: float, high: float, low_open: bool = False, high_open: bool = 
     return lambda v: (low < v if low_open else low <= v) and (v < high if high_open else v <= high)
 
 
+def eval_stream(partner: str) -> str:
+    """The training log's stream of the evaluation beside ``partner`` (``eval_partners``): ``eval_`` and the name with
+    every character but letters and digits as ``_`` (``population:people#held_out``: ``eval_population_people_held_out``)."""
+    import re
+
+    return "eval_" + re.sub(r"[^A-Za-z0-9]+", "_", partner).strip("_")
+
+
 def _policy_spec(spec: str, names: list[str]) -> bool:
     """Whether ``spec`` names a policy ``make_policy`` can build (checked by its form; built when the run starts)."""
     if spec in names or spec.endswith(".pt") or spec.startswith("population:") or ".json" in spec:
@@ -278,6 +286,11 @@ class TrainConfig:
     eval_every: int = 10
     """Evaluate every this many iterations with the evaluation harness (0: never)."""
     eval_episodes: int = 32
+    eval_partners: tuple[str, ...] = ()
+    """More evaluations at each ``eval_every``, on the same fixed seeds, each with every agent that does not learn
+    played by the named policy instead (``astar``, ``bayes``, ``population:people#held_out``, a checkpoint): so
+    learners trained beside different partners are judged beside the same ones. Logged as the stream
+    ``eval_NAME`` (``eval_NAME/follower_net_pickups``, ...; ``eval_stream`` gives NAME)."""
     replay_episodes: int = 2
     """Sample episodes saved as replays at each evaluation."""
     save_every: int = 50
@@ -317,6 +330,18 @@ class TrainConfig:
         check_bool(self, "update_processes")
         if self.replay_episodes > self.eval_episodes:
             fail(self, "replay_episodes", f"at most eval_episodes={self.eval_episodes}")
+        names = sorted(SCRIPTED) + registry.registered_names()
+        check_strings(self, "eval_partners", distinct=True, allowed=f"a list of distinct policies to evaluate beside: "
+                                                                    f"one of {names}, a population or a checkpoint")
+        for spec in self.eval_partners:
+            if spec == "learn" or not _policy_spec(spec, names):
+                fail(self, "eval_partners", f"{spec!r} is not a policy to evaluate beside: one of {names} (with "
+                                            f"parameters as name:key=value,...), population:NAME[#PART] or a .pt file")
+        if self.eval_partners and all(a.policy == "learn" for a in self.agents):
+            fail(self, "eval_partners", "[] when every agent learns: an evaluation partner stands in for the agents "
+                                        "that do not")
+        if len({eval_stream(s) for s in self.eval_partners}) != len(self.eval_partners):
+            fail(self, "eval_partners", "partners whose stream names (eval_stream) differ")
 
     def section(self, role: str) -> AgentConfig:
         """The settings of every agent of ``role`` (``leader`` or ``follower``)."""

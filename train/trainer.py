@@ -33,7 +33,7 @@ from colorgrid.step_inputs import StepInputs
 from colorgrid_apps.evaluate import record_team, summarize
 from train.checkpoint import (agent_entry, build_model, find_network, load_checkpoint, load_weights,
                               save_checkpoint, to_arrays, to_tensors)
-from train.config import TrainConfig
+from train.config import TrainConfig, eval_stream
 from train.inputs import rows_of_agents, step_tensors
 from train.learner import Learner
 from train.memory import keep_freed_memory
@@ -479,18 +479,26 @@ class Trainer:
             batch = run_team(cfg.env, policies, cfg.replay_episodes, seed, record_hashes=True)
             record_team(batch, [p.name for p in policies], policies, self.run_dir / "replays" / f"step_{self.step:09d}",
                         source="train", meta={"train_step": self.step, "run": str(self.run_dir)})
-        return {f"eval/{k}": v for k, v in row.items()}
+        out = {f"eval/{k}": v for k, v in row.items()}
+        for partner in cfg.eval_partners:  # the same seeds beside other partners
+            stream = eval_stream(partner)
+            beside = evaluation_row(cfg.env, summarize(run_team(cfg.env, self._fresh_policies(partner),
+                                                                cfg.eval_episodes, seed)))
+            self.log.write(stream, self.step, beside)
+            out.update({f"{stream}/{k}": v for k, v in beside.items()})
+        return out
 
-    def _fresh_policies(self) -> list:
+    def _fresh_policies(self, partner: str | None = None) -> list:
         """One policy per agent for a separate evaluation: partners are rebuilt so the training batch's state is
-        untouched; a shared network plays each of its agents through a policy of its own."""
+        untouched (or ``partner`` plays every agent that does not learn); a shared network plays each of its agents
+        through a policy of its own."""
         out = []
         for i, agent in enumerate(self.config.agents):
             learner = next((lr for lr in self.learners.values() if i in lr.agents), None)
             if learner is not None:
                 out.append(NetPolicy(learner.model, name=f"{self.names[i]}@{self.step}"))
             else:
-                out.append(make_policy(agent.policy, role=self.names[i]))
+                out.append(make_policy(partner or agent.policy, role=self.names[i]))
         return out
 
     def checkpoint_payload(self) -> dict:

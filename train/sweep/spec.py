@@ -20,7 +20,7 @@ from pathlib import Path
 from colorgrid.configkit import ConfigError, merge
 from train.sweep.checks import SUMMARY_SUFFIXES, SweepError, bad, same_value
 from train.sweep.claim_spec import parse_claims
-from train.config import TrainConfig, from_dict, load_preset, parse_override
+from train.config import TrainConfig, eval_stream, from_dict, load_preset, parse_override
 
 GRID_KINDS = ("grid", "options")
 RANDOM_KINDS = ("choice", "uniform", "loguniform")
@@ -438,14 +438,16 @@ def metric_columns(config: TrainConfig) -> set[str]:
                                         else [])]
     evaluation = {"team_reward", *(f"{n}_{k}" for n in names for k in ("goal_pickups", "wrong_pickups",
                                                                        "net_pickups", "goal_accuracy"))}
-    return columns | {f"eval/{c}" for c in evaluation}
+    streams = ["eval", *(eval_stream(p) for p in config.eval_partners)]
+    return columns | {f"{s}/{c}" for s in streams for c in evaluation}
 
 
 def check_metric(spec: SweepSpec) -> None:
     if not isinstance(spec.metric, str) or not spec.metric:
         raise bad("metric", spec.metric, "a column of the training log, e.g. 'team_reward'")
     config = spec.config({p.name: p.values[0] for p in spec.params}, spec.seeds[0])
-    if "/" in spec.metric and not spec.metric.startswith("eval/"):  # a learner's statistic (follower/aux_loss)
+    evaluations = ("eval", *(eval_stream(p) for p in config.eval_partners))
+    if "/" in spec.metric and spec.metric.split("/")[0] not in evaluations:  # a learner's statistic (follower/aux_loss)
         learners = [name for name, _ in config.networks] + list(config.env.agent_names)
         if spec.metric.split("/")[0] not in learners:
             raise bad("metric", spec.metric, f"a column of the training log, or a learner's statistic: "
@@ -455,8 +457,8 @@ def check_metric(spec: SweepSpec) -> None:
     if spec.metric not in columns:
         raise bad("metric", spec.metric, f"a column of the training log: one of {sorted(columns)}, or a learner's "
                                          f"statistic such as 'follower/aux_loss'")
-    if spec.metric.startswith("eval/") and not config.eval_every:
-        raise bad("metric", spec.metric, "a training column, or set eval_every > 0 for an eval/ column")
+    if spec.metric.split("/")[0] in evaluations and not config.eval_every:
+        raise bad("metric", spec.metric, "a training column, or set eval_every > 0 for an evaluation column")
 
 
 def _with_paper(spec: SweepSpec, rows) -> SweepSpec:
