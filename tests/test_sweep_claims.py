@@ -195,7 +195,12 @@ def test_report_decides_claims_and_publish_keeps_finished_trials(tmp_path):
         fake_trial(folder, f"trial_a{seed}", "+4/-1", 0.0, seed, [hi - 1.0, hi + 1.0])
         fake_trial(folder, f"trial_b{seed}", "+1/-1", 0.0, seed, [lo + 1.0, lo - 1.0])
     fake_trial(folder, "trial_c0", "+2/-1", 0.2, 0, [5.0])  # unfinished: half of its steps
+    fake_trial(folder, "trial_a3", "+4/-1", 0.0, 3, [100.0])  # a seed still running beside finished ones
     text, _ = write_report(folder)
+    summary = pd.read_csv(folder / "summary.csv").set_index("configuration")
+    assert summary.loc["rewards=+4/-1, aux=0.0", "final_team_reward_mean"] == pytest.approx(11.0)  # finished only
+    assert tuple(summary.loc["rewards=+4/-1, aux=0.0", ["seeds", "finished"]]) == (4, 3)
+    assert summary.loc["rewards=+2/-1, aux=0.2", "final_team_reward_mean"] == pytest.approx(5.0)  # none finished
     assert "| optimism pays (a > b, team_reward) | the paper says so | rewards=+4/-1, aux=0.0: +11.00 (n=3) | " \
            "rewards=+1/-1, aux=0.0: +2.00 (n=3) | +9.00 [" in text
     assert "**reproduced**" in text and "- optimism pays: a: +10.00, +11.00, +12.00; b: +1.00, +2.00, +3.00" in text

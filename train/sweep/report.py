@@ -50,15 +50,18 @@ def paper_value(spec: SweepSpec, row: pd.Series) -> str:
 
 
 def summary(spec: SweepSpec, trials: pd.DataFrame) -> pd.DataFrame:
-    """A row per configuration: seeds, finished trials, and mean / 95% half-width of each final column."""
+    """A row per configuration: seeds, finished trials, and mean / 95% half-width of each final column over its
+    finished trials (over every trial while none has finished)."""
     finals = [c for c in trials.columns if c.startswith("final_")]
     rows = []
     for label, group in trials.groupby("configuration", sort=False):
         row = {"configuration": label, **{p.name: group[p.name].iloc[0] for p in spec.params},
                "seeds": len(group), "finished": int(group["finished"].sum()),
                "steps": int(group["steps"].min()), "wall_time_s": float(group["wall_time_s"].mean())}
+        done = group[group["finished"].astype(bool)]
+        counted = done if len(done) else group  # a trial still running is not averaged with finished ones
         for column in finals:
-            mean, half, _ = mean_interval(group[column])
+            mean, half, _ = mean_interval(counted[column])
             row[f"{column}_mean"], row[f"{column}_ci95"] = mean, half
         rows.append(row)
     return pd.DataFrame(rows)
@@ -180,7 +183,7 @@ def render(spec: SweepSpec, trials: pd.DataFrame, curves: pd.DataFrame, out: Pat
         f"{len(trials)} of {spec.num_trials()} trials have reported; {done} ran to the end. A final value is a "
         f"trial's mean over its last {spec.final_window} iterations (an evaluation column: its evaluations "
         f"there, or its last one); ± is the half-width of a 95% Student-t interval "
-        f"across seeds.", "",
+        f"across seeds, over a configuration's finished trials once it has any.", "",
         format_summary(spec, table), "",
         *claims_text,
         *[f"![{p.stem}]({p.name})" for p in pictures], ""])
