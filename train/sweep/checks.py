@@ -12,7 +12,8 @@ SUMMARY_SUFFIXES = ("team_reward", "_goal_pickups", "_wrong_pickups", "_net_pick
 
 
 class SweepError(ConfigError):
-    """The sweep file is wrong; the message names the place in the file and what is allowed."""
+    """A sweep cannot run as asked: its file is wrong (the message names the place and what is allowed), or the
+    cluster or resources it asks for are not there (the message names the cause and the fix)."""
 
 
 def bad(where: str, value: Any, allowed: str) -> SweepError:

@@ -37,9 +37,65 @@ def connect(address: str | None, num_cpus: int | None = None) -> None:
     if ray.is_initialized():
         return
     if address:
+        if ":" in address and "://" not in address:  # HOST:PORT; 'auto' is found (and its token used) by ray.init
+            check_cluster(address)
         ray.init(address=address, logging_level="WARNING", log_to_driver=False)
     else:  # num_cpus None: Ray counts the CPUs this process may use (container limits included)
         ray.init(num_cpus=num_cpus, include_dashboard=False, logging_level="WARNING", log_to_driver=False)
+
+
+def check_cluster(address: str) -> None:
+    """Ask the cluster at ``address`` for its id once, as ``ray.init`` would (with this process's token when
+    ``RAY_AUTH_MODE=token``). A refusal, no answer, or authentication off there but on here is one line naming the
+    cause and the fix, instead of Ray's twenty retries (minutes of them where nothing listens) and "Failed to
+    connect to Ray cluster", or trials whose workers die before they start.
+
+    Ray 2.60 sends a token to ``HOST:PORT`` only with ``RAY_AUTH_MODE=token``, but ``ray start --head`` turns
+    token authentication on by itself where it finds a token (``~/.ray/auth_token``, which any local ``ray.init``
+    writes): docs/SWEEPS.md, "A cluster"."""
+    import grpc
+    from ray._private.authentication.authentication_utils import is_token_auth_enabled
+    from ray._private.grpc_utils import init_grpc_channel
+    from ray._raylet import AuthenticationTokenLoader
+    from ray.core.generated import gcs_service_pb2, gcs_service_pb2_grpc
+
+    def ask(channel) -> tuple[grpc.StatusCode, str]:
+        with channel:
+            try:
+                gcs_service_pb2_grpc.NodeInfoGcsServiceStub(channel).GetClusterId(
+                    gcs_service_pb2.GetClusterIdRequest(), timeout=10)
+                return grpc.StatusCode.OK, ""
+            except grpc.RpcError as err:
+                return err.code(), (err.details() or "").rsplit(": ", 1)[-1]
+
+    copy, see = "copy the head's ~/.ray/auth_token to ~/.ray/auth_token here", "; see docs/SWEEPS.md, 'A cluster'"
+    token_mode = is_token_auth_enabled()
+    # Ray's token loader is asked only in token mode: once it has read a token, this process's own gRPC server
+    # demands that token of every caller, even with authentication off, and the cluster's workers send none
+    if token_mode and not AuthenticationTokenLoader.instance().has_token(ignore_auth_mode=True):
+        raise SweepError(f"RAY_AUTH_MODE=token but this machine has no Ray token to show {address}: {copy}{see}")
+    code, why = ask(init_grpc_channel(address))  # with the token in token mode, as ray.init asks
+    if code == grpc.StatusCode.OK:
+        if token_mode and ask(grpc.insecure_channel(address))[0] == grpc.StatusCode.OK:
+            raise SweepError(f"the Ray cluster at {address} has token authentication off, and with RAY_AUTH_MODE="
+                             f"token this process would refuse its workers' calls: unset RAY_AUTH_MODE here, or "
+                             f"start every node with RAY_AUTH_MODE=token{see}")
+        return
+    if code in (grpc.StatusCode.UNAVAILABLE, grpc.StatusCode.DEADLINE_EXCEEDED):
+        raise SweepError(f"no Ray cluster answers at {address} ({why}): start one there with ray start --head, "
+                         f"or check the address{see}")
+    if code != grpc.StatusCode.UNAUTHENTICATED:
+        return  # ray.init says what else is wrong
+    if token_mode:  # Ray reads the token from the first of these that is set
+        source = ("RAY_AUTH_TOKEN" if os.environ.get("RAY_AUTH_TOKEN") else
+                  os.environ.get("RAY_AUTH_TOKEN_PATH") or "~/.ray/auth_token")
+        raise SweepError(f"the Ray cluster at {address} refused this machine's token (from {source}): it is not "
+                         f"the head's; {copy}" + (", and unset RAY_AUTH_TOKEN" if source == "RAY_AUTH_TOKEN" else "")
+                         + see)
+    raise SweepError(f"the Ray cluster at {address} wants a token and this process sends none (RAY_AUTH_MODE is "
+                     f"not 'token'): run with RAY_AUTH_MODE=token and the head's token here (its ~/.ray/auth_token in "
+                     f"~/.ray/auth_token), or start every node with RAY_AUTH_MODE=disabled (a private network only)"
+                     f"{see}")
 
 
 def check_resources(spec: SweepSpec) -> None:
