@@ -1,14 +1,16 @@
 """Load on the play server: N concurrent scripted players in real time over WebSockets on loopback.
 
 Usage: python bench/bench_server.py [--players 100] [--seconds 20] [--tick-hz 5] [--follower bayes]
-                                   [--exports 8] [--large-replays] [--client-nice 10]
+                                   [--exports 8] [--large-replays] [--client-nice 10] [--max-connections N]
 
 Starts ``colorgrid play`` on a free loopback port, connects N players (real-time games
 that last the whole run), each pressing a random move key about 3 times a second, then
 quits them all. Prints tick lateness p50/p99 (server side), key-to-applied latency
 (client side: key sent -> first state that reports it applied), follower deadline
 misses, the server's CPU use, and whether every game was saved. Bounded: N connections,
-``--seconds`` of play, loopback only.
+``--seconds`` of play, loopback only. The server takes at most 400 play sockets unless
+``--max-connections`` raises its limit for the run; players past it are refused (close code 1013),
+and the bench says so in one line.
 
 ``--exports K`` keeps K GIF/MP4 exports of distinct replays in flight for the whole run (the
 server runs with ``--max-exports K``); ``--large-replays`` puts a 150 MB file (over the
@@ -31,6 +33,7 @@ import os
 import random
 import statistics
 import sys
+from collections import Counter
 import tempfile
 import time
 import urllib.error
@@ -38,6 +41,7 @@ import urllib.request
 from pathlib import Path
 
 from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import machine, start_play_server  # noqa: E402
@@ -60,6 +64,20 @@ def cpu_seconds(pid: int) -> float:
 
 
 async def player(url: str, seconds: float, latencies: list, results: list, rng: random.Random) -> None:
+    """One player's game; a socket the server refuses or closes before the game's end is recorded as ``closed``
+    (its close code and reason), not raised."""
+    try:
+        await play(url, seconds, latencies, results, rng)
+    except ConnectionClosed as closed:  # refused past the server's --max-connections (1013), or dropped
+        results.append({"type": "closed", "code": closed.rcvd.code if closed.rcvd else None,
+                        "reason": closed.rcvd.reason if closed.rcvd else "no close frame"})
+    except InvalidStatus as err:  # refused at the handshake (past --max-connections: 403)
+        results.append({"type": "closed", "code": None, "reason": f"handshake answered {err.response.status_code}"})
+    except (OSError, InvalidHandshake) as err:  # not even connected
+        results.append({"type": "closed", "code": None, "reason": f"{type(err).__name__}: {err}"})
+
+
+async def play(url: str, seconds: float, latencies: list, results: list, rng: random.Random) -> None:
     async with connect(url, max_size=2**22) as ws:
         await ws.send(json.dumps({"type": "new_game", "mode": "realtime", "horizon": 1000}))
         sent: dict[int, float] = {}
@@ -77,20 +95,36 @@ async def player(url: str, seconds: float, latencies: list, results: list, rng: 
 
         presser = asyncio.create_task(press())
         last_seen = -1
-        async for raw in ws:
-            msg = json.loads(raw)
-            if msg["type"] == "state" and msg["last_applied_seq"] is not None:
-                now = time.perf_counter()
-                # Superseded keys are never applied: latency is measured for the key that was.
-                if msg["last_applied_seq"] > last_seen and msg["last_applied_seq"] in sent:
-                    latencies.append((now - sent[msg["last_applied_seq"]]) * 1000)
-                last_seen = max(last_seen, msg["last_applied_seq"])
-            elif msg["type"] == "game_over":
-                results.append(msg)
-                break
-            elif msg["type"] in ("full", "error"):
-                results.append(msg)
-        await presser
+        try:
+            async for raw in ws:
+                msg = json.loads(raw)
+                if msg["type"] == "state" and msg["last_applied_seq"] is not None:
+                    now = time.perf_counter()
+                    # Superseded keys are never applied: latency is measured for the key that was.
+                    if msg["last_applied_seq"] > last_seen and msg["last_applied_seq"] in sent:
+                        latencies.append((now - sent[msg["last_applied_seq"]]) * 1000)
+                    last_seen = max(last_seen, msg["last_applied_seq"])
+                elif msg["type"] == "game_over":
+                    results.append(msg)
+                    break
+                elif msg["type"] in ("full", "error"):
+                    results.append(msg)
+            await presser
+        finally:
+            presser.cancel()
+
+
+def refusals(results: list[dict], people: int, what: str) -> str | None:
+    """One line on the sockets the server closed before their game's end (``closed`` results), or None."""
+    closed = [r for r in results if r.get("type") == "closed"]
+    if not closed:
+        return None
+    why = Counter(f"close {r['code']}: {r['reason']}" if r["code"] else r["reason"] for r in closed)
+    return (f"refused: {len(closed)} of {people} {what} had their play socket refused or closed before their game "
+            "ended ("
+            + "; ".join(f"{n} x {reason}" for reason, n in why.most_common(3))
+            + "); a server process takes at most --max-connections sockets (400 unless set): raise it for this run "
+              "with this bench's --max-connections")
 
 
 def http_status(url: str) -> int:
@@ -147,7 +181,9 @@ async def run(args) -> None:
     server, base, tmp = start_play_server("colorgrid-load-", "--tick-hz", str(args.tick_hz), "--follower",
                                           args.follower, "--max-sessions", str(args.players), "--new-games-per-minute",
                                           str(10 * args.players), "--max-exports", str(max(1, args.exports)),
-                                          "--released-dir", str(folder))
+                                          "--released-dir", str(folder),
+                                          *(["--max-connections", str(args.max_connections)] if args.max_connections
+                                            else []))
     port = base.rsplit(":", 1)[1]
     if args.client_nice:
         os.nice(args.client_nice)  # this thread, and the executor threads it starts from here on
@@ -192,6 +228,9 @@ async def run(args) -> None:
             steal = 100 * (machine1[1] - machine0[1]) / (machine1[0] - machine0[0])
             print(f"CPU time stolen by the hypervisor during the run: {steal:.1f}% (a virtual machine's neighbours)")
         print(f"games ended {ended}/{args.players}, replays saved {saved}/{args.players}; server log {tmp / 'server.log'}")
+        refused = refusals(results, args.players, "players")
+        if refused:
+            print(refused)
         if args.exports:
             print(f"exports alongside ({args.exports} in flight): {export_counts.get(200, 0)} made, "
                   f"{export_counts.get(503, 0)} answered busy (503), other {[k for k in export_counts if k not in (200, 503)]}")
@@ -213,7 +252,12 @@ def main() -> None:
     parser.add_argument("--large-replays", action="store_true", help="also request a 150 MB and a 40 MB replay")
     parser.add_argument("--client-nice", type=int, default=0,
                         help="lower the load clients' CPU priority by this much (0..19; the server keeps its own)")
+    parser.add_argument("--max-connections", type=int, default=None,
+                        help="the server's limit of open play sockets for this run (default: its own, 400); more "
+                             "players than it are refused")
     args = parser.parse_args()
+    if args.max_connections is not None and not 1 <= args.max_connections <= 10_000:
+        raise SystemExit("--max-connections must be in 1..10000")
     if not 0 <= args.client_nice <= 19:
         raise SystemExit("--client-nice must be in 0..19")
     if not 0 <= args.exports <= 16:

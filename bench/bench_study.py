@@ -2,6 +2,7 @@
 
 Usage: python bench/bench_study.py --participants 40 --processes 2 [--trial-steps 50] [--tick-hz 5]
                                   [--follower bayes-people] [--side-load] [--database URL] [--arrival-s 0]
+                                  [--max-connections N]
 
 Writes a short version of the example study (``studies/belief_display.toml``: consent, instructions,
 a practice game, four real-time trials of ``--trial-steps`` steps, a question after each, the final
@@ -17,7 +18,9 @@ every question. Then prints, with the machine and the CPU time the hypervisor st
   ``backends`` list where there is one);
 * CPU seconds per process: the launcher, each backend and its inference process, HAProxy;
 * games lost: games a participant saw end (``game_over``) without a replay file in the
-  recordings folder (must be 0).
+  recordings folder (must be 0);
+* refusals, in one line: participants whose play socket a server process refused or closed (each
+  takes at most 400 sockets unless ``--max-connections`` raises its limit for the run).
 
 ``--side-load`` runs, during the whole study, 8 GIF/MP4 exports of replays (``colorgrid export``
 processes) and repeated loads of a 150 MB replay file, on the same machine at ``nice`` 10, the
@@ -47,9 +50,10 @@ import urllib.request
 from pathlib import Path
 
 from websockets.asyncio.client import connect
+from websockets.exceptions import ConnectionClosed, InvalidHandshake, InvalidStatus
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_server import KEYS, cpu_seconds, cpu_times  # noqa: E402
+from bench_server import KEYS, cpu_seconds, cpu_times, refusals  # noqa: E402
 from common import machine  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -113,7 +117,20 @@ def answers(questions: list[dict], rng: random.Random) -> dict:
 
 
 async def play(ws_url: str, ref: dict, rng: random.Random) -> dict:
-    """One real-time game of the study, keys about three times a second, until it ends: its ``game_over``."""
+    """One real-time game of the study, keys about three times a second, until it ends: its ``game_over``; a socket
+    the server refuses or closes first: ``closed`` with its close code and reason."""
+    try:
+        return await play_game(ws_url, ref, rng)
+    except ConnectionClosed as closed:  # refused past a process's --max-connections (1013), or dropped
+        return {"type": "closed", "code": closed.rcvd.code if closed.rcvd else None,
+                "reason": closed.rcvd.reason if closed.rcvd else "no close frame"}
+    except InvalidStatus as err:  # refused at the handshake (past --max-connections: 403)
+        return {"type": "closed", "code": None, "reason": f"handshake answered {err.response.status_code}"}
+    except (OSError, InvalidHandshake) as err:  # not even connected
+        return {"type": "closed", "code": None, "reason": f"{type(err).__name__}: {err}"}
+
+
+async def play_game(ws_url: str, ref: dict, rng: random.Random) -> dict:
     async with connect(ws_url, max_size=2**22, open_timeout=60) as ws:
         await asyncio.sleep(3.0)  # the page's 3-2-1 countdown comes before new_game
         await ws.send(json.dumps({"type": "new_game", "study": ref, "viewport": [1280, 800]}))
@@ -125,7 +142,10 @@ async def play(ws_url: str, ref: dict, rng: random.Random) -> dict:
             while not done.is_set():
                 await asyncio.sleep(rng.uniform(0.2, 0.45))
                 if not done.is_set():
-                    await ws.send(json.dumps({"type": "key", "key": rng.choice(KEYS), "seq": seq}))
+                    try:
+                        await ws.send(json.dumps({"type": "key", "key": rng.choice(KEYS), "seq": seq}))
+                    except ConnectionClosed:  # the game ended: the server closes its socket after game_over
+                        return
                     seq += 1
 
         presser = asyncio.create_task(press())
@@ -251,11 +271,13 @@ def start(args, folder: Path) -> tuple[subprocess.Popen, str]:
     study = study_file(folder, args.participants, args.trial_steps, args.tick_hz, args.follower)
     port = free_port()
     command = [sys.executable, "-m", "colorgrid_apps", "study", "run", str(study), "--port", str(port),
-               "--replays-dir", str(folder / "recordings"), "--log-level", "warning",
+               "--replays-dir", str(folder / "recordings"), "--log-level", "warning", "--stop-with-parent",
                "--max-sessions", str(max(100, 2 * args.participants)),
                "--new-games-per-minute", str(max(30, 20 * args.participants))]  # every participant is on loopback
     if args.processes > 1:
         command += ["--processes", str(args.processes)]
+    if args.max_connections:
+        command += ["--max-connections", str(args.max_connections)]
     if args.database:
         command += ["--database", args.database]
     server = subprocess.Popen(command, stdout=open(folder / "server.log", "w"), stderr=subprocess.STDOUT,
@@ -334,8 +356,12 @@ async def run(args) -> None:
     print(f"completed: {completed}/{args.participants}; games ended {len(ended)} of {len(games)} started; "
           f"games lost (ended, no replay file): {len(lost)}")
     problems = [o.get("refused") or o.get("error") for o in outcomes if not o.get("completed")]
-    if problems:
-        print(f"  not completed ({len(problems)}): {str(problems[:3])[:400]}")
+    refused = refusals([p for p in problems if isinstance(p, dict)], args.participants, "participants")
+    if refused:
+        print(refused)
+    others = [p for p in problems if not (isinstance(p, dict) and p.get("type") == "closed")]
+    if others:
+        print(f"  not completed ({len(others)}): {str(others[:3])[:400]}")
     arms = summary.get("arms") if isinstance(summary, dict) else None
     if arms:
         print("assignment per order (completed + active): " +
@@ -369,6 +395,8 @@ def main() -> None:
     parser.add_argument("--database", default=None, help="a PostgreSQL URL (default: the study's SQLite file)")
     parser.add_argument("--arrival-s", type=float, default=0.0, help="spread the arrivals over this many seconds")
     parser.add_argument("--side-load", action="store_true", help="8 exports and a 150 MB replay loaded meanwhile")
+    parser.add_argument("--max-connections", type=int, default=None,
+                        help="each server process's limit of open play sockets for this run (default: its own, 400)")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--keep", action="store_true", help="keep the recordings folder")
     args = parser.parse_args()
@@ -376,6 +404,8 @@ def main() -> None:
         raise SystemExit("--participants must be in 1..1000 and --processes in 1..16 (a bounded load)")
     if not 5 <= args.trial_steps <= 500:
         raise SystemExit("--trial-steps must be in 5..500")
+    if args.max_connections is not None and not 1 <= args.max_connections <= 10_000:
+        raise SystemExit("--max-connections must be in 1..10000")
     asyncio.run(run(args))
 
 

@@ -24,9 +24,11 @@ PALETTE = np.array(
 FLOOR = np.array([236, 236, 232], dtype=np.uint8)
 GRID_LINE = np.array([210, 210, 204], dtype=np.uint8)
 LEADER_RGB = np.array([25, 25, 25], dtype=np.uint8)
-FOLLOWER_RGB = np.array([255, 255, 255], dtype=np.uint8)
-AGENT_COLORS = {"leader": (LEADER_RGB, FOLLOWER_RGB), "follower": (FOLLOWER_RGB, LEADER_RGB)}
-"""``(body, ink)`` per role: dark leaders with a light label, light followers with a dark one."""
+FOLLOWER_RGB = np.array([255, 200, 0], dtype=np.uint8)
+"""The followers' yellow: no block color is yellow, and it stands out from the light floor and the dark leader."""
+LABEL_LIGHT = np.array([255, 255, 255], dtype=np.uint8)
+AGENT_COLORS = {"leader": (LEADER_RGB, LABEL_LIGHT), "follower": (FOLLOWER_RGB, LEADER_RGB)}
+"""``(body, ink)`` per role: dark leaders with a white label, yellow followers with a dark one."""
 HEADER_BG = np.array([40, 44, 52], dtype=np.uint8)
 HEADER_HEIGHT = 22
 GOAL_BORDER = 4

@@ -95,8 +95,31 @@ def serve(settings: ServerSettings, log_level: str = "info", study=None, member=
 
 
 def named_logs(name: str) -> dict:
-    """uvicorn's logging with each line marked by the backend it comes from (``[b2]``)."""
+    """uvicorn's logging with each line marked by the backend it comes from (``[b2]``), without the lines a
+    researcher reading the launcher's output does not need (``BackendLogs``)."""
+    from server.cluster.haproxy import HEALTH_CHECK
+
     config = copy.deepcopy(uvicorn.config.LOGGING_CONFIG)
     for formatter in config["formatters"].values():
         formatter["fmt"] = formatter["fmt"].replace("%(levelprefix)s", f"%(levelprefix)s [{name}]", 1)
+    config["filters"] = {"backend": {"()": BackendLogs, "health_check": HEALTH_CHECK}}
+    for handler in config["handlers"].values():
+        handler["filters"] = ["backend"]
     return config
+
+
+class BackendLogs(logging.Filter):
+    """A backend's log behind the launcher: its requests, warnings and errors, but not HAProxy's health check
+    (every second: most of the log otherwise), nor uvicorn's own start and stop lines or its socket open and
+    close lines (the launcher says when each backend is ready, stopped or started again)."""
+
+    def __init__(self, health_check: str):
+        super().__init__()
+        self.health_check = health_check
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        if record.name == "uvicorn.access":  # args: client, method, path with query, HTTP version, status
+            return not (isinstance(record.args, tuple) and len(record.args) > 2 and record.args[2] == self.health_check)
+        if record.name == "uvicorn.error" and record.levelno == logging.INFO:
+            return '"WebSocket ' in str(record.msg)  # a socket's request line, as the access log has each request's
+        return True

@@ -62,13 +62,14 @@ class RunningCluster:
 
 def start_cluster(tmp: Path, *flags: str, command: tuple[str, ...] = ("play",), processes: int = 2,
                   env: dict | None = None) -> RunningCluster:
-    """``colorgrid COMMAND --processes N`` on a free port, once every backend is ready behind the proxy."""
+    """``colorgrid COMMAND --processes N`` on a free port, once every backend is ready behind the proxy; it stops
+    with the tests, should they be killed (``--stop-with-parent``)."""
     port = free_port()
     folder = tmp / "recordings"
     log_path = tmp / "cluster.log"
     process = subprocess.Popen(
         [sys.executable, "-m", "colorgrid_apps", *command, "--processes", str(processes), "--port", str(port),
-         "--replays-dir", str(folder), "--log-level", "warning", *FAST_FOLLOWERS, *flags],
+         "--replays-dir", str(folder), "--log-level", "warning", "--stop-with-parent", *FAST_FOLLOWERS, *flags],
         cwd=ROOT, stdout=open(log_path, "w"), stderr=subprocess.STDOUT, start_new_session=True,
         env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})})
     cluster = RunningCluster(process, f"http://127.0.0.1:{port}", folder, log_path)
@@ -188,6 +189,24 @@ def test_docs_show_the_configuration_colorgrid_writes():
     assert f"```\n{text}```" in (ROOT / "docs" / "STUDIES.md").read_text()
 
 
+def test_haproxy_keeps_its_port_to_itself(tmp_path):
+    # A listener with port reuse, as another study's HAProxy: without `noreuseport` a second one would share the port.
+    import socket
+
+    with socket.socket() as other:
+        other.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEPORT, 1)
+        other.bind(("127.0.0.1", 0))
+        other.listen()
+        plan = ClusterPlan("127.0.0.1", other.getsockname()[1], (Member("b1", "127.0.0.1", free_port()),), "secret")
+        path = tmp_path / "haproxy.cfg"
+        path.write_text(proxy_config(plan, ServerSettings()))
+        try:
+            result = subprocess.run(["haproxy", "-db", "-f", str(path)], capture_output=True, text=True, timeout=30)
+        except subprocess.TimeoutExpired:
+            raise AssertionError("a second HAProxy started on a port in use") from None
+    assert result.returncode != 0 and "Address already in use" in result.stderr, result.stderr
+
+
 # ---------------------------------------------------------------- free play over two backends
 @pytest.fixture(scope="module")
 def play_cluster(tmp_path_factory):
@@ -245,6 +264,63 @@ def test_a_room_link_opened_on_the_other_backend_is_sent_to_the_backend_holding_
     unknown = play_cluster.request("/?room=ABCDEFGH", cookies={ROUTE_COOKIE: joiner})
     assert unknown.status_code == 200 and unknown.headers[BACKEND_HEADER] == away  # the page says so itself
     assert play_cluster.request(f"/api/cluster/rooms/{code}").status_code == 403  # only backends ask each other
+
+
+def test_a_second_server_on_an_address_in_use_is_refused_in_one_line_before_anything_starts(play_cluster, tmp_path):
+    from tests.test_study import fast_study
+
+    port = play_cluster.url.rsplit(":", 1)[1]
+    study = str(fast_study(tmp_path))
+    commands = {"study, 2 processes": ("study", "run", study, "--processes", "2"), "study": ("study", "run", study),
+                "play, 2 processes": ("play", "--processes", "2"), "play": ("play",),
+                "play, proxy alone": ("play", "--backends", "127.0.0.1:9"),
+                "play, one backend": ("play", "--cluster", str(play_cluster.folder / "cluster.json"))}
+    started = {}
+    for name, command in commands.items():
+        folder = tmp_path / name.replace(" ", "_").replace(",", "")
+        started[name] = folder, subprocess.Popen(
+            [sys.executable, "-m", "colorgrid_apps", *command, "--port", port, "--replays-dir", str(folder),
+             *FAST_FOLLOWERS], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+            start_new_session=True)
+    for name, (folder, process) in started.items():
+        try:
+            out, err = process.communicate(timeout=120)
+        except subprocess.TimeoutExpired:  # it started: a second server on the address
+            os.killpg(process.pid, signal.SIGTERM)
+            process.communicate(timeout=60)
+            raise AssertionError(f"{name}: started on 127.0.0.1:{port}, where another server listens") from None
+        assert process.returncode == 2, (name, out, err)
+        assert err.count("\n") == 1 and f"127.0.0.1:{port} is in use" in err, (name, err)
+        assert not (folder / "haproxy.cfg").exists() and not (folder / "study.sqlite").exists(), name  # nothing started
+
+
+def raw_get(url: str, target: str, headers: dict) -> tuple[int, dict]:
+    """``GET target`` sent as written (no client re-encodes it) to ``url``'s host and port: the status and headers."""
+    import http.client
+
+    host, port = url.removeprefix("http://").rsplit(":", 1)
+    connection = http.client.HTTPConnection(host, int(port), timeout=30)
+    try:
+        connection.request("GET", target, headers=headers)
+        answer = connection.getresponse()
+        answer.read()
+        return answer.status, {k.lower(): v for k, v in answer.getheaders()}
+    finally:
+        connection.close()
+
+
+def test_the_proxy_keeps_the_backends_questions_inside_however_the_path_is_written(play_cluster):
+    plan = json.loads((play_cluster.folder / "cluster.json").read_text())
+    secret = {"Authorization": f"Bearer {plan['secret']}"}  # the siblings' own: the backends would answer it
+    backend = f"http://{plan['backends'][0]['host']}:{plan['backends'][0]['port']}"
+    assert raw_get(backend, "/api/%63luster/rooms/ABCDEFGH", secret)[0] == 404  # decoded, it reaches the route
+    assert raw_get(backend, "/api/cluster/rooms/%zz", secret)[0] == 404  # and so does an escape that is not one
+    for target in ("/api/cluster/rooms/ABCDEFGH", "/api/%63luster/rooms/ABCDEFGH", "/%61pi/cluster/rooms/ABCDEFGH",
+                   "/api%2Fcluster/rooms/ABCDEFGH", "/api/cluster%2Frooms/ABCDEFGH", "/api/cluster/rooms/%zz",
+                   "/api/%63luster/rooms/%zz"):
+        status, headers = raw_get(play_cluster.url, target, secret)
+        assert status in (400, 403) and BACKEND_HEADER.lower() not in headers, (target, status, headers)
+    assert raw_get(play_cluster.url, "/api/%6Fptions", {})[0] == 200  # other paths written so still pass
 
 
 def test_a_room_code_typed_in_chromium_on_the_other_backend_joins_the_room(play_cluster, browser):

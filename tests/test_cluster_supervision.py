@@ -15,7 +15,7 @@ import pytest
 
 from server.cluster import launcher
 from server.cluster.launcher import Child
-from server.cluster.plan import ClusterPlan, Membership
+from server.cluster.plan import RESTARTS_ENV, ClusterPlan, Membership
 from server.cluster.process import BackendSpec
 from server.settings import ServerSettings
 from tests.conftest import ROOT, free_port
@@ -50,6 +50,20 @@ def test_a_child_that_cannot_be_started_again_is_tried_again_later_and_the_watch
     child.check()
     assert "b1 started again (restart 2" in capsys.readouterr().out
     child.process.wait()
+
+
+def test_a_backend_started_again_is_told_how_many_times_for_its_health_to_report(tmp_path):
+    said = tmp_path / "restarts"
+    write = f"import os; open({str(said)!r}, 'a').write(os.environ[{RESTARTS_ENV!r}])"
+    child = Child("b1", [sys.executable, "-c", write], env=dict(os.environ))
+    child.start()
+    child.process.wait()
+    child.wait_s = 0.01
+    child.check()  # noticed: started again after its wait
+    time.sleep(0.05)
+    child.check()
+    child.process.wait()
+    assert said.read_text() == "01", "0 at its first start, 1 once started again"
 
 
 def test_the_launcher_stops_its_children_whatever_ends_its_watch(monkeypatch, tmp_path):

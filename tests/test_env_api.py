@@ -106,7 +106,7 @@ def test_rgb_frame_shows_blocks_agents_and_goal():
     assert (frame[30, 1] == PALETTE[goal]).all(), "the border is the goal color"
     row, col = divmod(int(e.state.block_cell[0, 0]), 32)  # block 0 is red
     assert (frame[22 + 4 + row * 16 + 8, 4 + col * 16 + 8] == PALETTE[0]).all()
-    for a, body in enumerate(([25, 25, 25], [255, 255, 255])):
+    for a, body in enumerate(([25, 25, 25], [255, 200, 0])):  # a dark leader, a yellow follower
         row, col = divmod(int(e.state.agent_cell[0, a]), 32)
         tile = frame[22 + 4 + row * 16: 22 + 4 + row * 16 + 16, 4 + col * 16: 4 + col * 16 + 16]
         assert (tile == body).all(axis=-1).sum() > 40, "agent body color fills its tile"

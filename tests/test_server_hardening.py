@@ -183,9 +183,9 @@ def test_origin_and_host_are_checked(srv):
 def test_game_creation_is_rate_limited_per_address(tmp_path):
     server = start_server(tmp_path, "--follower", "copy", "--new-games-per-minute", "3")
     try:
-        with connect(server.ws_url, open_timeout=20) as ws:
-            replies = []
-            for _ in range(4):
+        replies = []
+        for _ in range(4):  # one game a socket: the server closes each after its game_over
+            with connect(server.ws_url, open_timeout=20) as ws:
                 ws.send(json.dumps({"type": "new_game", "mode": "turn", "horizon": 5}))
                 msg = recv(ws, "welcome", "error")
                 replies.append(msg)

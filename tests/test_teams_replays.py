@@ -150,7 +150,7 @@ def test_the_timeline_lists_every_agent_with_a_cell_per_step():
     assert data["roles"] == ["leader", "leader", "follower", "follower"]
     assert [(a["name"], a["symbol"], a["body"]) for a in data["look"]["agents"]] == [
         ("leader_0", "L1", "#191919"), ("leader_1", "L2", "#191919"),
-        ("follower_0", "F1", "#ffffff"), ("follower_1", "F2", "#ffffff")]
+        ("follower_0", "F1", "#ffc800"), ("follower_1", "F2", "#ffc800")]
     assert len(data["boards"]) == replay.num_steps + 1
     for board in data["boards"]:
         cells = [board[name] for name in data["agent_names"]]
@@ -213,7 +213,8 @@ def test_the_gif_of_a_team_draws_each_agent_with_its_label_and_one_chart_per_bel
         label = f"{cfg.symbols[i]} ({name})"
         assert text_at(first, f"{label} +0"), f"{label}'s score is listed"
         assert text_at(first, f"{label} belief") == (name in believers), f"{label}'s belief chart"
-    assert (frames[0][board_h:, :board_w] == PANEL_BG).all(), "below the board, the panel's background"
+    below = frames[0][board_h:, :board_w].astype(int)  # the GIF's shared palette may move a color by a level or two
+    assert (np.abs(below - PANEL_BG) <= 4).all(), "below the board, the panel's background"
 
 
 # ------------------------------------------------------------ the 3D viewer

@@ -28,6 +28,8 @@ const when = (seconds) => (seconds ? new Date(seconds * 1000).toLocaleString() :
 async function refresh() {
   const s = await (await get("summary")).json();
   sessionStorage.setItem("colorgrid-admin-token", token);
+  $("status").textContent = "";  // an earlier error (a wrong token, a refresh that failed) is over
+  $("status").className = "";
   $("login").hidden = true;
   $("dashboard").hidden = false;
   $("study-name").textContent = `${s.title} (${s.study})`;
@@ -36,20 +38,37 @@ async function refresh() {
   const median = s.completion_minutes.median;
   $("times").textContent = median === null ? "no one has completed yet"
     : `completion time: median ${median.toFixed(1)} min (all: ${s.completion_minutes.values.join(", ")})`;
-  table($("arms"), ["arm", "trials (conditions in order)", "in progress", "completed", "quota"],
-    s.arms.map((a) => [a.arm, a.label, a.active, a.completed, s.quota ?? "none"]));
+  $("endings").textContent = endings(s.endings);
+  const mean = (value, digits = 2) => (value == null ? "" : value.toFixed(digits));
+  table($("arms"), ["arm", "trials (conditions in order)", "in progress", "completed", "quota", "trials ended",
+                    "team score (mean)", "AI partner's net pickups (mean)", "its wrong pickups (mean)",
+                    "belief accuracy (mean)"],
+    s.arms.map((a) => [a.arm, a.label, a.active, a.completed, s.quota ?? "none", a.trials?.games ?? 0,
+                       mean(a.trials?.team_score), mean(a.trials?.follower_net_pickups),
+                       mean(a.trials?.follower_wrong_pickups), mean(a.trials?.belief_accuracy)]));
   $("servers").hidden = !s.backends;  // several processes behind HAProxy: each one's load and clock
   if (s.backends) {
     table($("backends"), ["process", "address", "state", "live games", "connections", "tick lateness p50 / p99 (ms)",
-                          "late ticks", "follower deadline misses"],
+                          "late ticks", "follower deadline misses", "restarts: process / inference"],
       s.backends.map((b) => [b.name, b.address, b.up ? (b.ready ? "up" : "starting") : `down: ${b.problem}`, b.games,
                              b.connections, b.up ? `${b.tick_lateness_p50_ms} / ${b.tick_lateness_p99_ms}` : "",
-                             b.late_ticks, b.deadline_misses]));
+                             b.late_ticks, b.deadline_misses,
+                             b.up ? `${b.restarts ?? 0} / ${b.inference_restarts ?? 0}` : ""]));
   }
   const factors = Object.keys(s.conditions[0] ?? {}).filter((k) => k !== "label");
   table($("conditions"), ["condition", ...factors], s.conditions.map((c) => [c.label, ...factors.map((k) => String(c[k]))]));
   table($("recent"), ["participant", "arm", "status", "page", "started", "last seen", "completed"],
     s.recent.map((p) => [p.pid, p.arm, p.status, p.step + 1, when(p.started), when(p.updated), when(p.completed)]));
+}
+
+const ENDING_WORDS = { server_lost: "lost with a process that stopped (server_lost)",
+                       server_shutdown: "stopped with the server (server_shutdown)" };
+
+function endings({ counted, played_again: again }) {
+  // "Games that count: 40 complete, 1 idle. Played again: 1 lost with a process that stopped (server_lost), ..."
+  const list = (counts) => Object.entries(counts).map(([ended, n]) => `${n} ${ENDING_WORDS[ended] ?? ended}`)
+    .join(", ");
+  return `Games that count: ${list(counted) || "none yet"}. Played again: ${list(again) || "none"}.`;
 }
 
 async function open() {

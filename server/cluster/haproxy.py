@@ -6,12 +6,15 @@ page carries (its API calls, its play socket); free play's page sets the cookie 
 HAProxy hashes that key on a consistent-hash ring: every request of one participant reaches one backend, and
 when a backend goes down only its participants move (to the others), and back when it returns. A waiting
 room lives in the backend that opened it: a page opened at ``/?room=CODE`` on another backend is sent, by a
-second cookie naming the room's backend (``colorgrid_backend``), to that one (``server.cluster.siblings``).
+second cookie naming the room's backend (``colorgrid_backend``), to that one (``server.cluster.siblings``); so
+is a study page whose game still runs on another backend than the one its key hashes to (one started again after
+it died takes its participants back while their games run where they went meanwhile).
 """
 
 from __future__ import annotations
 
 import os
+import re
 import shutil
 import subprocess
 from pathlib import Path
@@ -24,7 +27,8 @@ HAPROXY_ENV = "COLORGRID_HAPROXY"
 ROUTE_COOKIE = "colorgrid_route"
 """The key HAProxy hashes: the participant id (a study) or the browser's own id (free play)."""
 BACKEND_COOKIE = "colorgrid_backend"
-"""Names a backend (``b2``) that must serve this browser whatever the hash says: the one holding its room."""
+"""Names a backend (``b2``) that must serve this browser whatever the hash says: the one holding its room, or
+running its participant's game."""
 BACKEND_HEADER = "X-ColorGrid-Backend"
 """Added by HAProxy to every answer: the backend that gave it."""
 HEALTH_CHECK = "/api/health?scope=backend"
@@ -33,6 +37,8 @@ PLAIN_HOST = "127.0.0.1"
 """The ``Host`` a health check (and a backend asking a sibling) sends: every server answers it."""
 TUNNEL_MARGIN_S = 60
 """How much longer than the longest silence of a play socket the proxy keeps it open."""
+CLUSTER_PATH = "/api/cluster/"
+"""Where the backends ask each other (``server.cluster.siblings``): the proxy refuses it from outside."""
 
 
 def haproxy_binary() -> str:
@@ -67,6 +73,7 @@ def proxy_config(plan: ClusterPlan, settings: ServerSettings, id_params: tuple[s
         ("global", ""),
         (f"maxconn {max(2000, 2 * len(plan.members) * settings.max_connections)}",
          "open connections in all (a play socket holds two)"),
+        ("noreuseport", "the port is this proxy's alone: a second one there fails to start"),
         ("", ""),
         ("defaults", ""),
         ("mode http", ""),
@@ -84,7 +91,11 @@ def proxy_config(plan: ClusterPlan, settings: ServerSettings, id_params: tuple[s
         ("", ""),
         ("frontend colorgrid", ""),
         (f"bind {bind}:{plan.public_port}", "where people connect"),
-        ("http-request deny if { path_beg /api/cluster/ }", "the backends' questions to each other stay inside"),
+        ("", "the backends' questions to each other (/api/cluster/) stay inside, however the path is written:"),
+        ("", "the path as the backends read it (percent-decoded), and one that does not decode is refused"),
+        ("http-request set-var(txn.path) path,url_dec", ""),
+        ("http-request deny deny_status 400 if { path -m sub % } !{ var(txn.path) -m found }", ""),
+        (f"http-request deny if {{ var(txn.path) -m beg {CLUSTER_PATH} }}", ""),
         ("default_backend play_servers", ""),
         ("", ""),
         ("backend play_servers", ""),
@@ -93,7 +104,7 @@ def proxy_config(plan: ClusterPlan, settings: ServerSettings, id_params: tuple[s
         *[(f"http-request set-var(txn.route) {key} unless {{ var(txn.route) -m found }}", "") for key in keys[1:]],
         ("balance hash var(txn.route)", "one key, one backend (no key yet: round robin)"),
         ("hash-type consistent", "a backend going down moves only its own keys"),
-        (f"cookie {BACKEND_COOKIE}", "a room's page sent to its backend (set by the backends)"),
+        (f"cookie {BACKEND_COOKIE}", "sent to the backend with its room or game (the backends set it)"),
         ("option httpchk", "health: each backend is asked how it is..."),
         (f"http-check send meth GET uri {HEALTH_CHECK} hdr Host {PLAIN_HOST}", ""),
         ("http-check expect status 200", "...503 while it loads its followers: none sent yet"),
@@ -115,6 +126,33 @@ def proxy_config(plan: ClusterPlan, settings: ServerSettings, id_params: tuple[s
         else:
             body.append(f"{indent}{text}".rstrip())
     return "\n".join([*head, *body, ""])
+
+
+HAPROXY_LINE = re.compile(r"^\[(?P<level>[A-Z]+)\]\s*\(\d+\)\s*:\s*(?P<text>.*)$")
+"""A line HAProxy writes to its standard error: ``[WARNING]  (1234) : text``."""
+SERVER_STATE = re.compile(r"^Server [^/\s]+/(?P<server>\S+) is (?P<state>DOWN|UP)\b(?:, reason: (?P<reason>[^,]+))?"
+                          r"(?:, info: \"(?P<info>[^\"]*)\")?")
+
+
+def haproxy_said(line: str) -> str | None:
+    """What the launcher says of a line of HAProxy's output: a backend down or up again in words; no backend left up
+    in words; the proxies stopping on the launcher's soft stop (a normal stop) not at all; anything else as HAProxy
+    wrote it, with its level."""
+    found = HAPROXY_LINE.match(line.strip())
+    if found is None:
+        return f"haproxy: {line.strip()}" if line.strip() else None
+    level, text = found["level"], found["text"].strip()
+    if text.startswith("Proxy ") and " stopped (" in text:
+        return None
+    state = SERVER_STATE.match(text)
+    if state is not None and state["state"] == "DOWN":
+        why = ": ".join(part for part in (state["reason"], state["info"]) if part)
+        return f"haproxy: {state['server']} is down ({why}); its participants go to the other backends"
+    if state is not None:
+        return f"haproxy: {state['server']} is up again"
+    if text.endswith("has no server available!"):
+        return "haproxy: no backend is up: people get an error page until one is back"
+    return f"haproxy: {level.lower()}: {text}"
 
 
 def check_config(binary: str, path: Path) -> None:

@@ -4,9 +4,14 @@ It starts N backend processes (``server.cluster.process``: uvicorn, one worker e
 process) on free loopback ports, writes ``cluster.json`` and ``haproxy.cfg`` into the study's folder (the
 recordings folder in free play), starts HAProxy on the public address once every backend is ready, and then
 watches them: a child that dies is started again after a short wait (1 s, doubling while it keeps dying soon
-after its start, at most 30 s). On SIGTERM or Ctrl+C it stops the backends first (each saves its live games and
-tells its players), then HAProxy; no child outlives it (a backend stops itself when its launcher is gone,
-HAProxy is stopped by the kernel then).
+after its start, at most 30 s). On SIGTERM or Ctrl+C it tells HAProxy to stop taking connections (it keeps those
+open, and stops checking the backends), stops the backends (each saves its live games and tells its players over
+those connections), then waits for HAProxy to end; no child outlives it (a backend stops itself when its launcher
+is gone, HAProxy is stopped by the kernel then).
+
+Its output is what a researcher needs: each backend ready, HAProxy ready, a child that died and was started
+again, HAProxy's word that a backend is down or up again, the stop; the backends log their requests but not
+HAProxy's health checks (``server.run.named_logs``), and HAProxy's lines come through the launcher, in words.
 
 From Python (a load bench)::
 
@@ -29,8 +34,9 @@ import time
 from pathlib import Path
 
 import server
-from server.cluster.haproxy import HEALTH_CHECK, check_config, haproxy_binary, proxy_config
-from server.cluster.plan import CLUSTER_FILE, PROXY_FILE, ClusterPlan, Membership, check_processes, free_port
+from server.cluster.haproxy import HEALTH_CHECK, check_config, haproxy_binary, haproxy_said, proxy_config
+from server.cluster.plan import (CLUSTER_FILE, PROXY_FILE, RESTARTS_ENV, ClusterPlan, Membership, check_processes,
+                                 free_port)
 from server.cluster.process import BackendSpec
 from server.cluster.siblings import ask
 from server.settings import ServerSettings
@@ -39,15 +45,25 @@ READY_TIMEOUT_S = 180.0
 """How long a backend may take to load its followers at the start (a fresh install compiles the env step)."""
 STOP_TIMEOUT_S = 45.0
 """How long a backend may take to stop (saving its games takes at most 30 s, closing its sockets 10 s)."""
+PROXY_STOP_TIMEOUT_S = 10.0
+"""How long HAProxy may keep connections open once every backend has stopped (it ends with the last one)."""
 PR_SET_PDEATHSIG = 1
+QUIET_WARNINGS = "ignore:resource_tracker:UserWarning"
+"""A backend's warning filter: a backend killed outright leaves its semaphores to its resource tracker, which frees
+them and would warn of each "leak" (the launcher says the backend was killed)."""
 
 
-def die_with_parent() -> None:
-    """In a child before it runs (Linux): the kernel sends it SIGTERM when the launcher dies."""
-    try:
-        ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
-    except (OSError, AttributeError):  # not Linux: the launcher's own stop is the only one
-        pass
+def die_with(launcher: int):
+    """What a child runs before its program (Linux): the kernel sends it SIGTERM when the launcher dies (and it
+    stops at once if the launcher died before that was set)."""
+    def arm() -> None:
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGTERM)
+        except (OSError, AttributeError):  # not Linux: the launcher's own stop is the only one
+            return
+        if os.getppid() != launcher:
+            os.kill(os.getpid(), signal.SIGTERM)
+    return arm
 
 
 def say(text: str) -> None:
@@ -67,8 +83,10 @@ class Child:
     """A child that ran this long before it died is started again after the first wait, not a longer one."""
 
     def __init__(self, name: str, argv: list[str], stdin: bytes | None = None, env: dict | None = None,
-                 pre_exec=None):
+                 pre_exec=None, relay=None):
         self.name, self.argv, self.stdin, self.env, self.pre_exec = name, argv, stdin, env, pre_exec
+        self.relay = relay  # called with each line of the child's output (read through a pipe); None: its output
+        # is the launcher's own
         self.process: subprocess.Popen | None = None
         self.started_at = 0.0
         self.wait_s = self.FIRST_WAIT_S
@@ -76,12 +94,23 @@ class Child:
         self.restarts = 0
 
     def start(self) -> None:
+        env = None if self.env is None else {**self.env, RESTARTS_ENV: str(self.restarts)}  # a backend reports it
+        output = subprocess.PIPE if self.relay is not None else None
         self.process = subprocess.Popen(self.argv, stdin=subprocess.PIPE if self.stdin is not None else None,
-                                        env=self.env, start_new_session=True, preexec_fn=self.pre_exec)
+                                        stdout=output, stderr=subprocess.STDOUT if output else None, env=env,
+                                        start_new_session=True, preexec_fn=self.pre_exec)
         if self.stdin is not None:
             self.process.stdin.write(self.stdin)
             self.process.stdin.close()
+        if self.relay is not None:
+            threading.Thread(target=self.read_output, args=(self.process.stdout,), daemon=True,
+                             name=f"{self.name}-output").start()
         self.started_at, self.restart_at = time.monotonic(), None
+
+    def read_output(self, stream) -> None:
+        for line in iter(stream.readline, b""):
+            self.relay(line.decode(errors="replace").rstrip())
+        stream.close()
 
     @property
     def alive(self) -> bool:
@@ -136,7 +165,8 @@ class Cluster:
         self.binary = haproxy_binary()
         self.plan_file, self.proxy_file = folder / CLUSTER_FILE, folder / PROXY_FILE
         self.backends = [self.backend(m) for m in plan.members] if local else []
-        self.proxy = Child("haproxy", [self.binary, "-db", "-f", str(self.proxy_file)], pre_exec=die_with_parent)
+        self.proxy = Child("haproxy", [self.binary, "-db", "-f", str(self.proxy_file)], pre_exec=die_with(os.getpid()),
+                           relay=self.relay_haproxy)
         self._stop = threading.Event()
 
     @classmethod
@@ -174,8 +204,15 @@ class Cluster:
                            self.study, launcher_pid=os.getpid())
         package_root = str(Path(server.__file__).resolve().parent.parent)  # the child imports this very code
         path = os.pathsep.join(p for p in (package_root, os.environ.get("PYTHONPATH", "")) if p)
+        warnings = ",".join(w for w in (os.environ.get("PYTHONWARNINGS", ""), QUIET_WARNINGS) if w)
         return Child(member.name, [sys.executable, "-m", "server.cluster.process"], pickle.dumps(spec),
-                     {**os.environ, "PYTHONPATH": path, "PYTHONUNBUFFERED": "1"})
+                     {**os.environ, "PYTHONPATH": path, "PYTHONUNBUFFERED": "1", "PYTHONWARNINGS": warnings})
+
+    @staticmethod
+    def relay_haproxy(line: str) -> None:
+        said = haproxy_said(line)
+        if said is not None:
+            say(said)
 
     def id_params(self) -> tuple[str, ...]:
         return tuple(self.study.study.id_params) if self.study is not None else ()
@@ -193,6 +230,9 @@ class Cluster:
         try:
             for child in self.backends:
                 child.start()
+            if self.backends:
+                say(f"starting {len(self.backends)} backends: " + ", ".join(
+                    f"{c.name} (pid {c.process.pid})" for c in self.backends) + "; each loads its followers")
             deadline = time.monotonic() + timeout_s
             for child, member in zip(self.backends, self.plan.members):
                 while ask(member.url, HEALTH_CHECK)[0] != 200:
@@ -203,8 +243,10 @@ class Cluster:
                         raise ValueError(f"backend {member.name} was not ready within {timeout_s:g} s")
                     if self._stop.wait(0.2):
                         raise Stopped
+                say(f"{member.name} ready on {member.address}")
             self.proxy.start()
             self.wait_for_proxy()
+            say(f"haproxy ready on {self.url} (pid {self.proxy.process.pid})")
         except BaseException:
             self.stop()
             raise
@@ -230,12 +272,21 @@ class Cluster:
             child.check()
 
     def stop(self) -> None:
-        """The backends first (each saves its live games and tells its players), then HAProxy."""
+        """The backends first (each saves its live games and tells its players), then HAProxy. HAProxy is told
+        first to stop taking connections (a soft stop): it keeps those open, through which the backends tell their
+        players, and stops checking the backends, so that their stop is not a failure to it; it ends with the last
+        connection."""
+        if self.proxy.alive:
+            self.proxy.process.send_signal(signal.SIGUSR1)
         for child in self.backends:
             child.terminate()
         for child in self.backends:
             child.wait(STOP_TIMEOUT_S)
-        self.proxy.terminate()
+        if self.proxy.alive:
+            try:
+                self.proxy.process.wait(PROXY_STOP_TIMEOUT_S)
+            except subprocess.TimeoutExpired:  # a connection that the backends' stop did not close
+                self.proxy.terminate()
         self.proxy.wait(10)
 
     def run(self) -> int:
@@ -252,6 +303,10 @@ class Cluster:
             say("stopping: the backends save their games, then haproxy stops")
         finally:  # whatever ends the watch, no child is left running
             self.stop()
+        clean = (0, None, -signal.SIGTERM)  # uvicorn ends with the signal that stopped it, once its games are saved
+        failed = [f"{c.name} (exit code {c.process.returncode})" for c in self.backends
+                  if c.process is not None and c.process.returncode not in clean]
+        say("stopped" + (f"; {', '.join(failed)} did not stop cleanly: see above" if failed else ""))
         return 0
 
     def __enter__(self) -> Cluster:

@@ -22,6 +22,8 @@ PROXY_FILE = "haproxy.cfg"
 PROCESSES_PER_CPU = 4
 """More backend processes than this per CPU core only compete for the cores (each runs its games and an inference
 process of its own)."""
+RESTARTS_ENV = "COLORGRID_BACKEND_RESTARTS"
+"""How many times the launcher has started this backend again (set in its environment; its health reports it)."""
 
 
 @dataclass(frozen=True)

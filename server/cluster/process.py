@@ -34,10 +34,14 @@ class BackendSpec:
     """The launcher's process id: the process stops once its parent is another (0: its parent when it starts)."""
 
 
-def stop_with_parent(parent: int, every_s: float = 1.0) -> None:
-    """Stop this server as SIGTERM does once ``parent`` (the launcher) is gone, so no backend outlives it."""
+def stop_with_parent(parent: int, every_s: float = 1.0, said: str = "") -> None:
+    """Stop this process as SIGTERM does once ``parent`` is gone (its parent is then another), so that it does not
+    outlive it: a backend its launcher, a launcher started with ``--stop-with-parent`` the program that started it.
+    ``said`` is printed first."""
     while os.getppid() == parent:
         time.sleep(every_s)
+    if said:
+        print(said, flush=True)
     os.kill(os.getpid(), signal.SIGTERM)
 
 

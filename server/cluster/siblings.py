@@ -1,9 +1,10 @@
-"""A backend as one of several behind HAProxy: the routing cookie its pages set, a room held by a sibling, and
-the health of the whole cluster.
+"""A backend as one of several behind HAProxy: the routing cookie its pages set, a room held by a sibling, a
+participant's game run by a sibling, and the health of the whole cluster.
 
 ``join_cluster(app, membership)`` adds this to a play server: its ``Backend.member`` says which cluster it is in
 (the plan file, ``server.cluster.plan``) and its name there. Backends learn about each other by asking each
-other over HTTP, at the addresses in the plan file, only when asked themselves (``/api/health``, a room link):
+other over HTTP, at the addresses in the plan file, only when asked themselves (``/api/health``, a room link,
+the page of a participant whose game never ended and is not running here):
 nothing runs in the background and a sibling that is down is reported as down, never waited for long.
 """
 
@@ -14,11 +15,13 @@ import json
 import re
 import secrets
 import urllib.error
+import urllib.parse
 import urllib.request
+from concurrent.futures import ThreadPoolExecutor
 from typing import Annotated
 
 from fastapi import APIRouter, FastAPI, Header, HTTPException, Request
-from fastapi.responses import RedirectResponse
+from fastapi.responses import RedirectResponse, Response
 
 from server.backend import CurrentBackend
 from server.cluster.haproxy import BACKEND_COOKIE, HEALTH_CHECK, PLAIN_HOST, ROUTE_COOKIE
@@ -33,8 +36,8 @@ KEY = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 """What a routing key may be (a participant id is one, ``server.study.config.ID_PATTERN``)."""
 SUMMED = ("games", "rooms", "connections", "max_sessions")
 """Counts that add up over the backends."""
-REPORTED = ("ready", "pid", *SUMMED, "tick_lateness_p50_ms", "tick_lateness_p99_ms", "max_lateness_ms", "ticks",
-            "late_ticks", "deadline_misses", "inference_restarts", "games_saved", "save_failures")
+REPORTED = ("ready", "pid", "restarts", *SUMMED, "tick_lateness_p50_ms", "tick_lateness_p99_ms", "max_lateness_ms",
+            "ticks", "late_ticks", "deadline_misses", "inference_restarts", "games_saved", "save_failures")
 """What the cluster's health reports of each backend (from its own ``/api/health``)."""
 
 
@@ -77,6 +80,25 @@ async def cluster_health(membership: Membership, own: dict) -> dict:
                         "tick_lateness_p99_ms": max((b.get("tick_lateness_p99_ms", 0.0) for b in up), default=0.0)}}
 
 
+def game_elsewhere(membership: Membership, pid: str) -> dict | None:
+    """The study game a sibling runs for participant ``pid``: ``{game_id, token, backend}`` (the sibling's name),
+    or None when none does (or none that runs it answers). Blocking: called in a worker thread."""
+    plan = membership.plan()
+    others = [m for m in plan.members if m.name != membership.name]
+    if not others:
+        return None
+    path = f"/api/cluster/live/{urllib.parse.quote(pid, safe='')}"
+    with ThreadPoolExecutor(len(others)) as pool:
+        answers = list(pool.map(lambda m: ask(m.url, path, plan.secret), others))
+    return next(({"game_id": body["game_id"], "token": body["token"], "backend": m.name}
+                 for m, (status, body) in zip(others, answers) if status == 200 and "game_id" in body), None)
+
+
+def pin(response: Response, name: str) -> None:
+    """Send this browser's next requests to backend ``name`` (HAProxy's cookie persistence, while it is up)."""
+    response.set_cookie(BACKEND_COOKIE, name, httponly=True, samesite="lax")
+
+
 async def room_holder(membership: Membership, code: str) -> Member | None:
     """The sibling whose waiting room has ``code``, if one has."""
     plan = membership.plan()
@@ -100,16 +122,32 @@ def route_key(request: Request, id_params: tuple[str, ...]) -> str:
 router = APIRouter(include_in_schema=False)
 
 
-@router.get("/api/cluster/rooms/{code}")
-async def room_here(code: str, backend: CurrentBackend, authorization: Annotated[str | None, Header()] = None):
-    """A sibling asks whether this backend holds the waiting room ``code`` (200) or not (404); only siblings may
-    ask (the plan's secret), and HAProxy does not pass this path on from outside."""
+def sibling_only(backend, authorization: str | None) -> None:
+    """Only the cluster's backends may ask (the plan's secret); HAProxy does not pass ``/api/cluster/`` on either."""
     secret = backend.member.plan().secret
     if not secrets.compare_digest((authorization or "").encode(), f"Bearer {secret}".encode()):
         raise HTTPException(403, "only the cluster's backends may ask this")
+
+
+@router.get("/api/cluster/rooms/{code}")
+async def room_here(code: str, backend: CurrentBackend, authorization: Annotated[str | None, Header()] = None):
+    """A sibling asks whether this backend holds the waiting room ``code`` (200) or not (404)."""
+    sibling_only(backend, authorization)
     if code not in backend.hub.rooms:
         raise HTTPException(404, "no such room here")
     return {"room": code}
+
+
+@router.get("/api/cluster/live/{pid}")
+async def game_here(pid: str, backend: CurrentBackend, authorization: Annotated[str | None, Header()] = None):
+    """A sibling asks whether this backend runs participant ``pid``'s study game: 200 with what rejoins it (its id
+    and token), or 404."""
+    sibling_only(backend, authorization)
+    service = backend.shared.service
+    game = service.live.get(pid) if service is not None else None
+    if game is None or game.finished:
+        raise HTTPException(404, "no game of this participant runs here")
+    return {"game_id": game.game_id, "token": game.token}
 
 
 def join_cluster(app: FastAPI, membership: Membership) -> None:
@@ -120,6 +158,8 @@ def join_cluster(app: FastAPI, membership: Membership) -> None:
     study = backend.shared.study
     id_params = tuple(study.study.id_params) if study is not None else ()
     app.include_router(router)
+    if backend.shared.service is not None:  # a participant's game may run in a sibling (see StudyService.interrupted)
+        backend.shared.service.elsewhere = lambda pid: game_elsewhere(membership, pid)
 
     @app.middleware("http")
     async def routing_cookie(request: Request, call_next):
@@ -147,5 +187,5 @@ def join_cluster(app: FastAPI, membership: Membership) -> None:
         if holder is None or request.cookies.get(BACKEND_COOKIE) == holder.name:  # HAProxy did not follow it
             return None
         moved = RedirectResponse(f"{request.url.path}?{request.url.query}", status_code=307)
-        moved.set_cookie(BACKEND_COOKIE, holder.name, httponly=True, samesite="lax")
+        pin(moved, holder.name)
         return moved

@@ -11,6 +11,7 @@ from fastapi.responses import JSONResponse
 
 from colorgrid import __version__
 from server.backend import Backend, CurrentBackend
+from server.cluster.plan import RESTARTS_ENV
 
 router = APIRouter()
 
@@ -26,7 +27,9 @@ def backend_health(backend: Backend) -> dict:
     hub, settings = backend.hub, backend.settings
     lateness = sorted(hub.lateness_ms)  # the last 5000 ticks
     named = {"backend": backend.member.name} if backend.member is not None else {}  # its name in a cluster
+    restarts = int(os.environ.get(RESTARTS_ENV, "0") or 0)  # started again by its launcher after it died
     return {"status": "ok", "ready": hub.ready, "version": __version__, **named, "pid": os.getpid(),
+            "restarts": restarts,
             "games": hub.live_games(),
             "rooms": len(hub.rooms),
             "max_sessions": settings.max_sessions, "connections": len(backend.sockets.open),

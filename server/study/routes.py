@@ -14,13 +14,13 @@ import shutil
 import tempfile
 from pathlib import Path
 
-from fastapi import FastAPI, Header, HTTPException, Request
+from fastapi import FastAPI, Header, HTTPException, Request, Response
 from fastapi.responses import FileResponse, JSONResponse, RedirectResponse
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.background import BackgroundTask
 from starlette.concurrency import run_in_threadpool
 
-from server.study.service import AnswerProblems, Invalid, Refused, StudyService
+from server.study.service import AnswerProblems, Finished, Invalid, Refused, StudyService
 
 NOT_SERVED = ("/replays", "/replay", "/api/replays")
 
@@ -78,6 +78,9 @@ def mount_study(app: FastAPI, service: StudyService, admin_token: str, web_dir: 
     def run(fn, *args):
         try:
             return fn(*args)
+        except Finished as err:  # what the debrief page said, again: the completion code
+            raise HTTPException(403, {"message": str(err), "completion_code": err.completion_code,
+                                      "redirect_url": err.redirect_url}) from None
         except Refused as err:
             raise HTTPException(403, str(err)) from None
         except AnswerProblems as err:  # every problem, for the page to show beside each question
@@ -85,6 +88,16 @@ def mount_study(app: FastAPI, service: StudyService, admin_token: str, web_dir: 
                                       "problems": err.problems}) from None
         except Invalid as err:
             raise HTTPException(409, str(err)) from None
+
+    def pinned(view: dict, response: Response) -> dict:
+        """A page whose game another process of the cluster runs: its browser's next requests (the socket that
+        rejoins the game) go to that process."""
+        where = view.get("live", {}).pop("backend", None)
+        if where is not None:
+            from server.cluster.siblings import pin
+
+            pin(response, where)
+        return view
 
     @app.get("/study", include_in_schema=False)
     async def study_page():
@@ -101,15 +114,17 @@ def mount_study(app: FastAPI, service: StudyService, admin_token: str, web_dir: 
                 "anonymous": study.anonymous}
 
     @app.post("/api/study/join", tags=["study"])
-    def join(body: Join, request: Request) -> dict:
-        """Start, or resume, the participant the link names; answers their session key and current page."""
+    def join(body: Join, request: Request, response: Response) -> dict:
+        """Start, or resume, the participant the link names; answers their session key and current page. Refused:
+        403 with a sentence for the participant; one who finished the study, from another browser: ``detail:
+        {message, completion_code, redirect_url}``."""
         who = run(service.join, body.params, body.session, request.headers.get("user-agent", ""))
-        return {**who, "view": run(service.view, who["pid"], who["session"])}
+        return {**who, "view": pinned(run(service.view, who["pid"], who["session"]), response)}
 
     @app.post("/api/study/view", tags=["study"])
-    def view(body: Who) -> dict:
+    def view(body: Who, response: Response) -> dict:
         """The participant's current page."""
-        return run(service.view, body.pid, body.session)
+        return pinned(run(service.view, body.pid, body.session), response)
 
     @app.post("/api/study/advance", tags=["study"])
     def advance(body: Advance) -> dict:

@@ -322,6 +322,14 @@ class StudyStore:
         with self.reading() as tx:
             return rows_of(tx.conn.execute(select(participants)))
 
+    def endings(self) -> dict[str, int]:
+        """How many games (practice and trials, every attempt) ended each way: ``{"complete": 40,
+        "server_lost": 1}``."""
+        query = (select(games.c.ended, func.count().label("games")).where(games.c.ended.is_not(None))
+                 .group_by(games.c.ended))
+        with self.reading() as tx:
+            return {r["ended"]: r["games"] for r in rows_of(tx.conn.execute(query))}
+
     def figures_by_arm(self, lost: tuple[str, ...]) -> dict[int, dict]:
         """Per arm, over its trials that ended (but not ``lost``): how many, and the mean of each figure."""
         means = {name: func.avg(games.c[name]) for name in ("team_score", "follower_net_pickups",
