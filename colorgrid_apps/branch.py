@@ -97,6 +97,32 @@ def branch(parent: Replay, step: int, follower: str, leader: str = "recorded", s
     )
 
 
+def watch(replay: Replay, follower: str, agent: int, seed: int | None = None) -> list[list[float]] | None:
+    """The beliefs ``[T][C]`` that ``follower`` forms when it watches ``replay`` from the seat of agent ``agent`` (any
+    team): the env re-simulates the recorded actions, the follower gets every input that seat had and its actions are
+    ignored, so at every step its belief comes from the very history the agent saw (a person's, say). None for a
+    follower that forms no belief."""
+    if replay.kind != "actions":
+        raise ReplayError(None, "only actions replays can be watched (a frames replay has no seed)")
+    cfg = replay.config
+    policy = make_policy(follower, role="follower")
+    policy.reset(cfg, 1, agent, seed=replay.seed if seed is None else seed)
+    env = BatchEnv(cfg, num_envs=1, seed=replay.seed, autoreset=False)
+    obs, _ = env.reset()
+    env.penalty_coef = replay.penalty_coef
+    last = StepInputs.begin(cfg, 1)
+    beliefs = []
+    for t in range(replay.num_steps):
+        out = policy.act(last.agent_input(obs, agent, env.penalty_coef, env.state.goal.copy()))
+        if out.goal_probs is None:
+            return None
+        beliefs.append([round(float(p), 5) for p in out.goal_probs[0]])
+        actions = np.array([replay.actions[t]], dtype=np.int64)
+        obs, _, _, _, info = env.step(actions)
+        last.record(actions, info)
+    return beliefs
+
+
 def rescore(files: list[Path], followers: list[str], seed: int | None = None) -> dict:
     """Every recorded leader's moves replayed with each follower (``branch`` at step 0): per-follower means
     and paired differences against the first follower, with 95% intervals over games."""
@@ -108,6 +134,8 @@ def rescore(files: list[Path], followers: list[str], seed: int | None = None) ->
     for path in files:
         parent = load(path)
         if parent.kind != "actions" or "branch_of" in parent.meta:  # a branch's leader moves are open-loop copies
+            continue
+        if not parent.config.one_to_one:  # a team's followers are not replaced one at a time
             continue
         used.append(str(path))
         for follower in followers:
@@ -123,7 +151,7 @@ def rescore(files: list[Path], followers: list[str], seed: int | None = None) ->
         "net_pickups": {f: mean_ci(np.array(nets[f])) for f in followers},
         "wrong_pickups": {f: mean_ci(np.array(wrongs[f])) for f in followers},
         "paired_difference": {f: mean_ci(np.array(nets[f]) - np.array(nets[base])) for f in followers[1:]},
-        "per_game": {f: nets[f] for f in followers},
+        "per_game": {f: nets[f] for f in followers}, "per_game_wrong": {f: wrongs[f] for f in followers},
     }
 
 

@@ -180,11 +180,22 @@ def cmd_branch(args: argparse.Namespace) -> int:
 
 def cmd_rescore(args: argparse.Namespace) -> int:
     from colorgrid_apps.branch import format_rescore, rescore
+    from colorgrid_apps.human_follower import format_human_report, human_follower_report
 
-    report = rescore(_replay_files(Path(args.folder)), args.follower, seed=args.seed)
-    print(format_rescore(report))
+    files = _replay_files(Path(args.folder))
+    try:
+        report = rescore(files, args.follower, seed=args.seed)
+    except ValueError as err:  # no 1:1 game: games of people in a follower seat of a team may still be measured
+        report, nothing = None, err
+    people = human_follower_report(files, args.follower, seed=args.seed, pickups=report)
+    if report is None and people is None:
+        raise nothing
+    if report is not None:
+        print(format_rescore(report))
+    if people is not None:
+        print(("\n" if report is not None else "") + format_human_report(people))
     if args.json:
-        Path(args.json).write_text(json.dumps(report, indent=2))
+        Path(args.json).write_text(json.dumps({**(report or {}), "human_follower": people}, indent=2))
         print(f"wrote {args.json}")
     return 0
 
@@ -234,7 +245,10 @@ def add_replay_commands(sub) -> None:
     br.add_argument("--seed", type=int, default=None, help="the new agents' random seed (default: the episode's)")
     br.add_argument("--out", required=True, help="folder for the branch replay")
     br.set_defaults(func=cmd_branch)
-    rs = rsub.add_parser("rescore", help="replay every recorded leader's moves with each follower (open-loop)")
+    rs = rsub.add_parser("rescore", help="replay every recorded leader's moves with each follower (open-loop); for "
+                                         "games of a person in the follower seat, also their stated beliefs' "
+                                         "accuracy, log-loss, Brier score and switch lags beside each follower's "
+                                         "on the same history")
     rs.add_argument("folder", help="a folder of replays (e.g. the play server's recordings)")
     rs.add_argument("--follower", nargs="+", required=True, help="followers to compare; the first is the baseline")
     rs.add_argument("--seed", type=int, default=None, help="the followers' random seed (default: each episode's)")

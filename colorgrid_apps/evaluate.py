@@ -82,6 +82,14 @@ def switch_lags(goal_probs: np.ndarray, goal: np.ndarray) -> np.ndarray:
     Switches followed by another switch (or the episode end) before the belief
     catches up are left out.
     """
+    return catch_lags(goal_probs.argmax(axis=2) == goal, goal)
+
+
+def catch_lags(right: np.ndarray, goal: np.ndarray) -> np.ndarray:
+    """Steps from each goal switch until a belief is ``right`` (``[T, B]`` bool: it names the goal at step t; a
+    person's stated belief, or a follower's argmax), for every switch caught before the next one or the end.
+
+    The switch at the end of step t - 1 is caught after k steps when step t + k is the first whose belief is right."""
     T, B = goal.shape
     lags = []
     for e in range(B):
@@ -89,7 +97,7 @@ def switch_lags(goal_probs: np.ndarray, goal: np.ndarray) -> np.ndarray:
             if goal[t, e] == goal[t - 1, e]:
                 continue
             k = 0
-            while t + k < T and goal[t + k, e] == goal[t, e] and goal_probs[t + k, e].argmax() != goal[t, e]:
+            while t + k < T and goal[t + k, e] == goal[t, e] and not right[t + k, e]:
                 k += 1
             if t + k < T and goal[t + k, e] == goal[t, e]:
                 lags.append(k)

@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 import argparse
+import errno
+import os
+import socket
+import threading
 from pathlib import Path
 
 from colorgrid.configkit import Flag, add_arguments, from_args
@@ -32,6 +36,7 @@ def cmd_play(args: argparse.Namespace) -> int:
     settings = from_args(ServerSettings, args, FLAGS)
     check_writable(settings.replays_dir, "--replays-dir")
     check_follower(settings.follower)
+    check_address_free(settings.host, settings.port)
 
     def announce(url: str) -> None:
         print(f"ColorGrid play server: {url}/  (replays in {settings.replays_dir}; Ctrl+C stops)", flush=True)
@@ -51,6 +56,10 @@ def add_cluster_arguments(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--cluster", type=Path, metavar="FILE",
                        help="this server is one of the backends that FILE (cluster.json, written by --processes or "
                             "--backends) names: it answers as one of them, and /api/health reports them all")
+    parser.add_argument("--stop-with-parent", action="store_true",
+                        help="stop as Ctrl+C does (every process this command started included) when the program "
+                             "that started it ends, even killed outright: for a bench, a test or a supervisor "
+                             "script (not for a shell's `nohup ... &`, whose shell ends)")
 
 
 def serve_or_launch(args: argparse.Namespace, settings: ServerSettings, folder: Path, announce, study=None) -> int:
@@ -65,6 +74,8 @@ def serve_or_launch(args: argparse.Namespace, settings: ServerSettings, folder: 
         raise ValueError(f"{' and '.join(roles)} are one or the other: --processes N runs the backends and HAProxy "
                          "here, --backends HAProxy alone, --cluster one backend of those")
     check_processes(args.processes)
+    if args.stop_with_parent:
+        stop_with_parent()
     if args.processes > 1 or args.backends:
         from server.cluster.launcher import Cluster
 
@@ -86,6 +97,37 @@ def serve_or_launch(args: argparse.Namespace, settings: ServerSettings, folder: 
     announce(f"http://{settings.host}:{settings.port}")
     serve(settings, log_level=args.log_level, study=study, member=member)
     return 0
+
+
+def check_address_free(host: str, port: int) -> None:
+    """Refuse, before anything starts, an address where a server listens already (another study, say): whatever
+    listens on ``--host`` and ``--port`` (one server, HAProxy in front of several) would otherwise share it with
+    that one, and people would reach either at random. Port 0 (any free port) is always free."""
+    if port == 0:
+        return
+    host = host.strip("[]")
+    where = f"[{host}]:{port}" if ":" in host else f"{host}:{port}"
+    with socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the servers bind: old connections may linger
+        try:
+            probe.bind((host, port))
+        except OSError as err:
+            if err.errno == errno.EADDRINUSE:
+                raise ValueError(f"{where} is in use: another server listens there (another study?); stop it, or "
+                                 "choose another --port") from None
+            raise ValueError(f"cannot listen on {where} ({err.strerror or err}): choose another --host or --port") \
+                from None
+
+
+def stop_with_parent() -> None:
+    """``--stop-with-parent``: this process stops as on SIGTERM once its parent is gone (at once if it is already:
+    the parent is then init)."""
+    from server.cluster.process import stop_with_parent as watch
+
+    parent = os.getppid()
+    threading.Thread(target=watch, args=(parent if parent != 1 else -1, 0.5,
+                                         "colorgrid: the program that started this one is gone: stopping"),
+                     daemon=True, name="parent-watch").start()
 
 
 def check_writable(folder, flag: str) -> None:

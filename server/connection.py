@@ -3,6 +3,8 @@
 ``SocketRegistry`` refuses handshakes (origin, too many sockets) and limits new games per address;
 ``Connection`` is one browser tab's socket: rate and size limits, JSON and message validation
 (``server.protocol``), an outgoing queue, and each message handed to the ``GameHub`` that plays the game.
+A socket serves one game: it is closed once its ``game_over`` is out, and one with no game that sends nothing
+for ``connection_idle_s`` is closed too.
 """
 
 from __future__ import annotations
@@ -16,10 +18,12 @@ from urllib.parse import urlsplit
 from fastapi import WebSocket, WebSocketDisconnect
 from pydantic import ValidationError
 
+from server.game import BadSeq
 from server.hub import GameHub, ServerFull
 from server.limits import AddressLimits, FloodRule, TokenBucket
 from server.protocol import (
     CLIENT_TYPES,
+    Belief,
     CreateRoom,
     JoinRoom,
     Key,
@@ -27,6 +31,7 @@ from server.protocol import (
     NewGame,
     PageEvent,
     Ping,
+    ProbeAnswer,
     Quit,
     Ready,
     Rejoin,
@@ -36,7 +41,9 @@ from server.protocol import (
 )
 from server.rooms import RoomError
 from server.settings import ServerSettings
+from server.stated import StatementError
 
+CLOSE_NORMAL = 1000  # its game is over (after game_over)
 CLOSE_POLICY = 1008  # a flood, or a page from an origin that is not allowed
 CLOSE_GOING_AWAY = 1001  # idle without a game
 CLOSE_RESTART = 1012  # the server is stopping (after game_over)
@@ -81,6 +88,8 @@ class Connection:
         self.game = None
         self.room = None  # the room this tab waits in, before its game starts
         self.closed = False
+        self.over = False  # its game_over was sent: the socket closes once it is out, and starts no other game
+        self.quiet_since = time.monotonic()  # its last message, or the moment it lost its game or room
         self.outbox: asyncio.Queue = asyncio.Queue(maxsize=256)
         self.messages = TokenBucket(settings.max_messages_per_s, burst=2 * settings.max_messages_per_s)
         self.flood = FloodRule(int(FLOOD_WINDOW_S * settings.max_messages_per_s), FLOOD_WINDOW_S)
@@ -93,11 +102,14 @@ class Connection:
             self.outbox.get_nowait()
             self.outbox.task_done()
         self.outbox.put_nowait(message)
+        if message["type"] == "game_over":
+            self.over = True
 
     def detach(self) -> None:
         """This tab no longer plays its game or waits in its room: another connection took the game over
         (``rejoin``), the person left it, or the room closed."""
         self.game = self.room = None
+        self.quiet_since = time.monotonic()
 
     def attach(self, game) -> None:
         """The room's game started: this tab plays it."""
@@ -115,6 +127,13 @@ class Connection:
                 await self.ws.send_text(text)
             finally:
                 self.outbox.task_done()
+            if message["type"] == "game_over" and not self.hub.stopped:  # stopping: closed with CLOSE_RESTART
+                self.closed = True  # one game a socket: the page opens a new one for the next
+                try:
+                    await self.ws.close(CLOSE_NORMAL, "game over")
+                except Exception:  # already closed by the client
+                    pass
+                return
 
     async def close_after_sending(self, code: int, reason: str, timeout_s: float = 2.0) -> None:
         """Close once what is queued (the ``game_over``) has gone out, or after ``timeout_s``."""
@@ -128,15 +147,29 @@ class Connection:
         except Exception:  # already closed by the client
             pass
 
+    def busy(self) -> bool:
+        """Whether this socket plays a game (live, or taking its late keys) or waits in a room (or for its game)."""
+        if self.hub.seat_of(self.game, self) is not None:
+            return True
+        room = self.room
+        return room is not None and (room.opening or self.hub.room_of(self, room) is not None)
+
     async def receive(self) -> dict:
-        """The next frame; a socket with no game or room that stays silent for ``connection_idle_s`` is closed."""
-        if self.game is not None or self.room is not None:
-            return await self.ws.receive()
-        try:
-            return await asyncio.wait_for(self.ws.receive(), self.settings.connection_idle_s)
-        except TimeoutError:
-            await self.ws.close(CLOSE_GOING_AWAY, "idle: no game was started")
-            raise WebSocketDisconnect(CLOSE_GOING_AWAY) from None
+        """The next frame. A socket with no game or room (none started, or its game taken over by another, or its
+        room closed) that has sent nothing for ``connection_idle_s`` is closed."""
+        limit = self.settings.connection_idle_s
+        while True:
+            quiet = time.monotonic() - self.quiet_since
+            if not self.busy() and quiet >= limit:
+                self.closed = True
+                await self.ws.close(CLOSE_GOING_AWAY, "idle: no game")
+                raise WebSocketDisconnect(CLOSE_GOING_AWAY)
+            try:  # a busy socket is looked at again every ``limit`` s: its game may end or be taken over meanwhile
+                raw = await asyncio.wait_for(self.ws.receive(), limit if self.busy() else limit - quiet)
+            except TimeoutError:
+                continue
+            self.quiet_since = time.monotonic()
+            return raw
 
     async def serve(self) -> None:
         """Take this socket's frames until it closes (``WebSocketDisconnect``)."""
@@ -193,6 +226,10 @@ class Connection:
             return
         try:
             await self.dispatch(msg)
+        except BadSeq as err:
+            await self.send(error("bad_seq", str(err)))
+        except StatementError as err:
+            await self.send(error(err.code, str(err)))
         except ServerFull as err:
             await self.send({"type": "full", "message": str(err)})
         except RoomError as err:
@@ -204,6 +241,9 @@ class Connection:
         if isinstance(msg, Ping):
             await self.send({"type": "pong", "t_server": time.time() * 1000})
         elif isinstance(msg, (NewGame, Rejoin, CreateRoom, JoinRoom)):
+            if self.over:
+                raise ValueError("this connection's game is over and it is closing: open a new connection for the "
+                                 "next game")
             if self.game is not None and self.hub.controls(self.game, self):
                 raise ValueError("this connection already has a live game; send quit first")
             if self.hub.room_of(self, self.room) is not None:
@@ -239,6 +279,10 @@ class Connection:
         elif isinstance(msg, Key):  # keys on their way at a real-time game's end are logged, not refused
             if problem := await self.hub.key(self.game, msg.key, msg.seq, msg.t_client, seat):
                 await self.send(error("bad_key", problem))
+        elif isinstance(msg, Belief):
+            self.game.state_belief(msg.color, msg.t_client)
+        elif isinstance(msg, ProbeAnswer):
+            await self.hub.answer_probe(self.game, msg.probe, msg.color, msg.confidence, msg.t_client)
         elif isinstance(msg, PageEvent):
             self.game.page_event(msg.event, msg.visible, msg.t_client, seat)
         elif isinstance(msg, Quit) and self.hub.controls(self.game, self):  # a quit after the last step changes nothing
@@ -258,7 +302,7 @@ class Connection:
                 raise ValueError("this server runs no study")
             return await self.hub.new_game(msg.follower, msg.preset, msg.mode, msg.horizon, msg.show_belief, self,
                                            client_info=client_info, team=msg.team, followers=msg.followers,
-                                           leader=msg.leader)
+                                           leader=msg.leader, seat=msg.seat, goal=msg.goal, probes=msg.probes)
         if msg.study is None:
             raise ValueError("this server runs a study: games start from the study page")
         if msg.team != Team.ONE_TO_ONE:
@@ -273,4 +317,5 @@ class Connection:
         except (StudyRefused, StudyInvalid) as err:
             raise ValueError(str(err)) from None
         return await self.hub.new_game(game.follower, game.preset, Mode(game.mode), game.horizon, game.show_belief,
-                                       self, tick_hz=game.tick_hz, study=meta, client_info=client_info)
+                                       self, tick_hz=game.tick_hz, study=meta, client_info=client_info,
+                                       **game.seat_settings())

@@ -10,7 +10,7 @@ import numpy as np
 
 from colorgrid.config import FOLLOWER, EnvConfig
 from colorgrid.env import BatchEnv
-from colorgrid.policies import SCRIPTED, IdleFollower, make_policy, policy_teams
+from colorgrid.policies import SCRIPTED, IdleFollower, make_policy, policy_teams, registry
 from colorgrid.policies.base import AgentInput
 from colorgrid.replay import describe_agent
 from colorgrid.step_inputs import StepInputs
@@ -42,7 +42,10 @@ def leads(name: str, team) -> str | None:
 
 
 def follower_label(followers: tuple[str, ...]) -> str:
-    """One name for a game's AI followers: the name when they are all the same kind, else ``"a + b"``."""
+    """One name for a game's AI followers: the name when they are all the same kind, else ``"a + b"``; ``"none"``
+    when a person plays the only follower."""
+    if not followers:
+        return "none"
     return followers[0] if len(set(followers)) == 1 else " + ".join(followers)
 
 
@@ -77,11 +80,30 @@ LEADER_INFO = {
     "astar": ("Scripted leader (A*)", "knows the goal and walks to the nearest block of it by A*", False),
     "person": ("Person-like scripted leader", "the A* leader with the slips, late turns and mistakes of people", False),
     "ippo-leader": ("Trained leader (IPPO)", "the network trained to lead beside a follower (1:1)", True),
+    "population": ("A person-like leader from a population",
+                   "each game draws one of the population's leaders (A*, or the A* leader with people's slips, late "
+                   "turns and mistakes)", False),
     "idle": ("Bystander leader", "walks about and never collects", False),
     "random": ("Random leader", "moves at random and collects whatever it steps on", False),
 }
 """How the play page names each scripted or shipped AI leader (the other leader of a 2:1 game): label, one-line
 description, whether it holds a belief over the goal. A scripted policy not listed here is a follower."""
+
+
+def is_leader_kind(name: str) -> bool:
+    """Whether ``name`` may be an AI leader: a scripted leader (``LEADER_INFO``, with parameters: ``person:slip=0.1``),
+    a trained leader's name, a population or a checkpoint path; not a follower's name."""
+    base = name.partition(":")[0]
+    trained = base in registry.registered_names() and base not in SCRIPTED
+    population = name.startswith("population:") or ".json" in name
+    return base in set(SCRIPTED) & set(LEADER_INFO) or trained or population or base.endswith(".pt")
+
+
+def leader_kinds_allowed() -> str:
+    """What an AI leader's name may be, in words (``is_leader_kind``)."""
+    scripted = sorted(set(SCRIPTED) & set(LEADER_INFO))
+    return (f"a scripted leader ({', '.join(scripted)}), a trained leader's name, a population or a checkpoint path "
+            "ending in .pt (not a follower)")
 
 
 def follower_info(name: str) -> dict:

@@ -3,6 +3,8 @@
 A game's team is its config's (``EnvConfig.num_leaders``, ``num_followers``). Each leader is a
 ``Seat`` played by a person, or an AI leader beside them (``Game.leader_kinds``: the last leader
 seats); each follower and AI leader is an ``AIPlayer``: a slot in the pool built for its agent index.
+A person may take the follower seat instead (``Game.seat``): then every leader is an AI leader, the
+goal may be hidden from them, and what they state they believe is recorded (``server.stated``).
 When a person leaves a game that other people still play, a scripted leader takes their seat (an
 ``AIPlayer`` at the seat's agent index) and the replay says from which step.
 """
@@ -17,13 +19,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from colorgrid.config import EnvConfig
-from colorgrid.env import ACTION_NAMES, BatchEnv
+from colorgrid.env import ACTION_DELTAS, ACTION_NAMES, BatchEnv
 from colorgrid.policies.base import AgentInput
 from colorgrid.render import look
 from colorgrid.replay import Replay
-from colorgrid.roles import scores
+from colorgrid.roles import columns, scores
 from colorgrid.step_inputs import StepInputs
-from server.protocol import KEY_ACTIONS, Mode
+from server.protocol import KEY_ACTIONS, GoalView, Mode, SeatKind, belief_keys
+from server.stated import ProbePlan, StatedBeliefs, Via
 
 STAY = ACTION_NAMES.index("stay")
 STAND_IN = "astar"
@@ -35,6 +38,11 @@ of its own seat and the follower (``pair_view``); the other leaders are not in i
 
 MAX_PAGE_EVENTS = 1000
 """Focus and visibility changes recorded per game; later ones are counted in ``meta.page_events_dropped``."""
+
+
+class BadSeq(ValueError):
+    """A key whose ``seq`` is not after the last one of its person in this game: refused, so that ``(game, seq)``
+    names one key (per person in a team) across reloads and reconnects."""
 
 
 def now_ms() -> float:
@@ -56,6 +64,12 @@ class Seat:
     left: str | None = None  # why the person left ("quit", "disconnected", "idle"); None while they play
     left_at_step: int | None = None
     last_applied_seq: int | None = None  # the highest ``seq`` of this person's keys applied so far
+    last_seq: int | None = None  # the highest ``seq`` of this person's keys received (each is logged, or counted)
+
+    @property
+    def next_seq(self) -> int:
+        """The ``seq`` this person's next key takes (the ``welcome`` says it, so a reloaded page numbers on)."""
+        return 0 if self.last_seq is None else self.last_seq + 1
 
     def action(self) -> int:
         """The pending key's move, or stay (real time with no key pending)."""
@@ -83,6 +97,16 @@ def leader_seats(config: EnvConfig, ai_leaders: int) -> tuple[range, range]:
     ``ai_leaders``)."""
     people = config.num_leaders - ai_leaders
     return config.leaders[:people], config.leaders[people:]
+
+
+def lineup(config: EnvConfig, seat: SeatKind, ai_leaders: int) -> tuple[tuple[int, ...], ...]:
+    """Who plays each agent: the agent indices of the people, of the AI leaders and of the AI followers. A person in
+    the follower seat plays the first follower, beside an AI leader in every leader seat; people in leader seats play
+    the first leaders, ``ai_leaders`` AI leaders the last ones (``leader_seats``), AI followers every follower."""
+    if SeatKind(seat) == SeatKind.FOLLOWER:
+        return (config.followers[0],), tuple(config.leaders), tuple(config.followers[1:])
+    people, ai = leader_seats(config, ai_leaders)
+    return tuple(people), tuple(ai), tuple(config.followers)
 
 
 def pair_view(inp: AgentInput, config: EnvConfig, agents: tuple[int, int]) -> AgentInput:
@@ -114,12 +138,18 @@ class Game:
     room: str | None = None  # the room's code, for a game of several people
     follower_kinds: tuple[str, ...] = ()  # each AI follower's kind, in agent order (all ``follower`` if empty)
     leader_kinds: tuple[str, ...] = ()  # each AI leader's kind: they play the last leader seats, people the first
+    seat: SeatKind = SeatKind.LEADER  # the people's seat: leaders, or the first follower beside AI leaders
+    goal_view: GoalView = GoalView.SHOWN  # the follower seat: whether its person sees the goal (a leader always does)
+    probes: ProbePlan = field(default_factory=ProbePlan)  # the follower seat: when the game asks what they believe
 
     def __post_init__(self) -> None:
-        self.mode = Mode(self.mode)
+        self.mode, self.seat, self.goal_view = Mode(self.mode), SeatKind(self.seat), GoalView(self.goal_view)
         cfg = self.config
-        people, self.ai_leaders = leader_seats(cfg, len(self.leader_kinds))  # AI leaders in ``leader_kinds`` order
+        # AI leaders in ``leader_kinds`` order, AI followers in ``follower_kinds`` order
+        people, self.ai_leaders, self.ai_followers = lineup(cfg, self.seat, len(self.leader_kinds))
         self.seats = [Seat(i, cfg.agent_names[i]) for i in people]
+        self.stated = None if self.seat == SeatKind.LEADER else StatedBeliefs(
+            cfg, cfg.agent_names[people[0]], self.probes, self.seed, tagged=not cfg.one_to_one)
         self.ai: dict[int, AIPlayer] = {}  # agent index -> its policy's slot (followers, AI and stand-in leaders)
         self.env = BatchEnv(cfg, num_envs=1, seed=self.seed, autoreset=False)
         self.obs, _ = self.env.reset()
@@ -183,21 +213,35 @@ class Game:
     # ------------------------------------------------------------ keys
     def press(self, key: str, seq: int, t_client: float, seat: Seat | None = None) -> str | None:
         """Register a key press of ``seat`` (the first by default); returns an error text for keys that are
-        not moves.
+        not moves (nor, in the follower seat, belief keys: those state a belief and move nothing, logged ``stated``).
+        A ``seq`` not after this person's last one raises ``BadSeq``, and nothing is logged.
 
         The latest key wins: one pressed before the previous one was applied marks
         that one ``superseded`` in the key log (nothing is dropped silently). A key that arrives after the
         game's last step is logged ``unapplied``.
         """
         seat = seat or self.seats[0]
+        if seat.last_seq is not None and seq <= seat.last_seq:
+            raise BadSeq(f"key seq {seq} is not after your last key in this game ({seat.last_seq}): number keys on "
+                         f"from {seat.next_seq} (the welcome's next_seq)")
+        seat.last_seq = seq
         entry = {"seq": seq, "key": key, "t_client": t_client, "t_server": now_ms(), "applied_step": None}
         if not self.solo:
             entry = {"agent": seat.name, **entry}
-        action = KEY_ACTIONS.get(key)
+        action, color = KEY_ACTIONS.get(key), self.belief_keys.get(key)
+        if color is not None:  # "I believe the goal is this color": no move (after the last step: recorded only)
+            entry.update(status="unapplied" if self.finished else "stated", color=color)
+            if not self.finished:
+                self.stated.state(color, Via.KEY, t_client, int(self.env.state.t[0]))
+            self._log(entry)
+            return None
         if action is None:
             entry["status"] = "ignored"
             self._log(entry)
-            return f"key {key!r} is not a move; use the arrow keys or WASD"
+            if self.stated is None:
+                return f"key {key!r} is not a move; use the arrow keys or WASD"
+            return (f"key {key!r} is not a move or a color of this game: move with the arrow keys or WASD; say "
+                    f"which color you believe is the goal with {'/'.join(self.belief_keys)}")
         entry["action"] = action
         if self.finished:  # on its way when the last step was made: recorded, never applied
             entry["status"] = "unapplied"
@@ -210,6 +254,24 @@ class Game:
         self._log(entry)
         seat.last_key_at = time.monotonic()
         return None
+
+    @property
+    def belief_keys(self) -> dict[str, int]:
+        """The keys that state a belief (``1`` is color 0) in the follower seat; none in a leader's."""
+        return {} if self.stated is None else belief_keys(self.config.num_colors)
+
+    def state_belief(self, color: int, t_client: float) -> None:
+        """The person in the follower seat says the goal is ``color`` (a click on its swatch)."""
+        if self.stated is None:
+            raise ValueError("only a person in the follower seat states a belief: a leader knows the goal")
+        if not self.finished:  # after the last step it would describe no step
+            self.stated.state(color, Via.CLICK, t_client, int(self.env.state.t[0]))
+
+    def answer_probe(self, probe: int, color: int, confidence: float, t_client: float) -> None:
+        """The answer to the open probe (``server.stated.StatedBeliefs.answer``)."""
+        if self.stated is None:
+            raise ValueError("only a person in the follower seat is asked probes")
+        self.stated.answer(probe, color, confidence, t_client, int(self.env.state.t[0]))
 
     def page_event(self, event: str, visible: bool | None, t_client: float, seat: Seat | None = None) -> None:
         """Record that a page lost or got focus, was hidden or shown (capped like the key log)."""
@@ -228,10 +290,14 @@ class Game:
 
     def ready(self) -> bool:
         """Whether the world should step now. Real time: on the clock, unless a person is reconnecting.
-        Turn-based: once every person has a key pending (people move together, see docs/SERVER_PROTOCOL.md)."""
+        Turn-based: once every person has a key pending (people move together, see docs/SERVER_PROTOCOL.md) and no
+        probe waits for its answer."""
         if self.finished or self.paused or not self.controlled() or not self.people:
             return False
-        return self.mode == Mode.REALTIME or all(s.pending is not None for s in self.people)
+        if self.mode == Mode.REALTIME:
+            return True
+        waiting = self.stated is not None and self.stated.open_probe is not None
+        return not waiting and all(s.pending is not None for s in self.people)
 
     # ------------------------------------------------------------ steps
     def ai_input(self, player: AIPlayer) -> AgentInput:
@@ -246,6 +312,8 @@ class Game:
         (action, belief or None, whether inference missed its deadline)."""
         t = int(self.env.state.t[0])
         self.goals.append(int(self.env.state.goal[0]))
+        if self.stated is not None:
+            self.stated.before_step()
         joint = np.empty((1, self.config.num_agents), dtype=np.int64)
         for seat in self.people:
             joint[0, seat.agent] = seat.action()
@@ -283,10 +351,17 @@ class Game:
             self.last_events.append({"switch": int(info["goal_color"][0])})
         if truncs.all():
             self.finished = True
+        if self.stated is not None:
+            self.stated.after_step(t + 1, self.finished)
 
     def followers(self) -> list[AIPlayer]:
         """The AI followers, in agent order."""
-        return [self.ai[i] for i in self.config.followers if i in self.ai]
+        return [self.ai[i] for i in self.ai_followers if i in self.ai]
+
+    @property
+    def goal_hidden(self) -> bool:
+        """Whether the goal is kept from the people: a person in the follower seat with the goal hidden."""
+        return self.stated is not None and self.goal_view == GoalView.HIDDEN
 
     # ------------------------------------------------------------ views
     def seats_view(self) -> list[dict]:
@@ -303,15 +378,27 @@ class Game:
             "tick_hz": self.tick_hz if self.mode == Mode.REALTIME else None,
             "height": cfg.height, "width": cfg.width, "colors": list(cfg.color_names), "horizon": cfg.horizon,
             "show_belief": self.show_belief, "keys": sorted(KEY_ACTIONS), "look": look(cfg),
+            "next_seq": seat.next_seq, "prediction": self.prediction(seat),
         }
         if not self.solo:
             message.update(team=self.config.team, agent=seat.name, seats=self.seats_view(), room=self.room)
-        if self.config.num_followers > 1:  # each AI follower's kind, by agent name
-            kinds = self.follower_kinds or (self.follower,) * self.config.num_followers
-            message["followers"] = dict(zip((cfg.agent_names[i] for i in cfg.followers), kinds))
+        if self.stated is not None:  # the follower seat: who they are, what they see, how they say what they believe
+            message.update(seat=self.seat.value, agent=seat.name, goal_view=self.goal_view.value,
+                           belief_keys=self.belief_keys, probes=self.probes.text,
+                           confidence_min=round(1.0 / cfg.num_colors, 6))
+        if len(self.ai_followers) > 1:  # each AI follower's kind, by agent name
+            kinds = self.follower_kinds or (self.follower,) * len(self.ai_followers)
+            message["followers"] = dict(zip((cfg.agent_names[i] for i in self.ai_followers), kinds))
         if self.leader_kinds:  # each AI leader's kind, by agent name
             message["leaders"] = dict(zip((cfg.agent_names[i] for i in self.ai_leaders), self.leader_kinds))
         return message
+
+    def prediction(self, seat: Seat) -> dict:
+        """What a page needs to draw its person's own move before the server's state shows it (the state corrects
+        it): each move key's ``[row, col]`` change and the columns ``[first, stop)`` the person's agent may stand
+        on. A move off them, or onto another agent's cell, leaves the agent where it is (docs/ENV_CARD.md)."""
+        return {"moves": {key: ACTION_DELTAS[action].tolist() for key, action in KEY_ACTIONS.items()},
+                "columns": list(columns(self.config, seat.agent))}
 
     def state_message(self) -> dict:
         s, cfg = self.env.state, self.config
@@ -321,16 +408,19 @@ class Game:
             "type": "state", "step": int(s.t[0]), "horizon": cfg.horizon,
             **{name: int(s.agent_cell[0, i]) for i, name in enumerate(cfg.agent_names)},
             "blocks": blocks,
-            "goal": int(s.goal[0]),
+            "goal": None if self.goal_hidden else int(s.goal[0]),
             "scores": scores(s, cfg),
         }
         if self.solo:
-            beliefs = self.followers()[0].beliefs if self.ai else []
+            players = self.followers()
+            beliefs = players[0].beliefs if players else []
             message["belief"] = beliefs[-1] if (self.show_belief and beliefs) else None
         else:  # one belief per AI follower, by name
             message["beliefs"] = {cfg.agent_names[p.agent]: p.beliefs[-1] if (self.show_belief and p.beliefs)
                                   else None for p in self.followers()}
-        message["events"] = self.last_events
+        message["events"] = [e for e in self.last_events if "switch" not in e] if self.goal_hidden else self.last_events
+        if self.stated is not None:
+            message.update(self.stated.view())
         message["last_applied_seq"] = self.seats[0].last_applied_seq if self.solo else {
             seat.name: seat.last_applied_seq for seat in self.seats}
         return message
@@ -341,6 +431,8 @@ class Game:
         for entry in self.key_log:
             if entry["status"] == "pending":
                 entry["status"] = "unapplied"  # pressed after the last step the game made
+        if self.stated is not None:
+            self.stated.close()
         names = self.config.agent_names
         agents = {}
         for i, name in enumerate(names):
@@ -366,11 +458,16 @@ class Game:
                                      "replaced_by": STAND_IN} for s in self.seats if s.left])
         meta.update(page_events=self.page_events, page_events_dropped=self.page_events_dropped,
                     **({"study": self.study} if self.study else {}))
+        stated = {}
+        if self.stated is not None:
+            per_step, events, probes = self.stated.record()
+            stated = {"stated_beliefs": {self.stated.agent: per_step}, "belief_events": events, "probes": probes}
+            meta.update(seat=self.seat.value, goal_view=self.goal_view.value, probes=self.probes.text)
         return Replay(
             config=self.config, seed=self.seed, source="play", agents=agents,
             actions=self.actions, goal=self.goals, block_reward=self.block_reward, team_reward=self.team_reward,
             picked_color=self.picked, goal_switched=self.switched,
             goal_probs={names[p.agent]: p.beliefs for p in self.followers()
                         if p.beliefs and len(p.beliefs) == len(self.actions)},
-            state_hashes=self.hashes, ended=ended, key_events=self.key_log, meta=meta,
+            state_hashes=self.hashes, ended=ended, key_events=self.key_log, meta=meta, **stated,
         )

@@ -18,11 +18,13 @@ from colorgrid.presets import env_config
 from colorgrid.replay import save
 from colorgrid.roles import scores
 from server.followers import FollowerPool, follower_label, is_scripted, leads, plays
-from server.game import PAIR_VIEW, STAND_IN, Game, Seat, leader_seats
+from server.game import PAIR_VIEW, STAND_IN, Game, Seat, leader_seats, lineup
 from server.inference import InferenceLost, InferenceWorker
-from server.protocol import ROOM_COUNTDOWN_S, Mode, Team
+from server.protocol import ROOM_COUNTDOWN_S, GoalView, Mode, SeatKind, Team
 from server.rooms import Room, RoomError, new_code, parse_code
+from server.seats import SeatChoice, follower_seat, follower_seat_leaders, leader_seat
 from server.settings import ServerSettings
+from server.stated import ProbePlan
 
 log = logging.getLogger("colorgrid.server")
 POOL_IDLE_S = 120.0  # a follower pool with no game for this long is freed (the default follower's stay)
@@ -80,6 +82,7 @@ class GameHub:
         # inference thread)
         self._offered: dict[Team, list[str]] | None = None  # team_followers, by team
         self._leading: dict[Team, dict[str, str]] | None = None  # team_leaders: how each offered leader leads
+        self._seat_leading: dict[Team, list[str]] | None = None  # seat_leaders: beside a person in the follower seat
         self.warm_followers = {settings.follower, *(f for f in settings.follower_choices if not is_scripted(f))}
         self.keep_warm = {*self.warm_followers, *(kind for kind in settings.leaders if not is_scripted(kind))}
 
@@ -99,7 +102,8 @@ class GameHub:
         for kind, team, role in self._warm_seats():
             for mode in Mode:
                 config = self.make_config(self.settings.preset, mode, None, team)
-                agents = config.followers if role == "follower" else leader_seats(config, config.num_leaders - 1)[1]
+                agents = (config.followers if role == "follower" else config.leaders if role == "lead a person"
+                          else leader_seats(config, config.num_leaders - 1)[1])
                 try:
                     for agent in agents:
                         pool, _ = await self.seat_pool(kind, config, agent)
@@ -108,9 +112,11 @@ class GameHub:
                         timed.add(kind)
                         await loop.run_in_executor(self.executor, self._time_calls, pool)
                 except Exception as err:
-                    if role == "leader" and not isinstance(err, InferenceLost):  # one that cannot lead is not offered
+                    if role != "follower" and not isinstance(err, InferenceLost):  # one that cannot lead is not offered
                         log.error("AI leader %s is not offered in team %s: %s", kind, team.value, err)
                         self.team_leaders(team).pop(kind, None)
+                        if kind in self.seat_leaders(team):
+                            self.seat_leaders(team).remove(kind)
                         break
                     log.exception("could not warm up %s %s", role, kind)  # a game asking for it is told why
         gc.freeze()  # what start-up loaded (torch, the networks) is left out of later collections
@@ -126,6 +132,7 @@ class GameHub:
             seats += [(follower, team, "follower") for team in teams]
         for leader in self.keep_warm - self.warm_followers:
             seats += [(leader, team, "leader") for team in Team if leader in self.team_leaders(team)]
+            seats += [(leader, team, "lead a person") for team in Team if leader in self.seat_leaders(team)]
         return seats
 
     def _time_calls(self, pool: FollowerPool) -> None:
@@ -235,6 +242,13 @@ class GameHub:
                              if t.num_leaders > 1 else {} for t in Team}
         return self._leading[team]
 
+    def seat_leaders(self, team: Team) -> list[str]:
+        """The offered AI leaders (``ServerSettings.leaders``) that lead beside a person in ``team``'s follower seat
+        (``server.seats.follower_seat_leaders``); none in a team without one."""
+        if self._seat_leading is None:  # once: a checkpoint file is read to know its team
+            self._seat_leading = {t: follower_seat_leaders(self.settings.leaders, t) for t in Team}
+        return self._seat_leading[team]
+
     def team_followers(self, team: Team = Team.TWO_FOLLOWERS) -> list[str]:
         """The offered followers that play in ``team`` (a trained network only in the team it was trained in),
         the default first if it does."""
@@ -243,17 +257,21 @@ class GameHub:
         return self._offered[team]
 
     def choose(self, team: Team, follower: str | None, preset: str | None, mode: Mode, horizon: int | None,
-               followers: list[str] | None = None) -> tuple[tuple[str, ...], str, EnvConfig]:
+               followers: list[str] | None = None,
+               seat: SeatKind = SeatKind.LEADER) -> tuple[tuple[str, ...], str, EnvConfig]:
         """The followers (one per AI seat, in agent order), preset and config of a new game or room: every seat
-        ``follower``, or each its own of ``followers``; what is not offered raises ``ValueError``."""
+        ``follower``, or each its own of ``followers``; what is not offered raises ``ValueError``. A person in the
+        follower ``seat`` takes the first follower's (the AI followers are the others)."""
         if followers is not None and follower is not None:
             raise ValueError("give either follower (every AI seat) or followers (one per AI seat), not both")
-        if followers is not None and len(followers) != team.num_followers:
-            raise ValueError(f"followers: team {team.value} has {team.num_followers} AI follower(s); give one name "
+        ai_seats = team.num_followers - (SeatKind(seat) == SeatKind.FOLLOWER)
+        if followers is not None and len(followers) != ai_seats:
+            beside = " beside a person in its follower seat" if ai_seats < team.num_followers else ""
+            raise ValueError(f"followers: team {team.value} has {ai_seats} AI follower(s){beside}; give one name "
                              f"each, got {len(followers)}")
         offered = self.team_followers(team)
         default = self.settings.follower if self.settings.follower in offered else next(iter(offered), None)
-        chosen = tuple(followers) if followers is not None else (follower or default,) * team.num_followers
+        chosen = tuple(followers) if followers is not None else (follower or default,) * ai_seats
         for name in chosen:
             if name not in self.settings.follower_choices:
                 raise ValueError(f"unknown follower {name!r}; choose one of {list(self.settings.follower_choices)}")
@@ -278,19 +296,28 @@ class GameHub:
     async def new_game(self, follower: str | None, preset: str | None, mode: Mode, horizon: int | None,
                        show_belief: bool, client: Client, tick_hz: float | None = None, study: dict | None = None,
                        client_info: dict | None = None, team: Team = Team.ONE_TO_ONE,
-                       followers: list[str] | None = None, leader: str | None = None) -> Game:
+                       followers: list[str] | None = None, leader: str | None = None,
+                       seat: SeatKind = SeatKind.LEADER, goal: GoalView | None = None,
+                       probes: str | None = None) -> Game:
         """Start a game for ``client``, the team's one person; in a team of several leaders, ``leader`` (an offered
-        AI leader, ``team_leaders``) plays every other leader seat. ``tick_hz`` (default: the server's) sets a
-        real-time game's clock; ``study`` is what a study's game records about itself (``meta.study``)."""
-        team = Team(team)
-        leaders = self.choose_leaders(team, leader)
-        if team.room and not leaders:
-            raise ValueError(f"team {team.value} has {team.people} leaders: people meet in a room (create_room, then "
-                             f"share its code), or one person plays beside an AI leader (leader: one of "
-                             f"{list(self.team_leaders(team))})")
-        chosen, preset, config = self.choose(team, follower, preset, Mode(mode), horizon, followers)
+        AI leader, ``team_leaders``) plays every other leader seat. In the follower ``seat`` (``server.seats``),
+        ``leader`` plays every leader seat, ``goal`` says whether the person sees the goal and ``probes`` when the
+        game asks what they believe. ``tick_hz`` (default: the server's) sets a real-time game's clock; ``study`` is
+        what a study's game records about itself (``meta.study``)."""
+        team, seat = Team(team), SeatKind(seat)
+        if seat == SeatKind.FOLLOWER:
+            choice = follower_seat(team, leader, goal, probes, self.seat_leaders(team), self.settings.leaders)
+        else:
+            leader_seat(goal, probes)
+            choice = SeatChoice(self.choose_leaders(team, leader), GoalView.SHOWN, ProbePlan())
+            if team.room and not choice.leaders:
+                raise ValueError(f"team {team.value} has {team.people} leaders: people meet in a room (create_room, "
+                                 f"then share its code), or one person plays beside an AI leader (leader: one of "
+                                 f"{list(self.team_leaders(team))})")
+        chosen, preset, config = self.choose(team, follower, preset, Mode(mode), horizon, followers, seat)
         return await self._open_game(config, Mode(mode), chosen, preset, show_belief, [(client, client_info or {})],
-                                     tick_hz=tick_hz, study=study, leaders=leaders)
+                                     tick_hz=tick_hz, study=study, leaders=choice.leaders, seat=seat,
+                                     goal_view=choice.goal_view, probes=choice.probes)
 
     def choose_leaders(self, team: Team, leader: str | None) -> tuple[str, ...]:
         """The AI leaders of a game of one person in ``team``: ``leader`` in every leader seat but the person's;
@@ -309,16 +336,19 @@ class GameHub:
 
     async def _open_game(self, config: EnvConfig, mode: Mode, followers: tuple[str, ...], preset: str,
                          show_belief: bool, people: list[tuple[Client, dict]], tick_hz: float | None = None,
-                         study: dict | None = None, room: str | None = None, leaders: tuple[str, ...] = ()) -> Game:
-        """Make a game for ``people`` (connection and page info, one per person's leader seat, in agent order),
-        with a slot in each AI follower's pool (``followers``: one kind per follower, in agent order) and each AI
-        leader's (``leaders``: one kind per leader seat after the people's); send each person their ``welcome``
-        and the first ``state``."""
+                         study: dict | None = None, room: str | None = None, leaders: tuple[str, ...] = (),
+                         seat: SeatKind = SeatKind.LEADER, goal_view: GoalView = GoalView.SHOWN,
+                         probes: ProbePlan | None = None) -> Game:
+        """Make a game for ``people`` (connection and page info, one per person's seat, in agent order), with a
+        slot in each AI follower's pool (``followers``: one kind per AI follower, in agent order) and each AI
+        leader's (``leaders``: one kind per leader seat after the people's, or every one beside a person in the
+        follower ``seat``); send each person their ``welcome`` and the first ``state``."""
         # The session is counted before the first await, so concurrent requests never overshoot the limit.
         self.check_capacity()
         self.reserved += 1
         try:
-            ai = [*zip(followers, config.followers), *zip(leaders, leader_seats(config, len(leaders))[1])]
+            _, ai_leaders, ai_followers = lineup(config, seat, len(leaders))
+            ai = [*zip(followers, ai_followers), *zip(leaders, ai_leaders)]
             pools = [(agent, *await self.seat_pool(kind, config, agent)) for kind, agent in ai]
             if self.stopped:
                 raise ServerFull("the server is shutting down; try again in a minute")
@@ -326,7 +356,8 @@ class GameHub:
             game = Game(config=config, mode=mode, follower=follower_label(followers), follower_kinds=tuple(followers),
                         leader_kinds=tuple(leaders), preset=preset, seed=self._seed_counter,
                         show_belief=show_belief and self.settings.show_belief, max_key_log=self.settings.max_key_log,
-                        tick_hz=tick_hz or self.settings.tick_hz, study=study, room=room)
+                        tick_hz=tick_hz or self.settings.tick_hz, study=study, room=room, seat=seat,
+                        goal_view=goal_view, probes=probes or ProbePlan())
             for seat, (client, client_info) in zip(game.seats, people):
                 seat.client, seat.client_info = client, client_info
             for agent, pool, view in pools:
@@ -396,6 +427,13 @@ class GameHub:
         if problem is None and game.mode == Mode.TURN:
             await self.step_games([game])
         return problem
+
+    async def answer_probe(self, game: Game, probe: int, color: int, confidence: float, t_client: float) -> None:
+        """The answer to ``game``'s open probe; a turn-based game waited for it, and steps now if a move is
+        pending."""
+        game.answer_probe(probe, color, confidence, t_client)
+        if game.mode == Mode.TURN:
+            await self.step_games([game])
 
     async def quit(self, game: Game, client: Client) -> None:
         """The person on ``client`` ends the game; in a game other people still play, only leaves it."""

@@ -18,6 +18,14 @@ KEY_ACTIONS = {key: ACTION_NAMES.index(action) for action, keys in _KEYS.items()
 """Keys the leader may press and the action index each one means (up, down, left, right)."""
 MAX_HORIZON = 1000
 """The longest game a player may ask for (``NewGame.horizon``)."""
+BELIEF_KEYS = {str(color + 1): color for color in range(9)}
+"""Keys a person in the follower seat presses to say which color they believe is the goal (``1`` is color 0); a game
+takes those of its own colors (``belief_keys``)."""
+
+
+def belief_keys(num_colors: int) -> dict[str, int]:
+    """The belief keys of a game of ``num_colors`` colors: ``{"1": 0, "2": 1, "3": 2}`` for three."""
+    return {key: color for key, color in BELIEF_KEYS.items() if color < num_colors}
 
 
 class Mode(str, Enum):
@@ -30,6 +38,33 @@ class Mode(str, Enum):
     def label(self) -> str:
         """How a page names the mode."""
         return {Mode.TURN: "turn-based", Mode.REALTIME: "real time"}[self]
+
+
+class SeatKind(str, Enum):
+    """The seat a person takes: a leader's (they know the goal; the default) or a follower's, the assistant's seat,
+    beside AI leaders (the goal hidden from them unless a game shows it). The values are ``colorgrid.config.ROLES``."""
+
+    LEADER = "leader"
+    FOLLOWER = "follower"
+
+    @property
+    def label(self) -> str:
+        """How a page names the seat."""
+        return {SeatKind.LEADER: "you lead (you know the goal)",
+                SeatKind.FOLLOWER: "you assist: follow an AI leader and work out the goal"}[self]
+
+
+class GoalView(str, Enum):
+    """Whether a person in the follower seat sees the goal: ``hidden`` (the assistant's problem, the default) or
+    ``shown`` (a control). A leader always sees it."""
+
+    HIDDEN = "hidden"
+    SHOWN = "shown"
+
+    @property
+    def label(self) -> str:
+        """How a page names it."""
+        return {GoalView.HIDDEN: "hidden from you (work it out)", GoalView.SHOWN: "shown to you (a control)"}[self]
 
 
 class Team(str, Enum):
@@ -60,11 +95,17 @@ class Team(str, Enum):
         return self.people > 1
 
     @property
+    def seats(self) -> tuple[SeatKind, ...]:
+        """The seats a person may take: a leader's in every team, and a follower's (the first follower, beside AI
+        leaders) in a team of one leader; a team of several leaders is theirs to lead, its follower the AI's."""
+        return (SeatKind.LEADER, SeatKind.FOLLOWER) if self.num_leaders == 1 else (SeatKind.LEADER,)
+
+    @property
     def label(self) -> str:
         """How a page names the team."""
-        return {Team.ONE_TO_ONE: "you lead, one AI follower",
+        return {Team.ONE_TO_ONE: "one leader, one follower: you and an AI",
                 Team.TWO_PEOPLE: "two leaders, one AI follower: you and another person (a room) or an AI leader",
-                Team.TWO_FOLLOWERS: "you lead, two AI followers"}[self]
+                Team.TWO_FOLLOWERS: "one leader, two followers: you and two AIs"}[self]
 
 
 ROOM_CODE_ALPHABET = "ABCDEFGHJKMNPQRSTUVWXYZ23456789"
@@ -117,7 +158,15 @@ class NewGame(_Message):
     a room (``create_room``)."""
     leader: str | None = Field(default=None, max_length=1024)
     """In a team of several leaders (``"2:1"``): the AI leader that plays every leader seat but this person's (one
-    of ``/api/options``' team ``leaders``); without it the team's people meet in a room."""
+    of ``/api/options``' team ``leaders``); without it the team's people meet in a room. In the follower seat: the AI
+    leader in every leader seat (one of the team's ``follower_seat_leaders``; default the first)."""
+    seat: SeatKind = SeatKind.LEADER
+    """The person's seat: ``leader``, or ``follower`` (the team's first follower seat, beside AI leaders)."""
+    goal: GoalView | None = None
+    """The follower seat: whether the goal is ``hidden`` from the person (the default) or ``shown``."""
+    probes: str | None = Field(default=None, max_length=400)
+    """The follower seat: when the game asks which color is the goal (``server.stated.ProbePlan``): ``none`` (the
+    default), ``steps:10,40,70`` or ``random:0.05``."""
     study: StudyRef | None = None
     viewport: Viewport | None = None
     """The page's inner width and height in CSS pixels (recorded in the replay)."""
@@ -169,6 +218,26 @@ class Key(_Message):
     t_client: float = Field(default=0.0, ge=-1e15, le=1e15)
 
 
+class Belief(_Message):
+    """A person in the follower seat says which color they believe is the goal (a click on its swatch; the number
+    keys send ``key``)."""
+
+    type: Literal["belief"]
+    color: int = Field(ge=-2**31, le=2**31)
+    t_client: float = Field(default=0.0, ge=-1e15, le=1e15)
+
+
+class ProbeAnswer(_Message):
+    """The answer to a probe (``state.probe``): the color the person believes is the goal now and how sure they are,
+    as a probability from chance (1 / colors) to 1."""
+
+    type: Literal["probe_answer"]
+    probe: int = Field(ge=-2**31, le=2**31)
+    color: int = Field(ge=-2**31, le=2**31)
+    confidence: float = Field(ge=-1e15, le=1e15)
+    t_client: float = Field(default=0.0, ge=-1e15, le=1e15)
+
+
 class PageEvent(_Message):
     """The page lost or got focus, or was hidden or shown (recorded in the game's replay)."""
 
@@ -189,9 +258,10 @@ class Quit(_Message):
     type: Literal["quit"]
 
 
-ClientMessage = Annotated[Union[NewGame, CreateRoom, JoinRoom, Ready, Rejoin, Key, PageEvent, Ping, Quit],
-                          Field(discriminator="type")]
-CLIENT_TYPES = ("new_game", "create_room", "join_room", "ready", "rejoin", "key", "page_event", "ping", "quit")
+ClientMessage = Annotated[Union[NewGame, CreateRoom, JoinRoom, Ready, Rejoin, Key, Belief, ProbeAnswer, PageEvent, Ping,
+                                Quit], Field(discriminator="type")]
+CLIENT_TYPES = ("new_game", "create_room", "join_room", "ready", "rejoin", "key", "belief", "probe_answer",
+                "page_event", "ping", "quit")
 client_message = TypeAdapter(ClientMessage)
 
 

@@ -7,10 +7,9 @@ from pathlib import Path
 from typing import ClassVar
 
 from colorgrid.configkit import check_bool, check_choice, check_int, check_number, check_strings, fail
-from colorgrid.policies import SCRIPTED, registry
 from colorgrid.presets import PRESETS
 from colorgrid.resources import shipped
-from server.followers import LEADER_INFO
+from server.followers import is_leader_kind, leader_kinds_allowed
 
 
 @dataclass(frozen=True)
@@ -88,14 +87,9 @@ class ServerSettings:
     def __post_init__(self) -> None:
         check_strings(self, "followers", allowed="a tuple of follower names")
         check_strings(self, "leaders", allowed="a tuple of leader names")
-        scripted = sorted(set(SCRIPTED) & set(LEADER_INFO))
         for name in self.leaders:
-            base = name.partition(":")[0]
-            trained = base in registry.registered_names() and base not in SCRIPTED
-            population = name.startswith("population:") or ".json" in name
-            if base not in scripted and not (trained or population or base.endswith(".pt")):
-                fail(self, "leaders", f"a scripted leader ({', '.join(scripted)}), a trained leader's name, a "
-                                      "population or a checkpoint path ending in .pt (not a follower)", name)
+            if not is_leader_kind(name):
+                fail(self, "leaders", leader_kinds_allowed(), name)
         for name in ("host", "follower"):
             if not isinstance(getattr(self, name), str) or not getattr(self, name):
                 fail(self, name, "a non-empty string")

@@ -42,7 +42,8 @@ def test_play_a_short_game_in_the_browser(server, browser):
     page.select_option("#preset", "reward_4_1")
     expect(page.locator("#goal-reward")).to_have_text("+4")
     page.select_option("#preset", "default")
-    assert page.locator("[data-symbol]").all_text_contents() == ["L", "F"]
+    assert page.locator("#who-is-who [data-symbol]").all_text_contents() == ["L", "F"]
+    assert page.locator("#who-assists [data-symbol]").all_text_contents() == ["F", "L"]  # the follower seat's words
     page.select_option("#mode", "turn")
     page.fill("#horizon", "6")
     page.click("#start")

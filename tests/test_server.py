@@ -171,6 +171,10 @@ def test_bad_messages_get_errors_and_the_game_goes_on(server):
     assert err["code"] == "too_large" and "limit is 2048" in err["message"]
     client.send({"type": "new_game"})
     assert "already has a live game" in client.recv("error")["message"]
+    client.send({"type": "key", "key": "ArrowDown", "seq": 1})  # 1 is the ignored key's: each seq names one key
+    err = client.recv("error")
+    assert err["code"] == "bad_seq" and "number keys on from 2" in err["message"]
+    client.seq = 2
     client.key("ArrowDown")
     assert client.recv("state")["step"] == 1, "the game goes on after every error"
     client.send({"type": "quit"})
@@ -206,8 +210,10 @@ def test_disconnect_then_rejoin_with_the_token(server):
     other.send({"type": "rejoin", "game_id": welcome["game_id"], "token": "wrong"})
     assert "no game with that id and token" in other.recv("error")["message"]
     other.send({"type": "rejoin", "game_id": welcome["game_id"], "token": welcome["token"]})
-    assert other.recv("welcome")["game_id"] == welcome["game_id"]
+    again = other.recv("welcome")
+    assert again["game_id"] == welcome["game_id"] and (welcome["next_seq"], again["next_seq"]) == (0, 1)
     assert other.recv("state")["step"] == 1
+    other.seq = again["next_seq"]  # the keys number on: (game, seq) names one key
     other.key("ArrowDown")
     assert other.recv("state")["step"] == 2
     other.send({"type": "quit"})

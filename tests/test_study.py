@@ -7,6 +7,7 @@ import json
 import sqlite3
 import subprocess
 import sys
+import time
 import tomllib
 import urllib.error
 import urllib.request
@@ -23,7 +24,7 @@ from colorgrid.replay import load, verify
 from server.study import service as service_module
 from server.study.assign import williams
 from server.study.config import StudyError, load_study, parse_study
-from server.study.service import Refused, StudyService, study_hash
+from server.study.service import Finished, Refused, StudyService, study_hash
 from server.study.store import StudyStore
 from tests.conftest import ROOT, start_server, stop_server
 
@@ -130,6 +131,24 @@ def test_the_cli_names_a_broken_study_file_in_one_line(tmp_path):
     assert "not valid TOML" in result.stderr and str(path) in result.stderr
 
 
+@pytest.mark.parametrize("change, blamed", [
+    (lambda d: d["factors"].update(follower=["bayes-people", "bayes-peeple"]),
+     "factors.follower: level 'bayes-peeple' is invalid: unknown policy 'bayes-peeple'; choose one of ["),
+    (lambda d: d["pages"][2]["game"].update(follower="copyy"),
+     "pages[2].game.follower='copyy' is invalid: unknown policy 'copyy'; choose one of ["),
+])
+def test_a_misspelled_follower_is_blamed_on_the_study_files_field_not_a_flag(change, blamed, tmp_path):
+    data = copy.deepcopy(example())
+    change(data)
+    path = tmp_path / "study.toml"
+    path.write_text(toml(data))
+    result = subprocess.run([sys.executable, "-m", "colorgrid_apps", "study", "run", str(path), "--replays-dir",
+                             str(tmp_path / "recordings")], cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1, result.stderr
+    assert f"{path}: {blamed}" in result.stderr and "'bayes-people'" in result.stderr, result.stderr  # what is allowed
+    assert "--follower" not in result.stderr
+
+
 # ---------------------------------------------------------------- assignment
 @pytest.mark.parametrize("n", [2, 3, 4, 5])
 def test_williams_squares_balance_positions_and_neighbours(n):
@@ -165,7 +184,7 @@ def test_a_participant_id_cannot_start_over_and_its_own_browser_resumes(study_da
     service = StudyService(study, StudyStore(study_database, study.id, study_hash(study)))
     first = service.join({"PROLIFIC_PID": "p1", "STUDY_ID": "s1"}, None, "browser A")
     assert service.join({"PROLIFIC_PID": "p1"}, first["session"], "browser A") == first
-    with pytest.raises(Refused, match="already started the study; it cannot start again"):
+    with pytest.raises(Refused, match="already started this study in another browser"):
         service.join({"PROLIFIC_PID": "p1"}, None, "browser B")
     with pytest.raises(Refused, match="already started"):
         service.join({"PROLIFIC_PID": "p1"}, "a guess", "browser B")
@@ -187,6 +206,56 @@ def test_a_join_sent_again_with_the_key_its_browser_proposed_resumes_instead_of_
     with pytest.raises(Refused, match="already started"):
         service.join({"PROLIFIC_PID": "p1"}, "k" * 31, "browser B")
     assert service.join({"PROLIFIC_PID": "p2"}, "short", "browser C")["session"] != "short"  # not a key: one is made
+
+
+def test_a_participant_who_finished_gets_their_completion_code_again_from_another_browser(study_database):
+    study = load_study(EXAMPLE)
+    service = StudyService(study, StudyStore(study_database, study.id, study_hash(study)))
+    first = service.join({"PROLIFIC_PID": "p1"}, None, "browser A")
+    with service.store.transaction() as tx:
+        assert tx.move_on("p1", 0, 11, True, time.time())  # the debrief: done
+    with pytest.raises(Finished) as refused:
+        service.join({"PROLIFIC_PID": "p1"}, None, "browser B")
+    assert "already completed this study" in str(refused.value) and "CG7QX2" in str(refused.value)
+    assert refused.value.completion_code == "CG7QX2"
+    assert refused.value.redirect_url == "https://app.prolific.com/submissions/complete?cc=CG7QX2"
+    assert service.join({"PROLIFIC_PID": "p1"}, first["session"], "browser A") == first  # their own browser resumes
+
+
+def test_a_returning_participant_refused_stays_in_the_audit_log(study_database):
+    # The refusal's event is written in the join's transaction: the refusal is raised once it is committed.
+    from sqlalchemy import select
+
+    from server.study.store import events
+
+    study = load_study(EXAMPLE)
+    service = StudyService(study, StudyStore(study_database, study.id, study_hash(study)))
+    service.join({"PROLIFIC_PID": "p1"}, None, "browser A")
+    with pytest.raises(Refused, match="already started"):
+        service.join({"PROLIFIC_PID": "p1"}, None, "browser B")
+    with service.store.transaction() as tx:
+        assert tx.move_on("p1", 0, 11, True, time.time())  # the debrief: done
+    with pytest.raises(Finished):
+        service.join({"PROLIFIC_PID": "p1"}, None, "browser C")
+    with service.store.reading() as tx:
+        logged = tx.conn.execute(select(events.c.kind, events.c.detail).where(events.c.pid == "p1")).all()
+    refused = sorted(json.loads(detail)["reason"] for kind, detail in logged if kind == "refused")
+    assert refused == ["already completed", "already started"], logged
+    assert [kind for kind, _ in logged].count("joined") == 1
+
+
+def test_the_summary_counts_games_by_ending_and_those_played_again(study_database):
+    study = load_study(EXAMPLE)
+    service = StudyService(study, StudyStore(study_database, study.id, study_hash(study)))
+    service.join({"PROLIFIC_PID": "p1"}, None, "browser A")
+    with service.store.transaction() as tx:
+        for attempt, ended in enumerate(("server_lost", "disconnected", "complete")):
+            tx.add_game({"pid": "p1", "step": 3, "attempt": attempt, "kind": "trial", "trial_index": 0,
+                         "condition": 0, "settings": "{}", "game_id": f"g{attempt}", "started": time.time()})
+            tx.end_game("p1", 3, attempt, {"ended": ended, "finished": time.time(), "team_score": 2.0})
+    summary = service.summary(0)
+    assert summary["endings"] == {"counted": {"complete": 1}, "played_again": {"disconnected": 1, "server_lost": 1}}
+    assert summary["arms"][summary["recent"][0]["arm"]]["trials"]["games"] == 1  # the lost ones are not figures
 
 
 @pytest.mark.parametrize("failures", [1, 2])
@@ -305,8 +374,9 @@ def test_a_participant_goes_through_the_api_and_the_data_is_recorded(study_serve
         ws.send(json.dumps({"type": "new_game", "study": ref}))
         while json.loads(ws.recv(timeout=30))["type"] != "game_over":
             pass
-        view = post(study_server, "/api/study/advance", {**who, "step": 2})[1]
-        assert view["kind"] == "trial" and view["trial_index"] == 0
+    view = post(study_server, "/api/study/advance", {**who, "step": 2})[1]
+    assert view["kind"] == "trial" and view["trial_index"] == 0
+    with connect(study_server.ws_url, open_timeout=20) as ws:  # one game a socket: the server closed the last
         over = play_turns(ws, ref)
         assert over["welcome"]["mode"] == "turn" and over["reason"] == "complete"
     view = post(study_server, "/api/study/advance", {**who, "step": 3})[1]
@@ -472,7 +542,7 @@ def test_every_exported_table_has_the_declared_columns_and_types_in_parquet_and_
 
     from server.study.export import tables as export_tables
     from server.study.export import write_tables
-    from server.study.schema import SCHEMA_FILE, check_arrow, check_frame, export_schema, read_csv
+    from server.study.schema import SCHEMA_FILE, check_arrow, check_frame, export_schema, read_csv, read_parquet
 
     path = tmp_path / "two.toml"
     path.write_text(SEVERAL_CONDITIONS)
@@ -487,14 +557,14 @@ def test_every_exported_table_has_the_declared_columns_and_types_in_parquet_and_
             if not finish:
                 continue
             ref = {"participant": pid, "session": joined["session"]}
-            with connect(server.ws_url, open_timeout=20) as ws:
-                while view["kind"] != "questionnaire":
-                    if view.get("game"):
+            while view["kind"] != "questionnaire":
+                if view.get("game"):
+                    with connect(server.ws_url, open_timeout=20) as ws:  # one game a socket
                         play_turns(ws, ref, keys=view["game"]["horizon"])
-                        body = {}
-                    else:  # after a trial: the Likert question, an answer per trial
-                        body = {"answers": {"helpful": view["trial_index"] + 1}}
-                    view = post(server, "/api/study/advance", {**who, "step": view["step"], **body})[1]
+                    body = {}
+                else:  # after a trial: the Likert question, an answer per trial
+                    body = {"answers": {"helpful": view["trial_index"] + 1}}
+                view = post(server, "/api/study/advance", {**who, "step": view["step"], **body})[1]
             view = post(server, "/api/study/advance", {**who, "step": view["step"],
                                                        "answers": {"which": "the second", "comments": None}})[1]
             assert view["kind"] == "debrief"
@@ -515,11 +585,11 @@ def test_every_exported_table_has_the_declared_columns_and_types_in_parquet_and_
     assert json.loads((out / SCHEMA_FILE).read_text())["tables"]["answers"]["questions"]["after_trial"][0]["scale"] == 5
     tables = {}
     for name, table in declared.items():
-        parquet = pd.read_parquet(out / f"{name}.parquet")
+        parquet = read_parquet(out, name)  # the follower seat's tables have no rows here: their categories kept
         csv = read_csv(out, name)
         arrow = pq.read_table(out / f"{name}.parquet").schema
         assert check_frame(parquet, table) == [] and check_frame(csv, table) == [] and check_arrow(arrow, table) == []
-        assert len(parquet) > 0, name
+        assert len(parquet) > 0 or name in ("probes", "statements"), name  # those two: the follower seat's
         pd.testing.assert_frame_equal(csv, parquet)  # the same values and types from either file
         assert json.loads(arrow.metadata[b"colorgrid"])["columns"][0]["name"] == "participant"
         assert (parquet.arm_label.notna()).all(), name  # every row says whose arm it is
@@ -545,6 +615,22 @@ def test_every_exported_table_has_the_declared_columns_and_types_in_parquet_and_
     assert steps.belief_0.notna().any() and steps[steps.condition_follower == "copy"].belief_0.isna().all()
 
 
+def test_an_empty_table_has_the_declared_types_in_parquet_and_csv(tmp_path):
+    # Parquet keeps a column's categories with its values: a table without rows holds none in its values.
+    from server.study.export import write_tables
+    from server.study.schema import check_frame, export_schema, read_csv, read_parquet
+
+    study = load_study(EXAMPLE)
+    StudyStore(tmp_path / "study.sqlite", study.id, study_hash(study)).close()  # nobody has joined
+    assert set(write_tables(study, tmp_path / "study.sqlite", tmp_path, tmp_path / "out").values()) == {0}
+    for name, table in export_schema(study).items():
+        parquet, csv = read_parquet(tmp_path / "out", name), read_csv(tmp_path / "out", name)
+        assert len(parquet) == len(csv) == 0
+        assert check_frame(parquet, table) == [] and check_frame(csv, table) == [], name
+        pd.testing.assert_frame_equal(csv, parquet)
+    assert list(read_parquet(tmp_path / "out", "focus").event.cat.categories) == ["blur", "focus", "visibilitychange"]
+
+
 def test_the_data_dictionary_in_the_docs_is_the_declared_schema():
     from server.study.schema import data_dictionary
 
@@ -561,3 +647,17 @@ def test_a_value_outside_its_declared_type_stops_the_export_with_its_place():
         conform([{"participant": "p", "kind": "trial", "attempt": 0, "event": "blur"}], focus)
     with pytest.raises(ValueError, match=r"columns \['colour'\] are not declared"):
         conform([{"colour": 1}], focus)
+
+
+def test_keys_recorded_before_are_numbered_on_and_a_repeated_key_stops_the_export():
+    from server.study.export import numbered_on
+    from server.study.schema import conform, export_schema
+
+    assert numbered_on([4, 5, 7]) == [4, 5, 7]  # as the server numbers them now (welcome.next_seq): unchanged
+    assert numbered_on([0, 1, 2, 0, 1, 5, 3]) == [0, 1, 2, 3, 4, 8, 9]  # a page that started again at 0, twice
+    keys = export_schema(load_study(EXAMPLE))["keys"]
+    row = {"participant": "p", "arm": 0, "kind": "trial", "attempt": 0, "game_id": "g1", "seq": 3}
+    with pytest.raises(ValueError, match=r"^keys: 2 rows share their \(game_id, seq\), which names one row; the "
+                                         r"first: game_id=g1, seq=3$"):
+        conform([row, dict(row)], keys)
+    assert len(conform([row, dict(row, seq=4)], keys)) == 2

@@ -30,7 +30,14 @@ export function plainError(msg, maxHorizon) {
       return "The server could not do that: start a new game or reload the page.";
     }
     case "rate_limited": return "Too many keys at once: some were skipped.";
-    case "bad_key": return "Move with the arrow keys or W A S D.";
+    case "bad_key":
+      return /not a move or a color/.test(text) ? "Move with the arrow keys or W A S D; say the goal with its number key."
+        : "Move with the arrow keys or W A S D.";
+    case "bad_belief": return "Choose one of the colors shown.";
+    case "bad_probe":
+      if (/confidence/.test(text)) return "Choose how sure you are: from a guess to certain.";
+      if (/^color/.test(text)) return "Choose one of the colors shown.";
+      return "That question was already closed.";
     case "internal": return "Something went wrong on the server; the game goes on.";
     default: return RELOAD;  // bad_json, unknown_type, too_large: the page itself sent something wrong
   }

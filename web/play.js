@@ -3,15 +3,18 @@
 // several people meets in a room first (web/room.js draws it).
 import { agentBadge, drawBoard, drawBelief, setLook } from "./board.js";
 import { countdown } from "./countdown.js";
-import { playSocket } from "./socket.js";
+import { PlaySocket } from "./socket.js";
+import { OwnMove } from "./predict.js";
 import { plainEnding, plainError, stepsMessage } from "./messages.js";
 import { queryParam } from "./params.js";
 import { LEFT_ENDING, drawBeliefs, markYou, openedRoom, plainRoomClosed, plainRoomError, showAgents, showRoom,
          showScores, showSeats, whoIs } from "./room.js";
+import { answerProbe, drawStated, followerSeat, probeRefused, seatKey, seatRequest, showProbeChoice,
+         showProbeConfidence, showSeatChoice, startSeat } from "./follower_seat.js";
 
 const $ = (id) => document.getElementById(id);
 const ARROWS = { ArrowUp: "↑", ArrowDown: "↓", ArrowLeft: "←", ArrowRight: "→" };
-let options = null, socket = null, game = null, room = null, seq = 0, beliefHidden = false, lastState = null;
+let options = null, game = null, room = null, seq = 0, own = null, beliefHidden = false, lastState = null;
 
 async function loadOptions() {
   options = await (await fetch("/api/options")).json();
@@ -24,7 +27,7 @@ async function loadOptions() {
   for (const agent of options.look.agents) {  // the discs as the board draws them: yours ringed, as on the board
     for (const el of document.querySelectorAll(`[data-symbol="${agent.name}"]`)) {
       const badge = agentBadge(agent);
-      if (agent.role === "leader") badge.classList.add("you-badge");
+      if (agent.role === (el.closest("#who-assists") ? "follower" : "leader")) badge.classList.add("you-badge");
       el.replaceChildren(badge);
     }
   }
@@ -54,17 +57,31 @@ function showTeamChoice() {
   // the followers that play in the chosen team, the AI leaders that may lead beside you in it, and what starting
   // it does
   const team = chosenTeam(), current = $("follower").value;
+  showSeatChoice(options, team, fill);  // a team of one leader may seat you as its follower, beside an AI leader
+  const assisting = followerSeat();
   const offered = options.follower_info.filter((f) => team.followers.includes(f.value));
   fill($("follower"), offered, team.followers.includes(current) ? current : team.followers[0]);
+  $("follower-choice").hidden = aiFollowers(team) === 0;
   const leaders = options.leader_info.filter((l) => (team.leaders ?? []).includes(l.value));
-  $("leader-choice").hidden = !leaders.length;
+  $("leader-choice").hidden = !leaders.length || assisting;
   fill($("leader"), [{ value: "", label: "another person (a room)" }, ...leaders], "");
+  // what the setup card says of who is who and of the goal, for the seat chosen
+  $("setup-title").textContent = assisting ? "Play the assistant" : "Lead the way";
+  $("who-is-who").hidden = assisting;
+  $("who-assists").hidden = !assisting;
+  $("goal-help").hidden = assisting && $("goal-view").value === "hidden";
+  $("stated-help").hidden = !assisting;
   // one person with several AI followers may give the second its own kind
-  const mixed = team.ai_followers > 1 && !team.room;
+  const mixed = aiFollowers(team) > 1 && !team.room;
   $("second-follower").hidden = !mixed;
   $("follower-heading").textContent = mixed ? "First AI partner" : "Your AI partner";
   if (mixed) fill($("follower-2"), [{ value: "", label: "the same kind" }, ...offered], "");
   showStart();
+}
+
+function aiFollowers(team) {
+  // the AI followers a game of this team has: every follower, but the one you play in the follower seat
+  return team.ai_followers - (followerSeat() ? 1 : 0);
 }
 
 function chosenLeader() {
@@ -82,7 +99,10 @@ function showStart() {
   const followers = team.ai_followers === 1 ? "one AI follower" : `${team.ai_followers} AI followers`;
   showFollower();
   $("start").textContent = inRoom(team) ? "Create a room" : "Start";
-  $("team-help").textContent = inRoom(team)
+  $("team-help").textContent = followerSeat()
+    ? `You assist an AI leader${aiFollowers(team) ? ", beside an AI follower" : ""}: the leader knows the goal; ` +
+      `you ${$("goal-view").value === "hidden" ? "do not, and work it out from what it does" : "see it too (a control)"}.`
+    : inRoom(team)
     ? `You and ${team.people - 1 === 1 ? "another person" : `${team.people - 1} other people`} lead together ` +
       `(${followers}): create a room, send its link, and the game starts when everyone is ready. In turn-based ` +
       "play the world steps once every person has moved."
@@ -101,13 +121,17 @@ function leaderInfo(name) {
 
 function showFollower() {
   const second = $("second-follower").hidden ? "" : $("follower-2").value;
-  const leader = chosenLeader() ? `. The other leader: ${leaderInfo(chosenLeader()).description}.` : "";
-  $("follower-description").textContent = [$("follower").value, second].filter(Boolean)
+  const leader = chosenLeader() ? `. The other leader: ${leaderInfo(chosenLeader()).description}.`
+    : followerSeat() ? ` The AI leader: ${leaderInfo($("seat-leader").value).description}.` : "";
+  const followers = $("follower-choice").hidden ? [] : [$("follower").value, second];
+  $("follower-description").textContent = followers.filter(Boolean)
     .map((name) => followerInfo(name).description).join(" ") + leader;
 }
 
 function chosenFollowers() {
-  // what a request names: every AI follower's kind, or one kind each when the second differs
+  // what a request names: every AI follower's kind, or one kind each when the second differs (none when you play the
+  // only follower)
+  if ($("follower-choice").hidden) return {};
   const second = $("second-follower").hidden ? "" : $("follower-2").value;
   return second ? { followers: [$("follower").value, second] } : { follower: $("follower").value };
 }
@@ -141,18 +165,21 @@ function status(text, kind = "", detail = "") {
   $("status").title = detail;  // the protocol's words, for researchers
 }
 
+// One connection, for the game or room of the moment (web/socket.js): only its messages count, it goes back to the
+// game or room after a drop, and it is closed when the game ends or the page leaves the room.
+const connection = new PlaySocket({
+  onMessage,
+  resume: () => (game && !game.over && !game.replaced ? { type: "rejoin", game_id: game.game_id, token: game.token }
+    : room ? { type: "join_room", code: room.code } : null),
+  onDrop: () => status("connection lost: rejoining...", "warn"),
+  onUnanswered: () => {  // the game or room asked for may or may not have been made: start again from the setup
+    backToSetup();
+    status("The connection was lost before the game started: start again.", "error");
+  },
+});
+
 function connect(firstMessage) {
-  if (socket) {  // the last game's socket, or one whose game was refused: it has nothing more to say
-    socket.onclose = socket.onmessage = null;
-    socket.close();
-  }
-  playSocket(firstMessage, {
-    onOpen: (opened) => { socket = opened; },
-    onMessage,
-    liveGame: () => (game && !game.over && !game.replaced ? game : null),
-    liveRoom: () => room?.code ?? null,
-    onDrop: () => status("connection lost: rejoining...", "warn"),
-  });
+  connection.start(firstMessage);  // the connection before (the last game's, or one whose game was refused) closes
 }
 
 function onRoom(msg) {
@@ -179,8 +206,10 @@ function onRoom(msg) {
 }
 
 function backToSetup(clearLink = true) {  // out of a room (or a game that was not made), back to the choices
+  connection.close();
   room = null;
   if (clearLink) history.replaceState(null, "", "/");
+  $("game").hidden = true;
   $("countdown").hidden = true;
   $("room").hidden = true;
   $("setup").hidden = false;
@@ -197,6 +226,8 @@ function onMessage(msg) {
     game = { ...msg, over: false, agent: msg.agent ?? msg.look.agents.find((a) => a.role === "leader").name };
     room = null;
     lastState = null;
+    seq = msg.next_seq;  // keys number on across reloads and reconnects
+    own = new OwnMove(msg, game.agent);  // this person's own moves, drawn before the server's state shows them
     $("events").textContent = "";
     if (location.search) history.replaceState(null, "", "/");  // a reload rejoins the game, not the room
     setLook(msg.look);
@@ -217,18 +248,23 @@ function onMessage(msg) {
     const kinds = [...new Set(Object.values(msg.followers ?? { follower: msg.follower }))].map(followerInfo);
     const follower = { label: kinds.map((k) => k.label).join(" + "), description: kinds.map((k) => k.description).join(" "),
                        has_belief: kinds.some((k) => k.has_belief) };
-    const followers = game.look.agents.filter((a) => a.role === "follower").length;
+    const assisting = msg.seat === "follower";  // you play the follower, beside an AI leader
+    const followers = game.look.agents.filter((a) => a.role === "follower").length - (assisting ? 1 : 0);
     $("follower-label").textContent = follower.label;
     $("follower-label").title = follower.description;
+    $("partner-note").hidden = followers === 0;
     $("partner-note").firstChild.textContent = followers > 1 ? "your AI partners: " : "your AI partner: ";
     const leaders = [...new Set(Object.values(msg.leaders ?? {}))].map(leaderInfo);  // AI leaders beside you
     $("leader-note").hidden = !leaders.length;
+    $("leader-words").textContent = assisting ? "the leader (AI)" : "the other leader (AI)";
     $("leader-label").textContent = leaders.map((l) => l.label).join(" + ");
     $("leader-label").title = leaders.map((l) => l.description).join(" ");
     showAgents(game);
     $("belief-whose").textContent = followers > 1 ? "your AI partners believe" : "your AI partner believes";
-    $("belief-panel").hidden = !(msg.show_belief && follower.has_belief);
-    status(`your move: ${moveKeys(options.keys)}`);
+    $("belief-panel").hidden = !(msg.show_belief && follower.has_belief && followers > 0);
+    startSeat(game, (message) => connection.send(message));
+    status(assisting ? `your move: ${moveKeys(options.keys)}; say the goal with ${Object.keys(msg.belief_keys).join(", ")}`
+      : `your move: ${moveKeys(options.keys)}`);
   } else if (msg.type === "state") {
     lastState = msg;
     render(msg);
@@ -237,6 +273,7 @@ function onMessage(msg) {
     showSeats(game, msg.seats);
   } else if (msg.type === "game_over") {
     game.over = true;
+    connection.close();  // one connection a game (the server closes it too)
     sessionStorage.removeItem("colorgrid-game");
     $("quit").hidden = true;
     $("over").hidden = false;
@@ -249,7 +286,9 @@ function onMessage(msg) {
     const detail = msg.type === "full" ? `full: ${msg.message}` : `${msg.code}: ${msg.message}`;
     console.info(detail);
     if (game?.over) return;  // about a key on its way when the game ended: the game's end stays on screen
+    if (msg.code === "bad_probe") probeRefused(game, plainError(msg, options.horizon.max));
     const roomWords = plainRoomError(msg);
+    if (game && msg.code === "rejected" && connection.first?.type === "rejoin") game = null;  // lost while away
     if (!game && (!room || roomWords)) {  // the game or room was not made (or could not be resumed): back to the setup
       sessionStorage.removeItem("colorgrid-game");
       backToSetup(Boolean(roomWords));
@@ -257,6 +296,7 @@ function onMessage(msg) {
     status(roomWords ?? plainError(msg, options.horizon.max), "error", detail);
   } else if (msg.type === "replaced") {
     game.replaced = true;  // another tab rejoined this game: it plays there now, so do not take it back
+    connection.close();
     status("this game continues in another tab or window", "warn");
   }
 }
@@ -276,18 +316,21 @@ function agentScores(scores) {
 
 function render(state) {
   const canvas = $("board");
-  const cell = drawBoard(canvas, { height: game.height, width: game.width, ...state });
+  const shown = own.shown(state);  // this person's own move at once (web/predict.js); the server's state corrects it
+  const cell = drawBoard(canvas, { height: game.height, width: game.width, ...shown });
   for (const agent of game.look.agents) {
-    canvas.dataset[agent.name] = state[agent.name];  // agents' cells, for assistive tools and tests
+    canvas.dataset[agent.name] = state[agent.name];  // the server's cells of the agents, for assistive tools and tests
   }
-  markYou(canvas, cell, game.width, state[game.agent]);
+  canvas.dataset.you = shown[game.agent];  // where this person's disc is drawn
+  markYou(canvas, cell, game.width, shown[game.agent]);
   showScores(game, state.scores, fmt);
   canvas.dataset.step = state.step;
   $("step").textContent = `${state.step} / ${state.horizon}`;
   $("left").textContent = `${state.horizon - state.step} steps left`;
   $("score-team").textContent = fmt(state.scores.team);
-  $("goal-swatch").style.background = game.look.palette[state.goal];
-  $("goal-name").textContent = game.colors[state.goal];
+  $("goal-swatch").style.background = state.goal == null ? "#999" : game.look.palette[state.goal];
+  $("goal-name").textContent = state.goal == null ? "hidden from you" : game.colors[state.goal];
+  drawStated(game, state);
   if (game.team) drawBeliefs($("belief"), beliefHidden ? null : state.beliefs, game, drawBelief);
   else drawBelief($("belief"), beliefHidden ? null : state.belief, game.colors);
   const events = state.events.map((e) => e.switch !== undefined ? `goal switched to ${game.colors[e.switch]}`
@@ -297,25 +340,36 @@ function render(state) {
 
 function playing() {
   // a game this page plays, before its last step (a key after it moves nothing)
-  return game && !game.over && !game.replaced && socket?.readyState === WebSocket.OPEN
+  return game && !game.over && !game.replaced && connection.ready
     && !(lastState && lastState.step >= lastState.horizon);
 }
 
 function pageEvent(event) {
   // the page hidden or shown, its window left or back: recorded in the replay (meta.page_events)
   if (!playing()) return;
-  socket.send(JSON.stringify({ type: "page_event", event, visible: document.visibilityState === "visible",
-                               t_client: performance.timeOrigin + performance.now() }));
+  connection.send({ type: "page_event", event, visible: document.visibilityState === "visible",
+                    t_client: performance.timeOrigin + performance.now() });
 }
 
 window.addEventListener("blur", () => pageEvent("blur"));
 window.addEventListener("focus", () => pageEvent("focus"));
 document.addEventListener("visibilitychange", () => pageEvent("visibilitychange"));
 
+function sendKey(key) {
+  return connection.send({ type: "key", key, seq: seq++, t_client: performance.timeOrigin + performance.now() });
+}
+
 document.addEventListener("keydown", (event) => {
-  if (!playing() || !Object.hasOwn(options.keys, event.key)) return;
+  if (!playing()) return;
+  if (seatKey(game, event, sendKey, (message) => connection.send(message))) {  // the follower seat's own keys
+    event.preventDefault();
+    return;
+  }
+  if (!Object.hasOwn(options.keys, event.key)) return;
   event.preventDefault();
-  socket.send(JSON.stringify({ type: "key", key: event.key, seq: seq++, t_client: performance.timeOrigin + performance.now() }));
+  connection.send({ type: "key", key: event.key, seq, t_client: performance.timeOrigin + performance.now() });
+  own.press(event.key, seq++);
+  if (lastState) render(lastState);  // the move at once; the server's state corrects it
   if (game.team && game.mode === "turn" && game.seats.filter((s) => s.status !== "left").length > 1) {
     status("waiting for the other person to move...");
   }
@@ -328,7 +382,7 @@ $("start").addEventListener("click", async () => {
   }
   const team = chosenTeam(), leader = chosenLeader();
   const request = { type: inRoom(team) ? "create_room" : "new_game", team: team.value, ...chosenFollowers(),
-                    ...(leader ? { leader } : {}), preset: $("preset").value, mode: $("mode").value,
+                    ...(leader ? { leader } : {}), ...seatRequest(), preset: $("preset").value, mode: $("mode").value,
                     horizon: $("horizon").value ? Number($("horizon").value) : null, show_belief: true,
                     viewport: [window.innerWidth, window.innerHeight] };
   seq = 0;
@@ -356,9 +410,9 @@ function joinRoom(code) {
 $("join").addEventListener("click", () => {
   location.assign(`/?room=${encodeURIComponent($("join-code").value.trim())}`);
 });
-$("ready").addEventListener("click", () => socket?.send(JSON.stringify({ type: "ready", ready: !room?.ready })));
+$("ready").addEventListener("click", () => connection.send({ type: "ready", ready: !room?.ready }));
 $("leave-room").addEventListener("click", () => {
-  socket?.send(JSON.stringify({ type: "quit" }));
+  connection.send({ type: "quit" });
   backToSetup();
   status("");
 });
@@ -367,6 +421,12 @@ $("team").addEventListener("change", showTeamChoice);
 $("follower").addEventListener("change", showFollower);
 $("follower-2").addEventListener("change", showFollower);
 $("leader").addEventListener("change", showStart);
+$("seat").addEventListener("change", showTeamChoice);
+$("seat-leader").addEventListener("change", showFollower);
+$("goal-view").addEventListener("change", showTeamChoice);
+$("probe-kind").addEventListener("change", showProbeChoice);
+$("probe-confidence").addEventListener("input", showProbeConfidence);
+$("probe-answer").addEventListener("click", () => answerProbe(game, (message) => connection.send(message)));
 $("preset").addEventListener("change", showPreset);
 $("mode").addEventListener("change", showMode);
 $("again").addEventListener("click", () => {
@@ -376,7 +436,7 @@ $("again").addEventListener("click", () => {
   game = null;
   status("");  // the last game's end is not this one's
 });
-$("quit").addEventListener("click", () => socket && socket.send(JSON.stringify({ type: "quit" })));
+$("quit").addEventListener("click", () => connection.send({ type: "quit" }));
 $("belief-toggle").addEventListener("change", (event) => {
   beliefHidden = !event.target.checked;
   if (lastState) render(lastState);

@@ -1,15 +1,18 @@
 // The participant's page of a study: it shows the page the server says the participant is on
 // (consent, instructions, a game, questions, the debrief) and reports what they did. The server
 // keeps the progress, so a reload continues where the participant was. See docs/STUDIES.md.
-import { drawBoard, drawBelief, setLook } from "./board.js";
+import { setLook } from "./board.js";
 import { countdown } from "./countdown.js";
-import { playSocket } from "./socket.js";
+import { PlaySocket } from "./socket.js";
+import { OwnMove } from "./predict.js";
 import { plainEnding } from "./messages.js";
 import { describe, disc, drawLegend } from "./study_people.js";
+import { drawState, gameName, startGame } from "./study_game.js";
+import { answerProbe, drawStated, probeRefused, seatKey, showProbeConfidence, startSeat } from "./follower_seat.js";
 
 const $ = (id) => document.getElementById(id);
 const params = Object.fromEntries(new URLSearchParams(location.search));
-let info = null, who = null, view = null, socket = null, game = null, seq = 0;
+let info = null, who = null, view = null, game = null, seq = 0, own = null, lastState = null;
 
 function status(text, kind = "") {
   $("status").textContent = text;
@@ -30,6 +33,7 @@ async function api(path, body, tries = 1) {
     const detail = data.detail;
     const err = new Error(typeof detail === "string" ? detail : detail?.message ?? "the request was refused");
     err.problems = detail?.problems ?? null;
+    err.detail = detail;  // a participant who finished: their completion code comes with the refusal
     throw err;
   }
   return data;
@@ -73,28 +77,46 @@ function show(next) {
   $("questions").replaceChildren(...(view.questions ?? []).map(questionField));
   $("legend").hidden = !["instructions", "practice", "trial"].includes(view.kind);  // who is who, before each game
   drawLegend($("legend"), view.look, view.agent);
+  // the board, its frame and its discs, labelled (for the leader's seat: the picture says "you are L")
+  $("board-picture").hidden = view.kind !== "instructions" || assisting(view);
   $("completion").hidden = view.kind !== "debrief";
-  if (view.kind === "debrief") {
-    $("completion-code").textContent = view.completion_code;
-    $("redirect").hidden = !view.redirect_url;
-    $("redirect").href = view.redirect_url || "#";
-  }
+  if (view.kind === "debrief") showCompletion(view.completion_code, view.redirect_url);
   const gamePage = Boolean(view.game);
+  $("page-text").hidden = gamePage && Boolean(view.done);  // "Play with your AI partner" is for before the game
+  showEnd(view);
   $("play").hidden = !gamePage || Boolean(view.done);
   $("next").hidden = view.kind === "debrief" || (gamePage && !view.done);
   $("next").textContent = view.kind === "consent" ? "I agree" : "Continue";
-  status(view.done ? ending(view) : view.interrupted ? INTERRUPTED : "", view.interrupted ? "warn" : "");
+  status(view.interrupted ? interrupted() : "", view.interrupted ? "warn" : "");
   if (view.live) connect({ type: "rejoin", game_id: view.live.game_id, token: view.live.token });
 }
 
-const INTERRUPTED = "Your game was interrupted: the server running it stopped. Press Play to play this game again.";
+function interrupted() {
+  // The button's own words: the participant is told to press what they see.
+  return `Your game was interrupted: the server running it stopped. Press "${$("play").textContent}" to play ` +
+    "this game again.";
+}
 
-function ending(page) {
-  // The game just played, in words: how it ended and the team's score (a practice game's does not count).
+function showEnd(page) {
+  // The game just played, in a panel of its own: which game, the team's score (a practice game's does not count)
+  // and, when it did not simply run to its end, how it ended.
+  $("game-end").hidden = !page.done;
+  if (!page.done) return;
+  const practice = page.kind === "practice";
+  $("game-end-title").textContent = practice ? "The practice game is over" : `${gameName(page)} is over`;
   const score = page.done.scores?.team;
-  const points = score == null ? "" : ` Your team scored ${score > 0 ? "+" : ""}${score}`;
-  if (page.kind === "practice") return `Practice over.${points ? `${points}, which does not count.` : ""}`;
-  return `${plainEnding(page.done.ended)}${points ? `${points}.` : ""}`;
+  $("game-end-score").textContent = score == null ? ""
+    : `Your team scored ${score > 0 ? "+" : ""}${score}${practice ? " (practice: it does not count)" : ""}`;
+  const how = page.done.ended === "complete" ? "" : `${plainEnding(page.done.ended)} `;
+  $("game-end-note").textContent = `${how}Press Continue when you are ready.`;
+}
+
+function showCompletion(code, url) {
+  // The completion code and the way back to the study platform (the debrief; a finished participant's refusal).
+  $("completion").hidden = !code && !url;
+  $("completion-code").textContent = code;
+  $("redirect").hidden = !url;
+  $("redirect").href = url || "#";
 }
 
 function questionField(q) {
@@ -148,7 +170,7 @@ async function next() {
   try {
     const body = { ...who, step: view.step, agree: view.kind === "consent" };
     if (view.questions) body.answers = answers();
-    showProblems([]);
+    showProblems([], false);
     show(await api("advance", body, 3));
   } catch (err) {
     if (err.problems) {
@@ -159,8 +181,11 @@ async function next() {
   }
 }
 
-function showProblems(problems) {
+let problemsShown = [];
+
+function showProblems(problems, focus = true) {
   // The server's problems with the answers, each beside its question; the status line names the questions.
+  problemsShown = problems;
   for (const box of $("questions").querySelectorAll("fieldset.question")) {
     const problem = problems.find((p) => p.question === box.dataset.id);
     box.querySelector(".problem")?.remove();
@@ -174,32 +199,64 @@ function showProblems(problems) {
     box.setAttribute("aria-describedby", note.id);
     box.append(note);
   }
-  if (!problems.length) return;
+  if (!problems.length) {
+    if ($("status").className === "error" && $("status").querySelector("ul")) status("");
+    return;
+  }
   const list = document.createElement("ul");
   list.replaceChildren(...problems.map((p) => Object.assign(document.createElement("li"), { textContent: p.prompt })));
   $("status").replaceChildren(problems.length === 1 ? "Please look again at this question:"
     : `Please look again at these ${problems.length} questions:`, list);
   $("status").className = "error";
-  $("questions").querySelector("fieldset[aria-invalid=true] input, fieldset[aria-invalid=true] textarea")?.focus();
+  const first = $("questions").querySelector("fieldset[aria-invalid=true] input, fieldset[aria-invalid=true] textarea");
+  if (focus) first?.focus();
+}
+
+function answered(event) {
+  // A question answered after its problem was shown: the problem goes at once (Continue still asks the server).
+  const id = event.target.closest("fieldset.question")?.dataset.id;
+  if (problemsShown.some((p) => p.question === id)) showProblems(problemsShown.filter((p) => p.question !== id), false);
 }
 
 // ------------------------------------------------------------------ games
+// One connection, for the game in play (web/socket.js): only its messages count, it rejoins the game after a drop,
+// and it is closed when the game ends.
+const connection = new PlaySocket({
+  onMessage,
+  resume: () => (game && !game.over && !game.replaced ? { type: "rejoin", game_id: game.game_id, token: game.token }
+    : null),
+  onDrop: () => status("connection lost: reconnecting...", "warn"),
+  onUnanswered: () => {  // the game asked for may or may not have been made: the server's view of the page says
+    $("countdown").hidden = true;
+    api("view", who, 3).then((page) => {
+      show(page);
+      if (!page.live && !page.interrupted && !page.done) status(joinLost(), "warn");
+    }).catch((err) => status(err.message, "error"));
+  },
+});
+
 function connect(firstMessage) {
-  playSocket(firstMessage, {
-    onOpen: (opened) => { socket = opened; },
-    onMessage,
-    liveGame: () => (game && !game.over && !game.replaced ? game : null),
-    onDrop: () => status("connection lost: reconnecting...", "warn"),
-  });
+  connection.start(firstMessage);
+}
+
+function joinLost() {
+  return `The connection was lost while your game was starting. Press "${$("play").textContent}" to start it.`;
 }
 
 function onMessage(msg) {
   if (msg.type === "welcome") {
     game = { ...msg, over: false };
+    seq = msg.next_seq;  // keys number on across reloads and reconnects
+    own = new OwnMove(msg, view.agent);  // the participant's own moves, drawn before the server's state shows them
+    lastState = null;
     setLook(msg.look);
     $("page").hidden = true;
     $("game").hidden = false;
-    $("belief-panel").hidden = true;  // shown once the follower has a belief to show: some have none
+    startGame(game, view);  // the board's size, which game, the belief panel: fixed from the first step
+    startSeat(game, (message) => connection.send(message));  // the follower seat: say what you believe, probes
+    $("how-to-move").textContent = msg.seat !== "follower" ? "Move with the arrow keys or W, A, S, D. The frame " +
+      "around the board is the goal color." : `Move with the arrow keys or W, A, S, D. Say which color you believe ` +
+      `is the goal with ${Object.keys(msg.belief_keys).join(", ")} or a click on a color.`;
     drawLegend($("game-legend"), msg.look, view.agent);
     firstGameNote(msg.look);
     $("score-label").textContent = view.kind === "practice" ? "practice score (does not count)" : "team score";
@@ -207,42 +264,49 @@ function onMessage(msg) {
     status("");
     $("board").focus();
   } else if (msg.type === "state") {
-    render(msg);
+    lastState = msg;
+    render(own.shown(msg));
   } else if (msg.type === "game_over") {
     game.over = true;
+    connection.close();  // one connection a game (the server closes it too)
     api("view", who).then(show).catch((err) => status(err.message, "error"));
   } else if (msg.type === "error" || msg.type === "full") {
     console.info(msg);
     $("countdown").hidden = true;
+    if (game && !game.over && msg.code === "bad_probe") {  // the probe asks again, with the reason
+      probeRefused(game, "Choose a color and how sure you are, then answer.");
+      return;
+    }
     if (game && !game.over && msg.code === "rejected") {  // its server stopped: the game cannot be rejoined
       game = null;
-      socket?.close();
+      connection.close();
       api("view", who).then(show).catch((err) => status(err.message, "error"));  // it offers to play it again
       return;
     }
     if (!game) {  // the game was not made: show the page again (its button starts it)
+      connection.close();
       api("view", who).then(show).catch((err) => status(err.message, "error"));
     }
     status(msg.type === "full" ? "the server is busy: try again in a minute" : "something went wrong: try again", "error");
   } else if (msg.type === "replaced") {
     game.replaced = true;
+    connection.close();
     status("this game continues in another tab or window", "warn");
   }
 }
 
 function render(state) {
-  drawBoard($("board"), { height: game.height, width: game.width, ...state });
+  drawState(game, state);
+  drawStated(game, state);
   $("board").dataset.step = state.step;
+  $("board").dataset.you = state[view.agent];  // where the participant's disc is drawn (predicted: web/predict.js)
+  $("board").dataset.goal = state.goal;
   $("step").textContent = `${state.step} / ${state.horizon}`;
   $("score-team").textContent = (state.scores.team > 0 ? "+" : "") + state.scores.team;
-  $("goal-swatch").style.background = game.look.palette[state.goal];
-  $("goal-name").textContent = game.colors[state.goal];
+  $("goal-swatch").style.background = state.goal == null ? "#999" : game.look.palette[state.goal];
+  $("goal-name").textContent = state.goal == null ? "hidden from you" : game.colors[state.goal];
   $("board").setAttribute("aria-label", describe({ height: game.height, width: game.width, ...state }, game.look,
                                                  view.agent, game.colors));
-  if (game.show_belief && state.belief) {
-    $("belief-panel").hidden = false;
-    drawBelief($("belief"), state.belief, game.colors);
-  }
 }
 
 function firstGameNote(lookValue) {
@@ -252,6 +316,11 @@ function firstGameNote(lookValue) {
   if (!first) return;
   const you = lookValue.agents.find((a) => a.name === view.agent);
   const partners = lookValue.agents.filter((a) => a.name !== view.agent);
+  if (assisting(view)) {
+    $("first-game-note").replaceChildren("You are ", disc(you), ". The AI leader is ", ...partners.map(disc),
+                                         ": it knows the goal.");
+    return;
+  }
   $("first-game-note").replaceChildren("You are ", disc(you), ". Your AI partner is ",
                                        ...partners.flatMap((a, i) => (i ? [" and ", disc(a)] : [disc(a)])), ".");
 }
@@ -270,26 +339,46 @@ async function play() {
 }
 
 function pageEvent(event) {
-  if (!game || game.over || !socket || socket.readyState !== WebSocket.OPEN) return;
-  socket.send(JSON.stringify({ type: "page_event", event, visible: document.visibilityState === "visible",
-                               t_client: performance.timeOrigin + performance.now() }));
+  if (!game || game.over) return;
+  connection.send({ type: "page_event", event, visible: document.visibilityState === "visible",
+                    t_client: performance.timeOrigin + performance.now() });
+}
+
+function assisting(page) {
+  // whether the participant plays the follower (beside an AI leader) on this page
+  return page.look?.agents.find((a) => a.name === page.agent)?.role === "follower";
+}
+
+function sendKey(key) {
+  return connection.send({ type: "key", key, seq: seq++, t_client: performance.timeOrigin + performance.now() });
 }
 
 document.addEventListener("keydown", (event) => {
-  if (!game || game.over || !socket || socket.readyState !== WebSocket.OPEN || !game.keys.includes(event.key)) return;
+  if (game && !game.over && connection.ready && seatKey(game, event, sendKey, (m) => connection.send(m))) {
+    event.preventDefault();  // the follower seat's own keys: a belief, or the probe's answer
+    return;
+  }
+  if (!game || game.over || !connection.ready || !game.keys.includes(event.key)) return;
   event.preventDefault();
-  socket.send(JSON.stringify({ type: "key", key: event.key, seq: seq++, t_client: performance.timeOrigin + performance.now() }));
+  connection.send({ type: "key", key: event.key, seq, t_client: performance.timeOrigin + performance.now() });
+  own.press(event.key, seq++);
+  if (lastState) render(own.shown(lastState));  // the participant's own move at once; the server's state corrects it
 });
 window.addEventListener("blur", () => pageEvent("blur"));
 window.addEventListener("focus", () => pageEvent("focus"));
 document.addEventListener("visibilitychange", () => pageEvent("visibilitychange"));
 $("next").addEventListener("click", next);
+$("probe-confidence").addEventListener("input", showProbeConfidence);
+$("probe-answer").addEventListener("click", () => answerProbe(game, (message) => connection.send(message)));
 $("play").addEventListener("click", play);
 $("questions").addEventListener("submit", (event) => event.preventDefault());
+$("questions").addEventListener("input", answered);
 
 join().catch((err) => {
   $("page").hidden = false;
-  $("page-title").textContent = "This study cannot continue here";
+  const finished = err.detail?.completion_code !== undefined;  // finished before, in another browser
+  $("page-title").textContent = finished ? "You have completed this study" : "This study cannot continue here";
   $("page-text").textContent = err.message;
+  if (finished) showCompletion(err.detail.completion_code, err.detail.redirect_url);
   $("next").hidden = $("play").hidden = true;
 });

@@ -57,6 +57,9 @@ class Replay:
     penalty_coef: float = 1.0  # the penalty coefficient in force during the episode
     ended: str = "complete"  # "complete", or why it stopped early ("disconnected", "idle", ...)
     key_events: list | None = None  # human games: key log (see docs/SERVER_PROTOCOL.md)
+    stated_beliefs: dict = field(default_factory=dict)  # a person in a follower seat: name -> [T] color or None
+    belief_events: list | None = None  # a person in a follower seat: every statement of a belief, in order
+    probes: list | None = None  # a person in a follower seat: every probe asked, with its answer
     created: str = field(default_factory=lambda: datetime.now(UTC).isoformat(timespec="seconds"))
     env_id: str | None = None  # None: the config's (``EnvConfig.env_id``)
     meta: dict = field(default_factory=dict)  # free-form: description, game id, ...
@@ -101,6 +104,9 @@ class Replay:
             },
             "frames": self.frames, "final": self.final(), "key_events": self.key_events, "meta": self.meta,
         }
+        if self.stated_beliefs:  # a person in a follower seat (files without one are as they always were)
+            body["steps"]["stated_belief"] = self.stated_beliefs
+            body.update(belief_events=self.belief_events or [], probes=self.probes or [])
         body["checksum"] = checksum(body)
         return body
 
@@ -135,7 +141,8 @@ class Replay:
             goal_switched=steps["goal_switched"], goal_probs=steps.get("goal_probs") or {},
             state_hashes=steps["state_hash"], frames=doc.get("frames"), penalty_coef=doc["penalty_coef"],
             ended=doc["ended"], key_events=doc.get("key_events"), created=doc["created"],
-            env_id=doc["env_id"], meta=doc.get("meta") or {},
+            env_id=doc["env_id"], meta=doc.get("meta") or {}, stated_beliefs=steps.get("stated_belief") or {},
+            belief_events=doc.get("belief_events"), probes=doc.get("probes"),
         )
         if doc.get("kind", replay.kind) != replay.kind:
             raise ReplayError(path, f"kind is {doc['kind']!r}, but steps.actions says {replay.kind!r}")
@@ -218,6 +225,21 @@ class Replay:
         if self.key_events is not None:
             require(all(isinstance(k, dict) and _is_real(k.get("t_server", 0)) for k in self.key_events),
                     "key_events must be a list of objects (t_server, when present, a number)")
+        for name, stated in self.stated_beliefs.items():
+            require(name in cfg.agent_names and cfg.roles[cfg.agent_names.index(name)] == "follower",
+                    f"steps.stated_belief has {name!r}, which is not a follower of the config's team")
+            require(isinstance(stated, list) and len(stated) == T
+                    and all(c is None or (_is_int(c) and 0 <= c < C) for c in stated),
+                    f"steps.stated_belief.{name} must be [{T}] colors in [0, {C}) or null")
+        for name in ("belief_events", "probes"):
+            entries = getattr(self, name)
+            require(entries is None or (isinstance(entries, list) and all(isinstance(e, dict) for e in entries)),
+                    f"{name} must be a list of objects")
+        for probe in self.probes or []:
+            color, confidence = probe.get("color"), probe.get("confidence")
+            require((color is None or (_is_int(color) and 0 <= color < C))
+                    and (confidence is None or (_is_real(confidence) and 0 <= confidence <= 1)),
+                    f"probes: a probe's color must be in [0, {C}) and its confidence in [0, 1], or null")
         sent = self.meta.get("state_sent_ms")
         require(sent is None or (isinstance(sent, list) and all(_is_real(x) for x in sent)),
                 "meta.state_sent_ms must be a list of numbers")
@@ -241,11 +263,12 @@ _DOCUMENT_FIELDS = {  # field: (what it must be, may it be null, may it be absen
     "penalty_coef": (_NUMBER, False, False), "ended": (_STRING, False, False), "steps": (_OBJECT, False, False),
     "kind": (_STRING, False, True), "frames": (_OBJECT, True, True), "key_events": (_LIST, True, True),
     "meta": (_OBJECT, True, True), "agent_names": (_LIST, False, True), "roles": (_LIST, False, True),
+    "belief_events": (_LIST, True, True), "probes": (_LIST, True, True),
 }
 _STEP_FIELDS = {
     "actions": (_LIST, True, False), "goal": (_LIST, False, False), "block_reward": (_LIST, True, False),
     "team_reward": (_LIST, True, False), "picked_color": (_LIST, True, False), "goal_switched": (_LIST, True, False),
-    "state_hash": (_LIST, True, False), "goal_probs": (_OBJECT, True, True),
+    "state_hash": (_LIST, True, False), "goal_probs": (_OBJECT, True, True), "stated_belief": (_OBJECT, True, True),
 }
 _CHECKS = {_OBJECT: lambda v: isinstance(v, dict), _LIST: lambda v: isinstance(v, list),
            _STRING: lambda v: isinstance(v, str), _NUMBER: _is_real, _INTEGER: _is_int}

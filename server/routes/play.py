@@ -14,7 +14,8 @@ from server.backend import CurrentBackend
 from server.connection import Connection
 from server.followers import follower_info, leader_info
 from server.game import PAIR_VIEW
-from server.protocol import KEY_ACTIONS, MAX_HORIZON, ROOM_CODE_LENGTH, Mode, Team
+from server.protocol import BELIEF_KEYS, KEY_ACTIONS, MAX_HORIZON, ROOM_CODE_LENGTH, GoalView, Mode, SeatKind, Team
+from server.stated import ProbeKind
 
 log = logging.getLogger("colorgrid.server")
 router = APIRouter()
@@ -29,7 +30,9 @@ async def options(backend: CurrentBackend):
     presets = {name: env_config(name) for name in sorted(PRESETS)}
     team_followers = {t: backend.hub.team_followers(t) for t in Team}
     team_leaders = {t: backend.hub.team_leaders(t) for t in Team}
+    seat_leaders = {t: backend.hub.seat_leaders(t) for t in Team}
     fits = {name: fit for offered in team_leaders.values() for name, fit in offered.items()}
+    fits.update({name: "direct" for offered in seat_leaders.values() for name in offered if name not in fits})
     return {"followers": list(settings.follower_choices), "default_follower": settings.follower,
             "follower_info": [follower_info(name) for name in settings.follower_choices],
             "leader_info": [leader_info(name, fits[name] == PAIR_VIEW) for name in settings.leaders if name in fits],
@@ -39,8 +42,14 @@ async def options(backend: CurrentBackend):
             "modes": [{"value": m.value, "label": m.label} for m in Mode],
             "teams": [{"value": t.value, "label": t.label, "people": t.people, "ai_followers": t.num_followers,
                        "room": t.room,
-                       "followers": team_followers[t], "leaders": list(team_leaders[t])}
-                      for t in Team if team_followers[t]],
+                       "followers": team_followers[t], "leaders": list(team_leaders[t]),
+                       "seats": [s.value for s in t.seats if s == SeatKind.LEADER or seat_leaders[t]],
+                       "follower_seat_leaders": seat_leaders[t]}
+                      for t in Team if team_followers[t] or seat_leaders[t]],
+            "seats": [{"value": s.value, "label": s.label} for s in SeatKind],
+            "goal_views": [{"value": g.value, "label": g.label} for g in GoalView],
+            "probe_kinds": [{"value": k.value, "label": k.label} for k in ProbeKind],
+            "belief_keys": BELIEF_KEYS,
             "room_code_length": ROOM_CODE_LENGTH,
             "horizon": {"default": presets[settings.preset].horizon, "max": MAX_HORIZON},
             "keys": KEY_ACTIONS, "look": look(),

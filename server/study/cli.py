@@ -12,9 +12,9 @@ from pathlib import Path
 
 from colorgrid.configkit import add_arguments, from_args
 from colorgrid.resources import find_shipped
-from server.cli import FLAGS, add_cluster_arguments, check_follower, check_writable, serve_or_launch
+from server.cli import FLAGS, add_cluster_arguments, check_address_free, check_writable, serve_or_launch
 from server.settings import ServerSettings
-from server.study.config import Study, load_study
+from server.study.config import Study, check_followers, load_study
 
 ADMIN_TOKEN_ENV = "COLORGRID_ADMIN_TOKEN"
 """Set it to fix the admin token (a deployment); otherwise a new one is printed at every start."""
@@ -102,12 +102,13 @@ def cmd_run(args: argparse.Namespace) -> int:
     folder = study_folder(study, args.replays_dir)
     settings = from_args(ServerSettings, args, FLAGS, skip=("replays_dir",), replays_dir=folder)
     followers = tuple(dict.fromkeys((*settings.followers, *sorted(study.followers))))
-    settings = dataclasses.replace(settings, followers=followers)
+    leaders = tuple(dict.fromkeys((*settings.leaders, *sorted(study.leaders))))  # the follower seat's AI leaders
+    settings = dataclasses.replace(settings, followers=followers, leaders=leaders)
     check_writable(folder, "--replays-dir")
-    for follower in sorted(study.followers):
-        check_follower(follower)
+    check_followers(study, args.study_file)  # a follower named in the study file is blamed on its field there
     token = os.environ.get(ADMIN_TOKEN_ENV) or secrets.token_urlsafe(18)
     setup = StudySetup(study, args.study_file.resolve(), study_database(args, folder), token)
+    check_address_free(settings.host, settings.port)  # another study there: refused before its database is touched
     store = setup.store()  # a database of another study or schema stops here, in one line
     where = store.name
     store.close()

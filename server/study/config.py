@@ -20,11 +20,12 @@ from typing import Any
 from colorgrid.configkit import ConfigError, check_bool, check_choice, check_int, check_number, check_strings, fail
 from colorgrid.configkit import from_dict
 from colorgrid.presets import PRESETS
-from server.protocol import MAX_HORIZON
+from server.protocol import MAX_HORIZON, GoalView, SeatKind
+from server.stated import PROBE_FORMS, ProbePlan
 
 PAGE_KINDS = ("consent", "instructions", "practice", "trials", "questionnaire", "debrief")
 QUESTION_KINDS = ("likert", "choice", "text")
-FACTORS = ("follower", "show_belief", "mode", "preset", "horizon", "tick_hz")
+FACTORS = ("follower", "show_belief", "mode", "preset", "horizon", "tick_hz", "seat", "leader", "goal", "probes")
 """What a condition may vary: the fields of ``GameSettings``."""
 ID_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 ID_ALLOWED = "1 to 64 letters, digits, '_', '.' or '-'"
@@ -50,6 +51,17 @@ class GameSettings:
     """Steps in the game."""
     tick_hz: float = 5.0
     """Steps a second in real time."""
+    seat: str = "leader"
+    """The participant's seat: ``leader`` (they know the goal; the AI ``follower`` assists them) or ``follower`` (they
+    assist the AI ``leader`` and work out the goal; no AI follower plays)."""
+    leader: str = "astar"
+    """The follower seat: the AI leader (any name ``colorgrid play --leaders`` takes: ``astar``, ``person:slip=0.1``,
+    ``population:people#held_out``, ``ippo-leader``, a ``.pt``)."""
+    goal: str = "hidden"
+    """The follower seat: whether the goal is ``hidden`` from the participant (their task) or ``shown`` (a control)."""
+    probes: str = "none"
+    """The follower seat: when the game asks which color is the goal and how sure they are: ``none``,
+    ``steps:10,40,70`` or ``random:0.05``."""
 
     def __post_init__(self):
         if not isinstance(self.follower, str) or not self.follower:
@@ -59,9 +71,28 @@ class GameSettings:
         check_choice(self, "preset", PRESETS, f"one of {sorted(PRESETS)}")
         check_int(self, "horizon", 1, MAX_HORIZON, allowed=f"a whole number in 1..{MAX_HORIZON}")
         check_number(self, "tick_hz", "a number in [0.5, 60]", lambda v: 0.5 <= v <= 60)
+        check_choice(self, "seat", [s.value for s in SeatKind], "'leader' or 'follower'")
+        from server.followers import is_leader_kind, leader_kinds_allowed
+
+        if not isinstance(self.leader, str) or not is_leader_kind(self.leader):
+            fail(self, "leader", leader_kinds_allowed())
+        check_choice(self, "goal", [g.value for g in GoalView], "'hidden' or 'shown'")
+        try:
+            ProbePlan.parse(self.probes if isinstance(self.probes, str) else None)
+        except ValueError:
+            fail(self, "probes", PROBE_FORMS)
+        if not isinstance(self.probes, str):
+            fail(self, "probes", PROBE_FORMS)
 
     def label(self) -> str:
         return ", ".join(f"{k}={v}" for k, v in dataclasses.asdict(self).items())
+
+    def seat_settings(self) -> dict:
+        """What a new game takes of the seat (``GameHub.new_game``): nothing more for a leader's; for the follower seat
+        its AI leader, the goal's visibility and the probes."""
+        if self.seat == SeatKind.LEADER.value:
+            return {}
+        return {"seat": SeatKind.FOLLOWER, "leader": self.leader, "goal": GoalView(self.goal), "probes": self.probes}
 
 
 @dataclass(frozen=True)
@@ -285,13 +316,74 @@ class Study:
         return next(p for p in self.pages if p.kind == "trials")
 
     @property
+    def leaders(self) -> set[str]:
+        """Every AI leader a game of this study uses (the follower seat's)."""
+        return set(self.leader_places())
+
+    def leader_places(self) -> dict[str, str]:
+        """Every AI leader of a game in the follower seat, with the field of the study file that names it first."""
+        places = {}
+        for condition in self.conditions:
+            if condition.seat == SeatKind.FOLLOWER.value:
+                places.setdefault(condition.leader, "factors.leader" if "leader" in self.factors else "defaults.leader")
+        for i, page in enumerate(self.pages):
+            game = self.practice_game(page) if page.kind == "practice" else None
+            if game is not None and game.seat == SeatKind.FOLLOWER.value:
+                places.setdefault(game.leader, f"pages[{i}].game.leader" if page.game is not None
+                                  else "defaults.leader")
+        return places
+
+    @property
     def followers(self) -> set[str]:
         """Every follower a game of this study uses."""
-        games = self.conditions + [p.game or GameSettings() for p in self.pages if p.kind == "practice"]
-        return {g.follower for g in games}
+        return set(self.follower_places())
+
+    def follower_places(self) -> dict[str, str]:
+        """Every follower a game of this study uses, with the field of the study file that names it first:
+        ``{"bayes-people": "factors.follower", "copy": "pages[2].game.follower"}``."""
+        places = {}
+        for condition in self.conditions:
+            places.setdefault(condition.follower, "factors.follower" if "follower" in self.factors
+                              else "defaults.follower")
+        for i, page in enumerate(self.pages):
+            if page.kind == "practice":
+                places.setdefault(self.practice_game(page).follower,
+                                  f"pages[{i}].game.follower" if page.game is not None else "defaults.follower")
+        return places
 
     def practice_game(self, page: Page) -> GameSettings:
         return page.game or dataclasses.replace(self.defaults, show_belief=True)
+
+
+def check_followers(study: Study, path: str | Path) -> None:
+    """Refuse a study whose games name a follower or an AI leader that cannot be loaded (or a leader that cannot lead
+    a study's game: a follower's name, a network trained in another team), in one line naming the study file's field
+    and what is allowed: ``study.toml: factors.follower: level 'bayes-peple' is invalid: unknown policy
+    'bayes-peple'; choose one of [...]``. It builds each one (a network's weights are read): ``study run`` calls it
+    before it serves, not ``load_study``."""
+    from colorgrid.policies import make_policy
+    from server.followers import is_leader_kind, leader_kinds_allowed, leads
+    from server.protocol import Team
+
+    def blame(place: str, name: str, problem: str) -> StudyError:
+        what = f"{place}: level {name!r}" if place.startswith("factors.") else f"{place}={name!r}"
+        return StudyError(f"{path}: {what} is invalid: {problem}", place)
+
+    for name, place in study.follower_places().items():
+        try:
+            make_policy(name, role="follower")
+        except (ValueError, FileNotFoundError, OSError) as err:
+            raise blame(place, name, str(err)) from None
+    for name, place in study.leader_places().items():  # a study's games are 1:1
+        if not is_leader_kind(name):
+            raise blame(place, name, leader_kinds_allowed())
+        try:
+            make_policy(name, role="leader")
+            fit = leads(name, Team.ONE_TO_ONE)
+        except (ValueError, FileNotFoundError, OSError) as err:
+            raise blame(place, name, str(err)) from None
+        if fit != "direct":
+            raise blame(place, name, "a leader of another team: a study's games are one leader and one follower")
 
 
 def _build(cls, data: Any, where: str):

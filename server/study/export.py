@@ -1,10 +1,11 @@
 """``colorgrid study export``: a study's database and replays as analysis-ready tables.
 
-Six tables, each written as Parquet and CSV, of the columns and types declared in
+Eight tables, each written as Parquet and CSV, of the columns and types declared in
 ``server.study.schema`` (listed in docs/STUDIES.md, "Data dictionary"):
 ``participants``, ``trials`` (one row per game played, practice included), ``steps`` (one row
-per game step), ``keys`` (the key log with reaction times), ``answers`` and ``focus`` (the page's
-focus and visibility changes during games). The database is read through ``server.study.store``
+per game step), ``keys`` (the key log with reaction times), ``answers``, ``focus`` (the page's
+focus and visibility changes during games), and for games in the follower seat ``probes`` (each
+probe's answer) and ``statements`` (each stated belief; ``server.study.stated_export``). The database is read through ``server.study.store``
 (SQLite or PostgreSQL alike). A game's figures in ``trials`` are those stored when it ended
 (``server.study.figures``); games recorded before have them computed from their replays, the same
 way. The per-step tables read the replay files back and re-simulate them, so positions come from
@@ -25,12 +26,13 @@ from colorgrid.replay import load
 from colorgrid.replay.simulate import replay_states
 from colorgrid.replay.timeline import reaction_times
 from server.study.assign import arm_labels, arms
-from server.study.config import Study
+from server.study.config import GameSettings, Study
 from server.study.figures import FIGURES, SCORES, game_figures, score_figures
 from server.study.schema import SCHEMA_FILE, conform, export_schema, questions_metadata, sidecar, write_parquet
+from server.study.stated_export import probe_rows, stated_by_step, stated_figures, statement_rows
 from server.study.store import read_tables
 
-TABLES = ("participants", "trials", "steps", "keys", "answers", "focus")
+TABLES = ("participants", "trials", "steps", "keys", "answers", "focus", "probes", "statements")
 
 
 def _time(seconds) -> pd.Timestamp | None:
@@ -41,12 +43,30 @@ def _condition(study: Study, index: int | None, settings: dict | None = None) ->
     """The ``condition*`` columns: a condition by index, or a game's own settings (practice: no index)."""
     if settings is None:
         settings = dataclasses.asdict(study.conditions[index]) if index is not None else {}
+    elif settings:  # a game recorded before a setting existed played its default (the seat: a leader's)
+        settings = {**dataclasses.asdict(GameSettings()), **settings}
     return {"condition_index": index, "condition": f"C{index + 1}" if index is not None else None,
             **{f"condition_{k}": v for k, v in settings.items()}}
 
 
+def numbered_on(seqs: list[int | None]) -> list[int | None]:
+    """A game's key numbers (its key log's ``seq``, in arrival order) numbered on across reloads: the server tells a
+    page that joins or rejoins a game where its numbers go on (``welcome.next_seq``) and refuses a number already
+    used, so these come back unchanged. A game recorded before that has its page's numbers start again at 0 after a
+    reload; its later keys are numbered on from the highest before (one page's numbers only grow, so a number that
+    does not is a new page's), which makes ``(game_id, seq)`` name one key in every game."""
+    out, shift, last = [], 0, None
+    for seq in seqs:
+        if seq is not None:
+            if last is not None and seq + shift <= last:
+                shift = last + 1 - seq
+            last = seq + shift
+        out.append(last if seq is not None else None)
+    return out
+
+
 def tables(study: Study, database: str | Path, replays_dir: Path) -> dict[str, pd.DataFrame]:
-    """The six tables as pandas DataFrames, each of the columns and types ``export_schema`` declares.
+    """The eight tables as pandas DataFrames, each of the columns and types ``export_schema`` declares.
     ``database``: the study's SQLite file or its URL (``server.study.store.database_url``)."""
     data = read_tables(database, study.id)
     labels, arm_list = arm_labels(study), arms(study)
@@ -70,7 +90,7 @@ def tables(study: Study, database: str | Path, replays_dir: Path) -> dict[str, p
         "user_agent": p["user_agent"], "started": _time(p["started"]), "completed": _time(p["completed"]),
         "minutes": (p["completed"] - p["started"]) / 60 if p["completed"] else None,
     } for p in data["participants"]]
-    trials, steps, keys, focus = [], [], [], []
+    trials, steps, keys, focus, probes, statements = [], [], [], [], [], []
     for g in data["games"]:
         base = {**who(g["pid"]), "kind": g["kind"], "trial_index": g["trial_index"],
                 **_condition(study, g["condition"], json.loads(g["settings"])), "attempt": g["attempt"]}
@@ -84,12 +104,13 @@ def tables(study: Study, database: str | Path, replays_dir: Path) -> dict[str, p
         else:  # a game recorded before: its figures from the replay, as it was exported then
             scores = score_figures(json.loads(g["scores"]) if g["scores"] else None)
             figures = {**scores, **(game_figures(replay) if replay is not None else {})}
-        trials.append({**row, **figures, "replay_found": replay is not None})
+        trials.append({**row, **figures, **stated_figures(replay), "replay_found": replay is not None})
         if replay is None:
             continue
         follower = AGENTS[FOLLOWER]
         beliefs = replay.goal_probs.get(follower) or []
         states = replay_states(replay, path)
+        stated = stated_by_step(replay)  # the follower seat's stated color at each step
         for t in range(replay.num_steps):
             pos = states[t].agent_pos[0]
             step = {**base, "t": t, "goal": replay.goal[t], "goal_switched": bool(replay.goal_switched[t]),
@@ -101,15 +122,20 @@ def tables(study: Study, database: str | Path, replays_dir: Path) -> dict[str, p
                 step[f"{name}_picked"] = replay.picked_color[t][i]
             for c, p in enumerate(beliefs[t] if t < len(beliefs) else []):
                 step[f"belief_{c}"] = p
+            step["stated_belief"] = stated[t]
             steps.append(step)
-        for k in reaction_times(replay.key_events or [], replay.meta.get("state_sent_ms")):
-            keys.append({**base, "seq": k.get("seq"), "key": k.get("key"), "action": k.get("action"),
+        logged = reaction_times(replay.key_events or [], replay.meta.get("state_sent_ms"))
+        for k, seq in zip(logged, numbered_on([k.get("seq") for k in logged])):
+            keys.append({**base, "game_id": g["game_id"], "seq": seq, "key": k.get("key"), "action": k.get("action"),
+                         "color": k.get("color"),
                          "status": k.get("status"), "applied_step": k.get("applied_step"),
                          "t_client_ms": k.get("t_client"), "t_server_ms": k.get("t_server"),
                          "shown_step": k.get("shown_step"), "reaction_ms": k.get("reaction_ms")})
         for e in replay.meta.get("page_events", []):
             focus.append({**base, "event": e["event"], "visible": e.get("visible"), "step": e.get("step"),
                           "t_client_ms": e.get("t_client"), "t_server_ms": e.get("t_server")})
+        probes += probe_rows(replay, base, g["game_id"])
+        statements += statement_rows(replay, base, g["game_id"])
     questions = {(page, q["id"]): q for page, qs in questions_metadata(study).items() for q in qs}
     answers = []
     for a in data["answers"]:
@@ -128,7 +154,7 @@ def tables(study: Study, database: str | Path, replays_dir: Path) -> dict[str, p
                         "answered": _time(a["answered"])})
     schema = export_schema(study)
     rows = {"participants": participants, "trials": trials, "steps": steps, "keys": keys, "answers": answers,
-            "focus": focus}
+            "focus": focus, "probes": probes, "statements": statements}
     return {name: conform(rows[name], schema[name]) for name in TABLES}
 
 

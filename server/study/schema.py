@@ -5,8 +5,8 @@ condition factors' levels, the URL parameters kept, the questions, the number of
 ``server.study.export`` writes every table through ``conform`` (the declared columns, in order,
 each cast to its type; a value outside its type or its categories is an error, never a silent
 NaN), with the types in the Parquet schema and in ``schema.json`` beside the CSV files;
-``read_csv`` reads a CSV table back with them, and ``check_frame`` / ``check_arrow`` check a table
-read back against the declaration. docs/STUDIES.md's data dictionary is ``data_dictionary``'s text.
+``read_csv`` and ``read_parquet`` read a table back with them (a table without rows too), and
+``check_frame`` / ``check_arrow`` check a table read back against the declaration. docs/STUDIES.md's data dictionary is ``data_dictionary``'s text.
 
 Types (``Column.type``), as pandas dtypes and Arrow types:
 
@@ -35,14 +35,17 @@ import pyarrow as pa
 
 from colorgrid.config import AGENTS
 from colorgrid.presets import PRESETS, env_config
-from server.protocol import PageEvent
+from server.protocol import GoalView, PageEvent, SeatKind
+from server.stated import ProbeKind, ProbeStatus, Via
 from server.study.assign import arm_labels
 from server.study.config import QUESTION_KINDS, GameSettings, Study
 
 SCHEMA_FILE = "schema.json"
 """The CSV files' types, written beside them."""
-FORMAT_VERSION = 2
-"""Bumped whenever a column is added, removed or changes type."""
+FORMAT_VERSION = 4
+"""Bumped whenever a column is added, removed or changes type (3: ``keys.game_id``, and each table's ``unique``; 4: the
+follower seat: ``condition_seat``, ``_leader``, ``_goal``, ``_probes``, the stated beliefs' columns, ``probes`` and
+``statements``)."""
 
 
 @dataclass(frozen=True)
@@ -68,7 +71,7 @@ STATUSES = ("active", "completed")
 ENDINGS = ("complete", "idle", "quit", "left", "disconnected", "server_shutdown", "stand_in_failed", "server_lost")
 """Why a game ended (``game_over.reason``, or ``server_lost``: its process stopped without saving it); a lost game
 (disconnected, server_shutdown, server_lost) is played again."""
-KEY_STATUSES = ("applied", "superseded", "ignored", "unapplied")
+KEY_STATUSES = ("applied", "superseded", "ignored", "unapplied", "stated")
 PAGE_EVENTS = typing.get_args(PageEvent.model_fields["event"].annotation)
 
 
@@ -117,11 +120,13 @@ class Column:
 
 @dataclass(frozen=True)
 class Table:
-    """An exported table: what a row is, and its columns in order."""
+    """An exported table: what a row is, its columns in order, and the columns that name one row."""
 
     name: str
     row: str
     columns: tuple[Column, ...]
+    unique: tuple[str, ...] = ()
+    """Columns whose values no two rows share (a table's key); ``conform`` refuses a table that breaks it."""
 
     @property
     def names(self) -> list[str]:
@@ -147,6 +152,7 @@ def _condition(study: Study, whose: str) -> list[Column]:
     """The condition and its settings; ``whose`` says which row's condition it is."""
     followers = sorted(study.followers)
     labels = tuple(f"C{i + 1}" for i in range(len(study.conditions)))
+    games = study.conditions + [study.practice_game(p) for p in study.pages if p.kind == "practice"]
     settings = {
         "follower": Column("condition_follower", "category", "name", "the AI follower (the study's followers)",
                            tuple(followers)),
@@ -155,6 +161,18 @@ def _condition(study: Study, whose: str) -> list[Column]:
         "preset": Column("condition_preset", "category", "name", "the environment preset", tuple(PRESETS)),
         "horizon": Column("condition_horizon", "Int64", "steps", "steps in the game"),
         "tick_hz": Column("condition_tick_hz", "float64", "steps/s", "steps a second in real time"),
+        "seat": Column("condition_seat", "category", "name", "the participant's seat: `leader` (they know the goal) or "
+                                                             "`follower` (they assist an AI leader)",
+                       tuple(s.value for s in SeatKind)),
+        "leader": Column("condition_leader", "category", "name", "the AI leader of the follower seat (the study's "
+                                                                 "leaders; a leader's game names the default)",
+                         tuple(sorted({g.leader for g in games}))),
+        "goal": Column("condition_goal", "category", "name", "the follower seat: whether the goal was `hidden` from "
+                                                             "the participant or `shown`",
+                       tuple(g.value for g in GoalView)),
+        "probes": Column("condition_probes", "category", "plan", "the follower seat: when the game asked what they "
+                                                                 "believed (`none`, `steps:10,40`, `random:0.05`)",
+                         tuple(sorted({g.probes for g in games}))),
     }
     missing = {f.name for f in dataclasses.fields(GameSettings)} ^ set(settings)
     assert not missing, f"declare the exported column of GameSettings field(s) {sorted(missing)}"
@@ -171,6 +189,24 @@ def _game(study: Study) -> list[Column]:
         Column("trial_index", "Int64", "index", "the trial (0-based, in play order); empty for practice"),
         *_condition(study, "the game (practice: empty; the `condition_*` columns hold its own settings)"),
         Column("attempt", "int64", "count", "0, then 1, 2... when a game was lost and played again"),
+    ]
+
+
+def stated_figures() -> list[Column]:
+    """The trials' columns of a game in the follower seat (``colorgrid_apps.human_follower``'s measures; empty in a
+    leader's game)."""
+    return [
+        Column("stated_steps", "Int64", "steps", "the follower seat: steps at which the participant had said which "
+                                                 "color they believe is the goal"),
+        Column("stated_accuracy", "float64", "fraction", "the follower seat: the share of those steps whose stated "
+                                                         "color was the goal"),
+        Column("switches", "Int64", "count", "the follower seat: goal switches in the game"),
+        Column("switch_lag_median", "float64", "steps", "the follower seat: the median steps from a goal switch until "
+                                                        "the stated color was the new goal (switches caught)"),
+        Column("probes_asked", "Int64", "count", "the follower seat: probes asked"),
+        Column("probes_answered", "Int64", "count", "the follower seat: probes answered (and scored)"),
+        Column("probe_log_loss", "float64", "nats", "the follower seat: the answers' mean log-loss"),
+        Column("probe_brier", "float64", "score", "the follower seat: the answers' mean Brier score"),
     ]
 
 
@@ -205,7 +241,7 @@ def export_schema(study: Study) -> dict[str, Table]:
                                                                "acted (empty: the follower has no belief)")
                for k in range(num_colors(study))]
     tables = [
-        Table("participants", "one row per participant", (
+        Table("participants", "one row per participant", unique=("participant",), columns=(
             *who,
             *_condition(study, "the participant between subjects (within subjects: empty, each trial has its "
                                "own)"),
@@ -217,7 +253,7 @@ def export_schema(study: Study) -> dict[str, Table]:
             Column("started", "timestamp", "UTC", "when they joined"),
             Column("completed", "timestamp", "UTC", "when they finished (empty while active)"),
             Column("minutes", "float64", "minutes", "from start to completion"))),
-        Table("trials", "one row per game played, practice included", (
+        Table("trials", "one row per game played, practice included", unique=("game_id",), columns=(
             *who, *game,
             Column("page_step", "int64", "index", "the page the game was played on"),
             Column("game_id", "string", "id", "the server's game id"),
@@ -242,6 +278,7 @@ def export_schema(study: Study) -> dict[str, Table]:
                                                               "color was the goal (empty: no belief)"),
             Column("deadline_misses", "Int64", "steps", "steps where the follower missed the server's inference "
                                                          "deadline and stayed"),
+            *stated_figures(),
             Column("viewport", "string", "JSON", "the page's `[width, height]` in CSS pixels"),
             Column("user_agent", "string", "text", "the browser's user agent in this game"))),
         Table("steps", "one row per step of every game, re-simulated from its replay", (
@@ -250,14 +287,21 @@ def export_schema(study: Study) -> dict[str, Table]:
             Column("goal", "int64", "color", "the goal color during the step"),
             Column("goal_switched", "bool", "", "whether the goal switched at the end of this step"),
             Column("team_reward", "float64", "points", "the team's reward this step"),
-            *per_agent, *beliefs)),
-        Table("keys", "one row per key the participant pressed during a game", (
+            *per_agent, *beliefs,
+            Column("stated_belief", "Int64", "color", "the follower seat: the color the participant had said they "
+                                                      "believe is the goal when they moved (empty: none said yet, or "
+                                                      "a leader's game)"))),
+        Table("keys", "one row per key the participant pressed during a game", unique=("game_id", "seq"), columns=(
             *who, *game,
-            Column("seq", "Int64", "count", "the page's key counter"),
+            Column("game_id", "string", "id", "the server's game id (as in `trials`)"),
+            Column("seq", "Int64", "count", "the key's number in its game: 0, 1, 2... in the order pressed, across "
+                                            "reloads and reconnects (the server tells the page where to go on)"),
             Column("key", "string", "key", "the key (`ArrowUp`, `w`, ...)"),
             Column("action", "Int64", "action", "its action: 0 up, 1 down, 2 left, 3 right"),
+            Column("color", "Int64", "color", "the follower seat: the color a number key said is the goal"),
             Column("status", "category", "name", "`applied`; `superseded` (another key came before the step); "
-                                                 "`ignored`; `unapplied` (pressed after the game's last step)",
+                                                 "`ignored`; `unapplied` (pressed after the game's last step); "
+                                                 "`stated` (a number key: a belief, not a move)",
                    KEY_STATUSES),
             Column("applied_step", "Int64", "step", "the step it moved the participant in"),
             Column("t_client_ms", "float64", ms, "when it was pressed, by the participant's clock"),
@@ -285,6 +329,43 @@ def export_schema(study: Study) -> dict[str, Table]:
             Column("step", "Int64", "step", "the game's step at that moment"),
             Column("t_client_ms", "float64", ms, "by the participant's clock"),
             Column("t_server_ms", "float64", ms, "by the server's clock"))),
+        Table("probes", "one row per probe asked in the follower seat (\"which color is the goal now, and how sure "
+                        "are you?\")", unique=("game_id", "probe"), columns=(
+            *who, *game,
+            Column("game_id", "string", "id", "the server's game id (as in `trials`)"),
+            Column("probe", "int64", "index", "the probe's number in its game (0, 1, 2...)"),
+            Column("step", "int64", "step", "the state that asked it"),
+            Column("trigger", "category", "name", "`steps` (a step set in advance) or `random`",
+                   tuple(k.value for k in ProbeKind if k != ProbeKind.NONE)),
+            Column("status", "category", "name", "`answered`; `missed` (real time: the next probe came first); "
+                                                 "`unanswered` (the game ended first)",
+                   tuple(s.value for s in ProbeStatus if s != ProbeStatus.OPEN)),
+            Column("color", "Int64", "color", "the color answered"),
+            Column("confidence", "float64", "probability", "how sure: the probability given to that color, from "
+                                                           "1 / colors (a guess) to 1 (certain)"),
+            Column("answered_step", "Int64", "step", "the state on screen when the answer arrived (real time goes on)"),
+            Column("goal", "Int64", "color", "the goal at that step (empty: answered after the last step)"),
+            Column("correct", "boolean", "", "whether the color answered was that goal"),
+            Column("log_loss", "float64", "nats", "-log of the probability the answer gave the goal (its confidence on "
+                                                  "the color, the rest shared by the others; clipped at 1e-6)"),
+            Column("brier", "float64", "score", "the answer's squared distance to the one-hot goal, summed over "
+                                                "colors"),
+            Column("response_ms", "float64", "ms", "from the question going out to the answer arriving, network "
+                                                   "included"),
+            Column("refused", "int64", "count", "answers refused (out of range) before this one"),
+            Column("asked_ms", "float64", ms, "when it was asked, by the server's clock"),
+            Column("answered_ms", "float64", ms, "when the answer arrived, by the server's clock"),
+            Column("t_client_ms", "float64", ms, "when it was answered, by the participant's clock"))),
+        Table("statements", "one row per belief the participant stated in the follower seat (a number key, a click "
+                            "on a color, a probe's answer)", columns=(
+            *who, *game,
+            Column("game_id", "string", "id", "the server's game id (as in `trials`)"),
+            Column("color", "int64", "color", "the color they said is the goal"),
+            Column("via", "category", "name", "`key`, `click` or `probe`", tuple(v.value for v in Via)),
+            Column("step", "int64", "step", "the state on screen"),
+            Column("goal", "Int64", "color", "the goal at that step (empty: after the last step)"),
+            Column("t_client_ms", "float64", ms, "by the participant's clock"),
+            Column("t_server_ms", "float64", ms, "by the server's clock"))),
     ]
     return {t.name: t for t in tables}
 
@@ -305,6 +386,12 @@ def conform(rows: list[dict], table: Table) -> pd.DataFrame:
     if extra:
         raise ValueError(f"{table.name}: columns {extra} are not declared in server/study/schema.py")
     frame = pd.DataFrame(rows, columns=table.names)
+    if table.unique:
+        repeated = frame[frame.duplicated(list(table.unique), keep=False)]
+        if len(repeated):
+            first = ", ".join(f"{c}={repeated.iloc[0][c]}" for c in table.unique)
+            raise ValueError(f"{table.name}: {len(repeated)} rows share their ({', '.join(table.unique)}), which names "
+                             f"one row; the first: {first}")
     out = {}
     for column in table.columns:
         values = frame[column.name]
@@ -324,7 +411,7 @@ def conform(rows: list[dict], table: Table) -> pd.DataFrame:
 
 def metadata(study: Study, table: Table) -> dict:
     """What ``schema.json`` (and each Parquet file's ``colorgrid`` metadata) holds for ``table``."""
-    out = {"row": table.row, "columns": [c.as_dict() for c in table.columns]}
+    out = {"row": table.row, "unique": list(table.unique), "columns": [c.as_dict() for c in table.columns]}
     if table.name == "answers":
         out["questions"] = questions_metadata(study)
     return out
@@ -359,6 +446,23 @@ def read_csv(folder: str | Path, name: str) -> pd.DataFrame:
     return frame
 
 
+def read_parquet(folder: str | Path, name: str) -> pd.DataFrame:
+    """A table's Parquet file read back with its declared types, as ``read_csv`` reads its CSV file.
+
+    ``pd.read_parquet`` gives them too, but for the categories of a table without rows: Parquet keeps a column's
+    dictionary with its values, so a file of no rows holds none. Each category column's field in the file names its
+    categories (its ``categories`` metadata), and they are given back here."""
+    import pyarrow.parquet as pq
+
+    path = Path(folder) / f"{name}.parquet"
+    frame = pd.read_parquet(path)
+    for field in pq.read_schema(path):
+        named = (field.metadata or {}).get(b"categories")
+        if named is not None:
+            frame[field.name] = frame[field.name].astype(pd.CategoricalDtype(json.loads(named)))
+    return frame
+
+
 def check_frame(frame: pd.DataFrame, table: Table) -> list[str]:
     """How a DataFrame read back differs from the declaration (empty: it matches)."""
     if list(frame.columns) != table.names:
@@ -380,7 +484,8 @@ def data_dictionary(study: Study) -> str:
     """The tables' columns as Markdown (docs/STUDIES.md, for the example study)."""
     parts = []
     for table in export_schema(study).values():
-        parts.append(f"**{table.name}**: {table.row}.\n\n| column | type | unit | meaning |\n|---|---|---|---|")
+        key = f" No two rows share {' and '.join(f'`{c}`' for c in table.unique)}." if table.unique else ""
+        parts.append(f"**{table.name}**: {table.row}.{key}\n\n| column | type | unit | meaning |\n|---|---|---|---|")
         for c in table.columns:
             parts[-1] += f"\n| `{c.name}` | {c.type} | {c.unit} | {c.description} |"
     return "\n\n".join(parts) + "\n"

@@ -19,6 +19,7 @@ import secrets
 import statistics
 import time
 from collections import defaultdict
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from markdown_it import MarkdownIt
@@ -26,7 +27,8 @@ from markdown_it import MarkdownIt
 from colorgrid.presets import env_config
 from colorgrid.render import look
 from server.study.assign import arm_labels, arms, choose_arm, trial_order
-from server.study.config import ID_ALLOWED, ID_PATTERN, GameSettings, Page, Question, Study
+from server.followers import follower_info
+from server.study.config import ID_PATTERN, GameSettings, Page, Question, Study
 from server.study.figures import game_figures, score_figures
 from server.study.store import StudyStore
 
@@ -51,7 +53,18 @@ def own_session(proposed: str | None) -> str | None:
 
 
 class Refused(Exception):
-    """The participant cannot go on (full, id already used, no id, wrong session); the message says why."""
+    """The participant cannot go on (full, id already used, no id, wrong session); the message says why, in words
+    for the participant."""
+
+
+class Finished(Refused):
+    """The participant finished the study, and comes back from a browser without its session: the message thanks
+    them and repeats the completion code (``completion_code``, ``redirect_url``: as on the debrief page)."""
+
+    def __init__(self, completion_code: str, redirect_url: str):
+        self.completion_code, self.redirect_url = completion_code, redirect_url
+        code = f" Your completion code is {completion_code}." if completion_code else ""
+        super().__init__(f"You have already completed this study: thank you for taking part.{code}")
 
 
 class Invalid(Exception):
@@ -99,6 +112,9 @@ class StudyService:
         self.rng = random.Random(study.design.seed)
         self.arms = arms(study)
         self.live: dict[str, object] = {}  # pid -> its live Game (for a page that reloads)
+        # pid -> where another process of the deployment runs its game, {game_id, token, backend} to rejoin it there,
+        # or None: set by server.cluster.siblings.join_cluster, which asks the siblings
+        self.elsewhere: Callable[[str], dict | None] = lambda pid: None
 
     # ---------------------------------------------------------------- steps
     def steps(self, conditions: list[int]) -> list[Step]:
@@ -124,12 +140,13 @@ class StudyService:
             value = params.get(name)
             if value:
                 if not ID_PATTERN.match(value):
-                    raise Refused(f"the participant id in the link ({name}) is not valid: {ID_ALLOWED}")
+                    raise Refused("The participant id in this link is not one this study can take. Please open the "
+                                  "study from the link you were given, without changing it.")
                 return value
         if self.study.anonymous:
             return "anon-" + secrets.token_hex(6)
-        raise Refused("this link has no participant id: open the study from the link you were given "
-                      f"(it carries {' or '.join(self.study.id_params)})")
+        raise Refused("This link has no participant id in it. Please open the study from the link you were given "
+                      "(on the study platform), without changing it.")
 
     def join(self, params: dict, session: str | None, user_agent: str) -> dict:
         """Start or resume a participant; the answer carries their session key and the step to show."""
@@ -138,38 +155,53 @@ class StudyService:
             pid = self.participant_id(params)
         with self.store.transaction(assign=True) as tx:  # counts read and row written as one, across processes
             row = tx.participant(pid)
-            if row is not None:
-                return self.returning(tx, row, session, user_agent)
-            if tx.count_participants() >= self.study.max_participants:
-                raise Refused("the study is full: thank you for your interest")
-            arm = choose_arm(tx.arm_counts(len(self.arms)), self.study.design.quota, self.study.design.balance,
-                             self.rng)
-            if arm is None:
-                raise Refused("the study is full: thank you for your interest")
-            conditions = trial_order(self.study, arm, self.rng)
-            kept = {k: str(params[k])[:200] for k in (*self.study.id_params, *self.study.keep_params) if params.get(k)}
-            new, now = own_session(session) or secrets.token_urlsafe(24), time.time()
-            row = tx.add_participant({"pid": pid, "session": new, "arm": arm, "conditions": json.dumps(conditions),
-                                      "status": "active", "step": 0, "url_params": json.dumps(kept),
-                                      "user_agent": user_agent[:500], "started": now, "updated": now})
-            if row["session"] != new:  # another process stored this participant first
-                return self.returning(tx, row, session, user_agent)
-            tx.log(pid, "joined", arm=arm)
-        return {"pid": pid, "session": new}
+            if row is None:
+                if tx.count_participants() >= self.study.max_participants:
+                    raise Refused("the study is full: thank you for your interest")
+                arm = choose_arm(tx.arm_counts(len(self.arms)), self.study.design.quota, self.study.design.balance,
+                                 self.rng)
+                if arm is None:
+                    raise Refused("the study is full: thank you for your interest")
+                conditions = trial_order(self.study, arm, self.rng)
+                kept = {k: str(params[k])[:200] for k in (*self.study.id_params, *self.study.keep_params)
+                        if params.get(k)}
+                new, now = own_session(session) or secrets.token_urlsafe(24), time.time()
+                row = tx.add_participant({"pid": pid, "session": new, "arm": arm,
+                                          "conditions": json.dumps(conditions), "status": "active", "step": 0,
+                                          "url_params": json.dumps(kept), "user_agent": user_agent[:500],
+                                          "started": now, "updated": now})
+                if row["session"] == new:
+                    tx.log(pid, "joined", arm=arm)
+                    return {"pid": pid, "session": new}
+            answer = self.returning(tx, row, session, user_agent)  # joined before (or in another process just now)
+        if isinstance(answer, Refused):
+            raise answer  # once the transaction is committed: the refusal stays in the audit log
+        return answer
 
-    def returning(self, tx, row: dict, session: str | None, user_agent: str) -> dict:
+    def returning(self, tx, row: dict, session: str | None, user_agent: str) -> dict | Refused:
         """A participant who joined before: their own browser (or any, when the study resumes) gets their session.
         Their own browser includes a join whose answer was lost and is sent again (by the page, or by the proxy
-        when the process that stored it was killed before answering): it carries the key the browser proposed."""
+        when the process that stored it was killed before answering): it carries the key the browser proposed.
+        A refusal is returned, not raised: raised inside ``tx`` it would roll back its own event."""
         pid = row["pid"]
         if session and secrets.compare_digest(session, row["session"]):
             tx.log(pid, "resumed")
         elif self.study.returning == "resume":
             tx.log(pid, "resumed", new_browser=True, user_agent=user_agent[:300])
+        elif row["status"] == "completed":
+            tx.log(pid, "refused", reason="already completed")
+            return Finished(self.study.completion_code, self.completion_url())
         else:
             tx.log(pid, "refused", reason="already started")
-            raise Refused("this participant id has already started the study; it cannot start again")
+            return Refused("You have already started this study in another browser or on another device, and it "
+                           "cannot start again here. Please go on in that browser; if you cannot, contact the "
+                           "researchers through the study platform.")
         return {"pid": pid, "session": row["session"]}
+
+    def completion_url(self) -> str:
+        """The study's ``redirect_url`` with its completion code in it ("" when it has none)."""
+        url = self.study.redirect_url
+        return url.replace("{code}", self.study.completion_code) if url else ""
 
     def check(self, pid: str, session: str):
         row = self.store.participant(pid) if isinstance(pid, str) else None
@@ -192,22 +224,27 @@ class StudyService:
         settings = self.game_settings(step) if step.has_game else self.study.defaults
         config = env_config(settings.preset)
         out["look"] = look(config)  # who is who: the page's legend draws each disc as the board will
-        out["agent"] = config.agent_names[config.leaders[0]]  # the participant's (a study game is 1:1)
-        if step.has_game:
+        assisting = settings.seat == "follower"  # the participant plays the follower, beside an AI leader
+        out["agent"] = config.agent_names[config.followers[0] if assisting else config.leaders[0]]  # a study game: 1:1
+        if step.has_game:  # has_belief: the follower forms a belief the page may show (copy has none)
             out["game"] = {"mode": settings.mode, "show_belief": settings.show_belief, "horizon": settings.horizon,
-                           "tick_hz": settings.tick_hz}
+                           "tick_hz": settings.tick_hz, "seat": settings.seat,
+                           "has_belief": not assisting and follower_info(settings.follower)["has_belief"]}
             last = self.store.last_game(pid, row["step"])
             live = self.live.get(pid)
             if live is not None and not live.finished:
                 out["live"] = {"game_id": live.game_id, "token": live.token}
             elif last is not None and last["ended"] and last["ended"] not in LOST:
                 out["done"] = {"ended": last["ended"], "scores": json.loads(last["scores"] or "null")}
-            elif self.interrupted(pid, last):
-                out["interrupted"] = True  # its process stopped: the page offers to play it again
+            elif self.away(pid, last):
+                there = self.elsewhere(pid)
+                if there is not None:
+                    out["live"] = there  # another process runs it: the page rejoins it there
+                else:
+                    out["interrupted"] = True  # its process stopped: the page offers to play it again
         if step.kind == "debrief":
-            code = self.study.completion_code
-            out["completion_code"] = code
-            out["redirect_url"] = self.study.redirect_url.replace("{code}", code) if self.study.redirect_url else ""
+            out["completion_code"] = self.study.completion_code
+            out["redirect_url"] = self.completion_url()
         return out
 
     # ---------------------------------------------------------------- moving on
@@ -265,7 +302,11 @@ class StudyService:
         if live is not None and not live.finished:
             raise Invalid("this participant's game is still running: rejoin it")
         last = self.store.last_game(pid, row["step"])
-        if last is not None and not self.interrupted(pid, last) and (not last["ended"] or last["ended"] not in LOST):
+        if self.away(pid, last):  # played again as a new attempt, unless another process still runs it
+            if self.elsewhere(pid) is not None:
+                raise Invalid("this participant's game is still running in another server process: reload the page "
+                              "to rejoin it")
+        elif last is not None and (not last["ended"] or last["ended"] not in LOST):
             raise Invalid("the game on this page was already played")
         settings = self.game_settings(step)
         meta = {"study": self.study.id, "participant": pid, "step": row["step"], "kind": step.kind,
@@ -274,11 +315,17 @@ class StudyService:
                 "attempt": 0 if last is None else last["attempt"] + 1, "arm": row["arm"]}
         return settings, meta
 
-    def interrupted(self, pid: str, last: dict | None) -> bool:
-        """Whether the participant's latest game never ended and is not running here: the process that ran it
-        stopped without saving it (killed, crashed), this one or another behind the same proxy (a participant's
-        requests all reach one process, so their running game is always here)."""
+    def away(self, pid: str, last: dict | None) -> bool:
+        """Whether the participant's latest game never ended and is not running here: another process of the
+        deployment runs it (``elsewhere`` says), or the process that ran it stopped without saving it."""
         return last is not None and not last["ended"] and pid not in self.live
+
+    def interrupted(self, pid: str, last: dict | None) -> bool:
+        """Whether the participant's latest game never ended and runs nowhere: the process that ran it stopped
+        without saving it (killed, crashed), this one or another behind the same proxy. A participant's requests
+        reach the process running their game, but not always: one started again after it died takes its
+        participants back, whose games may still run where they went meanwhile; so the others are asked."""
+        return self.away(pid, last) and self.elsewhere(pid) is None
 
     def game_started(self, game) -> None:
         m = game.study
@@ -325,6 +372,7 @@ class StudyService:
             if 0 <= r["arm"] < len(by_arm):
                 by_arm[r["arm"]][r["status"]] += 1
         minutes = [(r["completed"] - r["started"]) / 60 for r in rows if r["completed"]]
+        endings = self.store.endings()  # games by how they ended; a lost one (LOST) was played again
         return {
             "study": self.study.id, "title": self.study.title,
             "conditions": [{"label": f"C{i + 1}", **dataclasses.asdict(c)}
@@ -335,6 +383,8 @@ class StudyService:
             "completion_minutes": {"median": statistics.median(minutes) if minutes else None,
                                    "values": sorted(round(m, 2) for m in minutes)},
             "live_games": live_games,
+            "endings": {"counted": {k: n for k, n in endings.items() if k not in LOST},
+                        "played_again": {k: n for k, n in endings.items() if k in LOST}},
             "recent": [{"pid": r["pid"], "arm": r["arm"], "status": r["status"], "step": r["step"],
                         "started": r["started"], "updated": r["updated"], "completed": r["completed"]}
                        for r in sorted(rows, key=lambda r: -r["updated"])[:200]],

@@ -1,0 +1,98 @@
+"""A scripted stand-in for a person in the follower seat: it plays games on a running play server through the play
+protocol, as a page would, so that the human-follower analysis (``colorgrid replay rescore``, docs/STUDIES.md) can be
+shown and tested on real recordings without human data. It is not a person, and its figures are not people's.
+
+What it does, seeing only what a person sees (the goal is hidden from it): it walks toward the leader, and states as
+its belief the color of the last block the leader collected that paid (the leader's score went up), which is what
+the copy follower acts on; each probe it answers with that color and a confidence of 0.7 (chance when it has seen no
+paying pickup yet).
+
+    colorgrid play --replays-dir recordings/scripted --leaders astar --leaders person:slip=0.1,notice_delay=3
+    python examples/scripted_assistant.py --games 6 --leader astar --probes steps:20,40,60
+    colorgrid replay rescore recordings/scripted --follower bayes-people ippo
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+
+from websockets.sync.client import connect
+
+PACE_S = 0.04
+"""Between two messages: within the server's --max-messages-per-s (40 by default), as a person's keys are."""
+MOVES = {(-1, 0): "ArrowUp", (1, 0): "ArrowDown", (0, -1): "ArrowLeft", (0, 1): "ArrowRight"}
+
+
+class StandIn:
+    """The stand-in's memory of one game (it is not a person): the belief it states, and its next key number."""
+
+    def __init__(self, welcome: dict):
+        self.width, self.agent = welcome["width"], welcome["agent"]
+        self.leader = next(name for name in welcome["leaders"])
+        self.keys = {color: key for key, color in welcome["belief_keys"].items()}
+        self.colors = len(welcome["colors"])
+        self.stated, self.seq, self.score = None, 0, 0.0
+
+    def key(self, key: str) -> dict:
+        self.seq += 1
+        return {"type": "key", "key": key, "seq": self.seq - 1, "t_client": time.time() * 1000}
+
+    def react(self, state: dict) -> list[dict]:
+        """The messages a state calls for: a new belief when the leader's pickup paid, a probe's answer, a move."""
+        out = []
+        paid = state["scores"][self.leader] > self.score  # the leader's score: what its pickup earned
+        self.score = state["scores"][self.leader]
+        for event in state["events"]:
+            if event.get("agent") == self.leader and paid and event["color"] != self.stated:
+                self.stated = event["color"]
+                out.append(self.key(self.keys[self.stated]))
+        if state["probe"] is not None:
+            sure = self.stated is not None
+            out.append({"type": "probe_answer", "probe": state["probe"]["id"], "color": self.stated or 0,
+                        "confidence": 0.7 if sure else round(1 / self.colors + 1e-6, 6),
+                        "t_client": time.time() * 1000})
+        here, there = divmod(state[self.agent], self.width), divmod(state[self.leader], self.width)
+        step = ((there[0] > here[0]) - (there[0] < here[0]), 0) if there[0] != here[0] else \
+            (0, (there[1] > here[1]) - (there[1] < here[1]))
+        out.append(self.key(MOVES.get(step, "ArrowUp")))
+        return out
+
+
+def play(url: str, leader: str, probes: str, horizon: int, mode: str = "turn", goal: str = "hidden") -> dict:
+    """One turn-based game in the follower seat; returns its ``game_over``."""
+    with connect(url, open_timeout=20) as ws:
+        ws.send(json.dumps({"type": "new_game", "seat": "follower", "leader": leader, "probes": probes,
+                            "goal": goal, "mode": mode, "horizon": horizon}))
+        me = None
+        while True:
+            msg = json.loads(ws.recv(timeout=60))
+            if msg["type"] == "welcome":
+                me = StandIn(msg)
+            elif msg["type"] == "state" and me is not None and msg["step"] < msg["horizon"]:
+                for reply in me.react(msg):
+                    time.sleep(PACE_S)
+                    ws.send(json.dumps(reply))
+            elif msg["type"] == "game_over":
+                return msg
+            elif msg["type"] in ("error", "full"):
+                raise RuntimeError(f"the server refused: {msg}")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--url", default="ws://127.0.0.1:8000/ws/play")
+    parser.add_argument("--games", type=int, default=4)
+    parser.add_argument("--leader", action="append", help="AI leader(s), played in turn (default: astar)")
+    parser.add_argument("--probes", default="steps:20,40,60")
+    parser.add_argument("--horizon", type=int, default=80)
+    args = parser.parse_args()
+    leaders = args.leader or ["astar"]
+    for i in range(args.games):
+        over = play(args.url, leaders[i % len(leaders)], args.probes, args.horizon)
+        print(f"game {i + 1}: {over['replay_id']} ({over['steps']} steps, team {over['scores']['team']:+g})")
+
+
+if __name__ == "__main__":
+    main()
