@@ -631,6 +631,26 @@ def test_an_empty_table_has_the_declared_types_in_parquet_and_csv(tmp_path):
     assert list(read_parquet(tmp_path / "out", "focus").event.cat.categories) == ["blur", "focus", "visibilitychange"]
 
 
+def test_a_study_without_questions_exports_its_empty_answers_table(tmp_path):
+    """A study that asks nothing has no question ids: its answers' category columns have no categories, and the
+    export still writes every table with the declared types in both formats."""
+    from server.study.export import write_tables
+    from server.study.schema import check_frame, export_schema, read_csv, read_parquet
+
+    data = tomllib.loads(EXAMPLE.read_text())
+    data["pages"] = [{k: v for k, v in page.items() if k != "after_each"} for page in data["pages"]
+                     if page.get("kind") != "questionnaire"]
+    study = parse_study(data)
+    answers = export_schema(study)["answers"]
+    columns = {c.name: c for c in answers.columns}
+    assert columns["question"].categories == () and columns["page"].categories == ()
+    StudyStore(tmp_path / "study.sqlite", study.id, study_hash(study)).close()
+    assert set(write_tables(study, tmp_path / "study.sqlite", tmp_path, tmp_path / "out").values()) == {0}
+    parquet, csv = read_parquet(tmp_path / "out", "answers"), read_csv(tmp_path / "out", "answers")
+    assert check_frame(parquet, answers) == [] and check_frame(csv, answers) == []
+    assert list(parquet["question"].cat.categories) == [] and str(csv["question"].dtype) == "category"
+
+
 def test_the_data_dictionary_in_the_docs_is_the_declared_schema():
     from server.study.schema import data_dictionary
 

@@ -86,13 +86,14 @@ class Column:
     """The unit of a number, or what a text holds (empty where none applies)."""
     description: str
     categories: tuple = ()
-    """``category``: every value it may take, in order."""
+    """``category``: every value it may take, in order (none for a study that has none: a study without questions
+    has no question ids, and its column stays empty)."""
 
     def __post_init__(self):
         if self.type not in TYPES:
             raise ValueError(f"column {self.name}: type {self.type!r} is not one of {list(TYPES)}")
-        if (self.type == "category") != bool(self.categories):
-            raise ValueError(f"column {self.name}: categories are for (and needed by) type 'category'")
+        if self.categories and self.type != "category":
+            raise ValueError(f"column {self.name}: categories are for type 'category' only")
 
     @property
     def nullable(self) -> bool:
@@ -105,7 +106,7 @@ class Column:
 
     def arrow_field(self) -> pa.Field:
         meta = {"type": self.type, "unit": self.unit, "description": self.description}
-        if self.categories:
+        if self.type == "category":
             meta["categories"] = json.dumps([str(c) for c in self.categories])
         return pa.field(self.name, TYPES[self.type].arrow, nullable=self.nullable, metadata=meta)
 
@@ -113,7 +114,7 @@ class Column:
         out = {"name": self.name, "type": self.type, "pandas_dtype": TYPES[self.type].pandas,
                "arrow_type": str(TYPES[self.type].arrow), "nullable": self.nullable, "unit": self.unit,
                "description": self.description}
-        if self.categories:
+        if self.type == "category":
             out["categories"] = [str(c) for c in self.categories]
         return out
 
