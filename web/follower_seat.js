@@ -8,6 +8,27 @@ import { agentBadge } from "./board.js";
 
 const $ = (id) => document.getElementById(id);
 
+/** The probe dialog and the stated-belief panel, the same on the play page and the study page: put into each
+ * page's #belief-controls when this module loads, before the pages' own code looks them up. */
+const BELIEF_CONTROLS = `
+  <div id="probe" class="probe" role="dialog" aria-labelledby="probe-question" aria-live="assertive" hidden>
+    <h3 id="probe-question">Which color is the goal now, and how sure are you?</h3>
+    <p class="note"><span id="probe-step"></span>: <span id="probe-note"></span></p>
+    <div id="probe-colors"></div>
+    <label>How sure are you? <input id="probe-confidence" type="range" min="34" max="100" step="1">
+      <b id="probe-percent"></b></label>
+    <button id="probe-answer" disabled>Answer</button>
+    <p class="problem" id="probe-problem" aria-live="polite"></p>
+  </div>
+  <div id="stated-panel" hidden>
+    <p class="note" id="stated-task"></p>
+    <div id="stated-swatches" role="group" aria-label="the color you believe is the goal"></div>
+    <p class="note" id="stated-now" aria-live="polite"></p>
+  </div>`;
+const slot = document.getElementById("belief-controls");
+if (slot) slot.outerHTML = BELIEF_CONTROLS;
+
+
 // ---------------------------------------------------------------- the setup card
 // The seat menu for the chosen team, and the follower seat's own choices when it is chosen.
 export function showSeatChoice(options, team, fill) {
