@@ -95,7 +95,7 @@ def verdict(direction: Direction, difference: float, p: float, p_equivalence: fl
         return Verdict.INCONCLUSIVE
     if agrees:
         return Verdict.REPRODUCED if p < ALPHA else Verdict.IN_DIRECTION
-    return Verdict.NOT_REPRODUCED if p < ALPHA and difference != 0 else Verdict.INCONCLUSIVE
+    return Verdict.NOT_REPRODUCED if p < ALPHA else Verdict.INCONCLUSIVE
 
 
 def decide(claim: Claim, a: list[float], b: list[float] | float) -> Outcome:

@@ -136,7 +136,7 @@ def write_report(path: str | Path) -> tuple[str, list[Path]]:
     """Report a sweep: a sweep's folder (its tables collected afresh, kept trials included; written there), or a
     sweep file (the trials kept in its ``results`` folder; written there). Returns the text and the pictures."""
     path = Path(path)
-    if (path / "sweep.toml").is_file() or path.is_dir():
+    if path.is_dir():
         spec = load_folder(path)
         trials, curves = collect(path)
         return render(spec, trials, curves, path)
