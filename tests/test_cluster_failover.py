@@ -142,12 +142,16 @@ def test_a_backend_killed_mid_game_loses_nothing_finished_and_is_started_again(s
 
 
 def backends_up(cluster, timeout_s: float = 120) -> dict:
-    """Every backend up and ready behind the proxy (the launcher starts a killed one again): name -> its health."""
+    """Every backend up and ready behind the proxy (the launcher starts a killed one again): name -> its health.
+    Ready by its own health is not yet up for HAProxy, which wants two good checks a second apart: a backend
+    counts once a request carrying its cookie reaches it."""
     deadline = time.monotonic() + timeout_s
     while True:
         try:
             now = {b["name"]: b for b in cluster.health()["backends"]}
-            if all(b["up"] and b.get("ready") for b in now.values()):
+            if all(b["up"] and b.get("ready") for b in now.values()) and all(
+                    cluster.request("/api/health", cookies={BACKEND_COOKIE: name}).headers[BACKEND_HEADER] == name
+                    for name in now):
                 return now
         except (ValueError, KeyError):  # the proxy's answer while no backend is up
             pass
