@@ -542,7 +542,8 @@ def test_every_exported_table_has_the_declared_columns_and_types_in_parquet_and_
 
     from server.study.export import tables as export_tables
     from server.study.export import write_tables
-    from server.study.schema import SCHEMA_FILE, check_arrow, check_frame, export_schema, read_csv, read_parquet
+    from server.study.columns import SCHEMA_FILE, check_arrow, check_frame, read_csv, read_parquet
+    from server.study.schema import export_schema
 
     path = tmp_path / "two.toml"
     path.write_text(SEVERAL_CONDITIONS)
@@ -618,7 +619,8 @@ def test_every_exported_table_has_the_declared_columns_and_types_in_parquet_and_
 def test_an_empty_table_has_the_declared_types_in_parquet_and_csv(tmp_path):
     # Parquet keeps a column's categories with its values: a table without rows holds none in its values.
     from server.study.export import write_tables
-    from server.study.schema import check_frame, export_schema, read_csv, read_parquet
+    from server.study.columns import check_frame, read_csv, read_parquet
+    from server.study.schema import export_schema
 
     study = load_study(EXAMPLE)
     StudyStore(tmp_path / "study.sqlite", study.id, study_hash(study)).close()  # nobody has joined
@@ -635,7 +637,8 @@ def test_a_study_without_questions_exports_its_empty_answers_table(tmp_path):
     """A study that asks nothing has no question ids: its answers' category columns have no categories, and the
     export still writes every table with the declared types in both formats."""
     from server.study.export import write_tables
-    from server.study.schema import check_frame, export_schema, read_csv, read_parquet
+    from server.study.columns import check_frame, read_csv, read_parquet
+    from server.study.schema import export_schema
 
     data = tomllib.loads(EXAMPLE.read_text())
     data["pages"] = [{k: v for k, v in page.items() if k != "after_each"} for page in data["pages"]
@@ -658,7 +661,8 @@ def test_the_data_dictionary_in_the_docs_is_the_declared_schema():
 
 
 def test_a_value_outside_its_declared_type_stops_the_export_with_its_place():
-    from server.study.schema import conform, export_schema
+    from server.study.columns import conform
+    from server.study.schema import export_schema
 
     focus = export_schema(load_study(EXAMPLE))["focus"]
     with pytest.raises(ValueError, match=r"focus.event: \['scroll'\] not among its categories"):
@@ -671,7 +675,8 @@ def test_a_value_outside_its_declared_type_stops_the_export_with_its_place():
 
 def test_keys_recorded_before_are_numbered_on_and_a_repeated_key_stops_the_export():
     from server.study.export import numbered_on
-    from server.study.schema import conform, export_schema
+    from server.study.columns import conform
+    from server.study.schema import export_schema
 
     assert numbered_on([4, 5, 7]) == [4, 5, 7]  # as the server numbers them now (welcome.next_seq): unchanged
     assert numbered_on([0, 1, 2, 0, 1, 5, 3]) == [0, 1, 2, 3, 4, 8, 9]  # a page that started again at 0, twice

@@ -14,7 +14,8 @@ from playwright.sync_api import expect
 
 from colorgrid.replay import load, verify
 from server.study.config import StudyError, load_study
-from server.study.schema import check_arrow, check_frame, export_schema, read_csv
+from server.study.columns import check_arrow, check_frame, read_csv
+from server.study.schema import export_schema
 from tests.conftest import ROOT, start_server, stop_server
 from tests.documented import documented_code
 from tests.test_study import TOKEN, toml

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from colorgrid.config import EnvConfig
+from colorgrid.enums import Ending, KeyStatus
 from colorgrid.files import JSONFileError, atomic_path, read_json
 from colorgrid.rng import MAX_SEED
 
@@ -55,7 +56,7 @@ class Replay:
     state_hashes: list | None = None  # [T + 1] hashes of the state before each step and after the last
     frames: dict | None = None  # frames replays: {"agent_cell": [T+1][A], "blocks": [T+1] strings}
     penalty_coef: float = 1.0  # the penalty coefficient in force during the episode
-    ended: str = "complete"  # "complete", or why it stopped early ("disconnected", "idle", ...)
+    ended: str = Ending.COMPLETE  # an ``Ending``: "complete", or why it stopped early ("disconnected", ...)
     key_events: list | None = None  # human games: key log (see docs/SERVER_PROTOCOL.md)
     stated_beliefs: dict = field(default_factory=dict)  # a person in a follower seat: name -> [T] color or None
     belief_events: list | None = None  # a person in a follower seat: every statement of a belief, in order
@@ -168,6 +169,7 @@ class Replay:
                                            f"simulates for a team of {cfg.num_leaders} leader(s) and "
                                            f"{cfg.num_followers} follower(s)")
         require(self.source in SOURCES, f"source {self.source!r} is not one of {list(SOURCES)}")
+        require(self.ended in set(Ending), f"ended {self.ended!r} is not one of {[e.value for e in Ending]}")
         require(0 < T <= cfg.horizon, f"episode has {T} steps; expected 1..horizon ({cfg.horizon})")
         require(all(_is_int(g) and 0 <= g < C for g in self.goal), f"steps.goal must hold colors in [0, {C})")
         require(_is_real(self.penalty_coef) and self.penalty_coef >= 0,
@@ -225,6 +227,8 @@ class Replay:
         if self.key_events is not None:
             require(all(isinstance(k, dict) and _is_real(k.get("t_server", 0)) for k in self.key_events),
                     "key_events must be a list of objects (t_server, when present, a number)")
+            require(all(k.get("status", KeyStatus.APPLIED) in set(KeyStatus) for k in self.key_events),
+                    f"key_events: a key's status must be one of {[s.value for s in KeyStatus]}")
         for name, stated in self.stated_beliefs.items():
             require(name in cfg.agent_names and cfg.roles[cfg.agent_names.index(name)] == "follower",
                     f"steps.stated_belief has {name!r}, which is not a follower of the config's team")

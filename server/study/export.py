@@ -28,7 +28,8 @@ from colorgrid.replay.timeline import reaction_times
 from server.study.assign import arm_labels, arms
 from server.study.config import GameSettings, Study
 from server.study.figures import FIGURES, SCORES, game_figures, score_figures
-from server.study.schema import SCHEMA_FILE, conform, export_schema, questions_metadata, sidecar, write_parquet
+from server.study.columns import SCHEMA_FILE, conform
+from server.study.schema import export_schema, questions_metadata, sidecar, write_parquet
 from server.study.stated_export import probe_rows, stated_by_step, stated_figures, statement_rows
 from server.study.store import read_tables
 

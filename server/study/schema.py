@@ -2,24 +2,10 @@
 
 ``export_schema(study)`` lists each table's columns for a study (a few depend on it: the
 condition factors' levels, the URL parameters kept, the questions, the number of colors).
-``server.study.export`` writes every table through ``conform`` (the declared columns, in order,
-each cast to its type; a value outside its type or its categories is an error, never a silent
-NaN), with the types in the Parquet schema and in ``schema.json`` beside the CSV files;
-``read_csv`` and ``read_parquet`` read a table back with them (a table without rows too), and
-``check_frame`` / ``check_arrow`` check a table read back against the declaration. docs/STUDIES.md's data dictionary is ``data_dictionary``'s text.
-
-Types (``Column.type``), as pandas dtypes and Arrow types:
-
-| type | pandas | Arrow | missing values |
-|---|---|---|---|
-| ``int64`` | ``int64`` | ``int64`` | none |
-| ``Int64`` | ``Int64`` (nullable) | ``int64`` | ``<NA>`` |
-| ``float64`` | ``float64`` | ``double`` | ``NaN`` |
-| ``bool`` | ``bool`` | ``bool`` | none |
-| ``boolean`` | ``boolean`` (nullable) | ``bool`` | ``<NA>`` |
-| ``string`` | ``string`` | ``string`` | ``<NA>`` |
-| ``category`` | ``category`` (the declared categories) | ``dictionary<int32, string>`` | ``NaN`` |
-| ``timestamp`` | ``datetime64[us, UTC]`` | ``timestamp[us, tz=UTC]`` | ``NaT`` |
+``server.study.export`` writes every table through ``server.study.columns.conform``, with the types in the Parquet
+schema and in ``schema.json`` (``sidecar``) beside the CSV files; ``server.study.columns`` reads them back and checks
+them. The categories of endings, key statuses and game kinds are ``colorgrid.enums``'s, in its order.
+docs/STUDIES.md's data dictionary is ``data_dictionary``'s text.
 """
 
 from __future__ import annotations
@@ -27,114 +13,27 @@ from __future__ import annotations
 import dataclasses
 import json
 import typing
-from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
 import pyarrow as pa
 
 from colorgrid.config import AGENTS
+from colorgrid.enums import Ending, GameKind, KeyStatus
 from colorgrid.presets import PRESETS, env_config
 from server.protocol import GoalView, PageEvent, SeatKind
 from server.stated import ProbeKind, ProbeStatus, Via
 from server.study.assign import arm_labels
+from server.study.columns import Column, Table
 from server.study.config import QUESTION_KINDS, GameSettings, Study
 
-SCHEMA_FILE = "schema.json"
-"""The CSV files' types, written beside them."""
 FORMAT_VERSION = 4
 """Bumped whenever a column is added, removed or changes type (3: ``keys.game_id``, and each table's ``unique``; 4: the
 follower seat: ``condition_seat``, ``_leader``, ``_goal``, ``_probes``, the stated beliefs' columns, ``probes`` and
 ``statements``)."""
-
-
-@dataclass(frozen=True)
-class Kind:
-    pandas: str
-    arrow: pa.DataType
-    nullable: bool
-
-
-TYPES: dict[str, Kind] = {
-    "int64": Kind("int64", pa.int64(), False),
-    "Int64": Kind("Int64", pa.int64(), True),
-    "float64": Kind("float64", pa.float64(), True),
-    "bool": Kind("bool", pa.bool_(), False),
-    "boolean": Kind("boolean", pa.bool_(), True),
-    "string": Kind("string", pa.string(), True),
-    "category": Kind("category", pa.dictionary(pa.int32(), pa.string()), True),
-    "timestamp": Kind("datetime64[us, UTC]", pa.timestamp("us", tz="UTC"), True),
-}
-
-GAME_KINDS = ("practice", "trial")
 STATUSES = ("active", "completed")
-ENDINGS = ("complete", "idle", "quit", "left", "disconnected", "server_shutdown", "stand_in_failed", "server_lost")
-"""Why a game ended (``game_over.reason``, or ``server_lost``: its process stopped without saving it); a lost game
-(disconnected, server_shutdown, server_lost) is played again."""
-KEY_STATUSES = ("applied", "superseded", "ignored", "unapplied", "stated")
+"""A participant's status."""
 PAGE_EVENTS = typing.get_args(PageEvent.model_fields["event"].annotation)
-
-
-@dataclass(frozen=True)
-class Column:
-    """One column of an exported table."""
-
-    name: str
-    type: str
-    """A key of ``TYPES``."""
-    unit: str
-    """The unit of a number, or what a text holds (empty where none applies)."""
-    description: str
-    categories: tuple = ()
-    """``category``: every value it may take, in order (none for a study that has none: a study without questions
-    has no question ids, and its column stays empty)."""
-
-    def __post_init__(self):
-        if self.type not in TYPES:
-            raise ValueError(f"column {self.name}: type {self.type!r} is not one of {list(TYPES)}")
-        if self.categories and self.type != "category":
-            raise ValueError(f"column {self.name}: categories are for type 'category' only")
-
-    @property
-    def nullable(self) -> bool:
-        return TYPES[self.type].nullable
-
-    def pandas_dtype(self):
-        if self.type == "category":
-            return pd.CategoricalDtype([str(c) for c in self.categories])
-        return pd.api.types.pandas_dtype(TYPES[self.type].pandas)
-
-    def arrow_field(self) -> pa.Field:
-        meta = {"type": self.type, "unit": self.unit, "description": self.description}
-        if self.type == "category":
-            meta["categories"] = json.dumps([str(c) for c in self.categories])
-        return pa.field(self.name, TYPES[self.type].arrow, nullable=self.nullable, metadata=meta)
-
-    def as_dict(self) -> dict:
-        out = {"name": self.name, "type": self.type, "pandas_dtype": TYPES[self.type].pandas,
-               "arrow_type": str(TYPES[self.type].arrow), "nullable": self.nullable, "unit": self.unit,
-               "description": self.description}
-        if self.type == "category":
-            out["categories"] = [str(c) for c in self.categories]
-        return out
-
-
-@dataclass(frozen=True)
-class Table:
-    """An exported table: what a row is, its columns in order, and the columns that name one row."""
-
-    name: str
-    row: str
-    columns: tuple[Column, ...]
-    unique: tuple[str, ...] = ()
-    """Columns whose values no two rows share (a table's key); ``conform`` refuses a table that breaks it."""
-
-    @property
-    def names(self) -> list[str]:
-        return [c.name for c in self.columns]
-
-    def arrow_schema(self, metadata: dict | None = None) -> pa.Schema:
-        return pa.schema([c.arrow_field() for c in self.columns], metadata=metadata)
 
 
 # ---------------------------------------------------------------- the declaration
@@ -186,7 +85,7 @@ def _condition(study: Study, whose: str) -> list[Column]:
 def _game(study: Study) -> list[Column]:
     """Which game of the participant a row belongs to."""
     return [
-        Column("kind", "category", "name", "`practice` or `trial`", GAME_KINDS),
+        Column("kind", "category", "name", " or ".join(f"`{k}`" for k in GameKind), tuple(GameKind)),
         Column("trial_index", "Int64", "index", "the trial (0-based, in play order); empty for practice"),
         *_condition(study, "the game (practice: empty; the `condition_*` columns hold its own settings)"),
         Column("attempt", "int64", "count", "0, then 1, 2... when a game was lost and played again"),
@@ -260,7 +159,7 @@ def export_schema(study: Study) -> dict[str, Table]:
             Column("game_id", "string", "id", "the server's game id"),
             Column("replay_id", "string", "id", "the game's replay (`recordings/STUDY_ID/REPLAY_ID.replay.json`)"),
             Column("ended", "category", "name", "why the game ended (empty while it runs): " +
-                   ", ".join(f"`{e}`" for e in ENDINGS), ENDINGS),
+                   ", ".join(f"`{e}`" for e in Ending), tuple(Ending)),
             Column("started", "timestamp", "UTC", "when the game started"),
             Column("finished", "timestamp", "UTC", "when it ended"),
             Column("team_score", "float64", "points", "the team's score at the end"),
@@ -303,7 +202,7 @@ def export_schema(study: Study) -> dict[str, Table]:
             Column("status", "category", "name", "`applied`; `superseded` (another key came before the step); "
                                                  "`ignored`; `unapplied` (pressed after the game's last step); "
                                                  "`stated` (a number key: a belief, not a move)",
-                   KEY_STATUSES),
+                   tuple(KeyStatus)),
             Column("applied_step", "Int64", "step", "the step it moved the participant in"),
             Column("t_client_ms", "float64", ms, "when it was pressed, by the participant's clock"),
             Column("t_server_ms", "float64", ms, "when it reached the server, by the server's clock"),
@@ -378,38 +277,7 @@ def questions_metadata(study: Study) -> dict:
             for p in study.pages if p.questions or p.after_each}
 
 
-# ---------------------------------------------------------------- writing and checking
-def conform(rows: list[dict], table: Table) -> pd.DataFrame:
-    """``rows`` as a DataFrame of exactly the declared columns, in order, each of its declared type. A column
-    the rows have and the table does not, a missing value in a column that allows none, or a value outside its
-    categories raises ``ValueError`` naming the table, the column and the value."""
-    extra = sorted({k for r in rows for k in r} - set(table.names))
-    if extra:
-        raise ValueError(f"{table.name}: columns {extra} are not declared in server/study/schema.py")
-    frame = pd.DataFrame(rows, columns=table.names)
-    if table.unique:
-        repeated = frame[frame.duplicated(list(table.unique), keep=False)]
-        if len(repeated):
-            first = ", ".join(f"{c}={repeated.iloc[0][c]}" for c in table.unique)
-            raise ValueError(f"{table.name}: {len(repeated)} rows share their ({', '.join(table.unique)}), which names "
-                             f"one row; the first: {first}")
-    out = {}
-    for column in table.columns:
-        values = frame[column.name]
-        if not column.nullable and values.isna().any():
-            raise ValueError(f"{table.name}.{column.name}: a missing value in a column of type {column.type}")
-        if column.type == "category":
-            values = values.map(lambda v: v if v is None or v != v else str(v))
-            unknown = sorted(set(values.dropna()) - {str(c) for c in column.categories})
-            if unknown:
-                raise ValueError(f"{table.name}.{column.name}: {unknown} not among its categories "
-                                 f"{list(column.categories)}")
-        elif column.type in ("Int64", "int64", "boolean", "bool"):
-            values = values.astype(object).where(values.notna(), None)
-        out[column.name] = values.astype(column.pandas_dtype())
-    return pd.DataFrame(out, columns=table.names)
-
-
+# ---------------------------------------------------------------- writing
 def metadata(study: Study, table: Table) -> dict:
     """What ``schema.json`` (and each Parquet file's ``colorgrid`` metadata) holds for ``table``."""
     out = {"row": table.row, "unique": list(table.unique), "columns": [c.as_dict() for c in table.columns]}
@@ -431,53 +299,6 @@ def write_parquet(frame: pd.DataFrame, study: Study, table: Table, path: Path) -
     extra = {b"colorgrid": json.dumps({"study": study.id, "version": FORMAT_VERSION, "table": table.name,
                                        **metadata(study, table)}).encode()}
     pq.write_table(arrow.replace_schema_metadata({**arrow.schema.metadata, **extra}), path)
-
-
-def read_csv(folder: str | Path, name: str) -> pd.DataFrame:
-    """A table's CSV file read back with its declared types (from ``schema.json`` beside it)."""
-    folder = Path(folder)
-    columns = json.loads((folder / SCHEMA_FILE).read_text())["tables"][name]["columns"]
-    times = [c["name"] for c in columns if c["type"] == "timestamp"]
-    dtypes = {c["name"]: pd.CategoricalDtype(c["categories"]) if c["type"] == "category" else c["pandas_dtype"]
-              for c in columns if c["type"] != "timestamp"}
-    # only an empty field is missing: a text answer "NA" or "null" stays text
-    frame = pd.read_csv(folder / f"{name}.csv", dtype=dtypes, keep_default_na=False, na_values=[""])
-    for n in times:
-        frame[n] = pd.to_datetime(frame[n], utc=True, format="ISO8601").astype("datetime64[us, UTC]")
-    return frame
-
-
-def read_parquet(folder: str | Path, name: str) -> pd.DataFrame:
-    """A table's Parquet file read back with its declared types, as ``read_csv`` reads its CSV file.
-
-    ``pd.read_parquet`` gives them too, but for the categories of a table without rows: Parquet keeps a column's
-    dictionary with its values, so a file of no rows holds none. Each category column's field in the file names its
-    categories (its ``categories`` metadata), and they are given back here."""
-    import pyarrow.parquet as pq
-
-    path = Path(folder) / f"{name}.parquet"
-    frame = pd.read_parquet(path)
-    for field in pq.read_schema(path):
-        named = (field.metadata or {}).get(b"categories")
-        if named is not None:
-            frame[field.name] = frame[field.name].astype(pd.CategoricalDtype(json.loads(named)))
-    return frame
-
-
-def check_frame(frame: pd.DataFrame, table: Table) -> list[str]:
-    """How a DataFrame read back differs from the declaration (empty: it matches)."""
-    if list(frame.columns) != table.names:
-        return [f"{table.name}: columns {list(frame.columns)} != declared {table.names}"]
-    return [f"{table.name}.{c.name}: {frame[c.name].dtype} != declared {c.pandas_dtype()}"
-            for c in table.columns if frame[c.name].dtype != c.pandas_dtype()]
-
-
-def check_arrow(schema: pa.Schema, table: Table) -> list[str]:
-    """How an Arrow schema (a Parquet file's) differs from the declaration (empty: it matches)."""
-    if schema.names != table.names:
-        return [f"{table.name}: columns {schema.names} != declared {table.names}"]
-    return [f"{table.name}.{c.name}: {schema.field(c.name).type} != declared {TYPES[c.type].arrow}"
-            for c in table.columns if schema.field(c.name).type != TYPES[c.type].arrow]
 
 
 # ---------------------------------------------------------------- the data dictionary
