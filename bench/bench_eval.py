@@ -15,7 +15,7 @@ from common import machine, timed  # noqa: E402
 import numpy as np  # noqa: E402
 
 from colorgrid import EnvConfig  # noqa: E402
-from colorgrid_apps.evaluate import evaluate, switch_lags  # noqa: E402
+from colorgrid.evaluate import evaluate, switch_lags  # noqa: E402
 from colorgrid.policies import make_policy  # noqa: E402
 from colorgrid.rollout import run_episodes  # noqa: E402
 

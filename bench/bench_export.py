@@ -13,7 +13,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import machine, timed  # noqa: E402
 
-from colorgrid_apps.export import export  # noqa: E402
+from colorgrid.replay.export import export  # noqa: E402
 from colorgrid.replay import load  # noqa: E402
 
 DEFAULT = Path(__file__).resolve().parents[1] / "replays/default/astar+bayes_seed2026.replay.json"

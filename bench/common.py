@@ -8,7 +8,7 @@ import time
 
 def machine() -> str:
     """One line naming the machine, CPU count and thread settings the figures were taken on."""
-    from colorgrid_apps.machine import describe
+    from colorgrid.machine import describe
 
     return describe()
 

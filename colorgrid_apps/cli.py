@@ -38,7 +38,7 @@ def cmd_eval(args: argparse.Namespace) -> int:
     import json
     from pathlib import Path
 
-    from colorgrid_apps.evaluate import evaluate, format_reports
+    from colorgrid.evaluate import evaluate, format_reports
 
     config = team_config(config_from_args(args), args.team)
     agents = agent_policies(args.agent, config)

@@ -144,7 +144,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from colorgrid.replay import load
-    from colorgrid_apps.export import default_output, export
+    from colorgrid.replay.export import default_output, export
 
     files = _replay_files(Path(args.target))
     out = Path(args.out) if args.out else None
@@ -166,7 +166,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 def cmd_branch(args: argparse.Namespace) -> int:
     from colorgrid.replay import load, save, verify
-    from colorgrid_apps.branch import branch
+    from colorgrid.replay.branch import branch
 
     path = find_shipped(args.replay, "replays", SUFFIX)
     child = branch(load(path), args.step, args.follower, args.leader, args.seed, parent_name=path.name)
@@ -179,8 +179,8 @@ def cmd_branch(args: argparse.Namespace) -> int:
 
 
 def cmd_rescore(args: argparse.Namespace) -> int:
-    from colorgrid_apps.branch import format_rescore, rescore
-    from colorgrid_apps.human_follower import format_human_report, human_follower_report
+    from colorgrid.replay.branch import format_rescore, rescore
+    from colorgrid.replay.human_follower import format_human_report, human_follower_report
 
     files = _replay_files(Path(args.folder))
     try:

@@ -22,7 +22,7 @@ from colorgrid.config import ENV_ID, FOLLOWER, EnvConfig
 from colorgrid.policies import make_policy
 from colorgrid.policies.population import load_population
 from colorgrid.rollout import run_episodes
-from colorgrid_apps.evaluate import mean_ci, switch_lags
+from colorgrid.evaluate import mean_ci, switch_lags
 
 
 def cell(config: EnvConfig, leader: str, follower: str, episodes: int, seed: int) -> tuple[dict, np.ndarray]:

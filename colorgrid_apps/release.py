@@ -9,7 +9,7 @@ from colorgrid.presets import env_config
 from colorgrid.replay import load
 from colorgrid.replay.index import index_entry, write_index
 from colorgrid.rollout import run_episodes
-from colorgrid_apps.evaluate import record_batch
+from colorgrid.evaluate import record_batch
 
 SETTINGS = {
     "default": "asymmetric, +1/-1, goal switches about 2% a step",
@@ -44,7 +44,7 @@ def build_release(out: Path, episodes: int = 2, gifs: Path | None = None) -> lis
                                            description=f"A* leader with the {follower} follower ({follower_text}); "
                                                        f"{setting_text}."))
             if gifs is not None and follower == "bayes" and setting in GIF_SETTINGS:
-                from colorgrid_apps.export import export
+                from colorgrid.replay.export import export
 
                 export(load(paths[0]), gifs / f"{setting}_astar+bayes.gif", "gif", cell=8)
     write_index(out, entries, f"colorgrid replay release --out {out} --episodes {episodes}")

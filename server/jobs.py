@@ -87,7 +87,7 @@ def timeline_file(path: str, replay_id: str, out: str, max_bytes: int) -> None:
 def export_file(path: str, out: str, fmt: str, max_bytes: int) -> str | None:
     """Export the replay at ``path`` to ``out``; returns the problem if it cannot be exported."""
     from colorgrid.replay import ReplayError, load
-    from colorgrid_apps.export import export
+    from colorgrid.replay.export import export
 
     try:
         export(load(path, max_bytes=max_bytes), out, fmt, path=path)
@@ -97,11 +97,11 @@ def export_file(path: str, out: str, fmt: str, max_bytes: int) -> str | None:
 
 
 def branch_file(path: str, out: str, step: int, follower: str, parent_id: str, max_bytes: int) -> str | None:
-    """Save the replay at ``path`` continued from ``step`` with ``follower`` (``colorgrid_apps.branch``: the
+    """Save the replay at ``path`` continued from ``step`` with ``follower`` (``colorgrid.replay.branch``: the
     leader replays its recorded moves) to ``out``; returns the problem if it cannot be branched. A branch that
     exists already is kept (the same parent, step, follower and seed give the same game)."""
     from colorgrid.replay import ReplayError, load, save
-    from colorgrid_apps.branch import branch
+    from colorgrid.replay.branch import branch
 
     if Path(out).exists():
         return None

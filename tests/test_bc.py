@@ -12,7 +12,7 @@ from colorgrid.config import LEADER
 from colorgrid.policies import AStarLeader, make_policy
 from colorgrid.replay import import_frames, load, save
 from colorgrid.rollout import run_episodes
-from colorgrid_apps.evaluate import evaluate
+from colorgrid.evaluate import evaluate
 from train.bc import BCConfig, bc_config, bc_loss, leader_episode, split_episodes, train_bc
 from train.checkpoint import load_checkpoint
 from train.inputs import step_tensors

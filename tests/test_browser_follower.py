@@ -8,7 +8,7 @@ import pytest
 from playwright.sync_api import expect
 
 from colorgrid.replay import load
-from colorgrid_apps.human_follower import person_measures
+from colorgrid.replay.human_follower import person_measures
 from tests.conftest import start_server, stop_server
 from tests.test_browser import pixel
 

@@ -14,9 +14,9 @@ from colorgrid.env import BatchEnv
 from colorgrid.policies import make_policy
 from colorgrid.replay import Replay, load, save, verify
 from colorgrid.step_inputs import StepInputs
-from colorgrid_apps.branch import branch, watch
-from colorgrid_apps.evaluate import catch_lags, switch_lags
-from colorgrid_apps.human_follower import (
+from colorgrid.replay.branch import branch, watch
+from colorgrid.evaluate import catch_lags, switch_lags
+from colorgrid.replay.human_follower import (
     answer_distribution, brier, human_follower_report, log_loss, person_measures,
 )
 

@@ -8,7 +8,7 @@ import pytest
 from colorgrid import EnvConfig
 from colorgrid.policies import AgentInput, BayesConfig, make_policy
 from colorgrid.policies.bayes import move_likelihood, reward_likelihood, transition
-from colorgrid_apps.evaluate import switch_lags
+from colorgrid.evaluate import switch_lags
 from colorgrid.rollout import run_episodes
 from tests.helpers import env_from_text
 

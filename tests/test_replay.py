@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from colorgrid import BatchEnv, EnvConfig
-from colorgrid_apps.evaluate import record_batch
-from colorgrid_apps.export import export
+from colorgrid.evaluate import record_batch
+from colorgrid.replay.export import export
 from colorgrid.policies import make_policy
 from colorgrid.render import PALETTE
 from colorgrid.replay import ReplayError, import_frames, load, replay_states, save, verify

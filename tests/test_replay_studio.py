@@ -7,7 +7,7 @@ import sys
 import pytest
 
 from colorgrid.replay import load, save, verify
-from colorgrid_apps.branch import branch, rescore
+from colorgrid.replay.branch import branch, rescore
 from tests.conftest import ROOT
 
 PARENT = ROOT / "replays" / "default" / "astar+bayes_seed2026.replay.json"
@@ -28,7 +28,7 @@ def test_a_branch_verifies_and_shares_exactly_the_parents_first_steps(step):
 
 
 def test_the_same_follower_and_seed_from_step_zero_reproduces_its_own_game(tmp_path):
-    from colorgrid_apps.evaluate import evaluate
+    from colorgrid.evaluate import evaluate
 
     evaluate(__import__("colorgrid").EnvConfig(horizon=40), "astar", "bayes", 1, 5, record_dir=tmp_path)
     parent = load(next(tmp_path.glob("*.replay.json")))

@@ -22,7 +22,7 @@ from colorgrid.config import TEAM_ENV_ID
 from colorgrid.render import AGENT_COLORS, _font, tiles
 from colorgrid.replay import Replay, load, save, verify
 from colorgrid.replay.timeline import timeline
-from colorgrid_apps.export import PANEL_BG, PANEL_WIDTH, episode_frames, export, panel_height
+from colorgrid.replay.export import PANEL_BG, PANEL_WIDTH, episode_frames, export, panel_height
 from colorgrid_apps.viewer import ReplayViewer, TabView, standalone_html
 from tests.conftest import ROOT
 from tests.test_viewer import read_recording
@@ -389,7 +389,7 @@ def test_the_replay_list_names_each_roles_policies_and_the_team(tmp_path):
 
 
 def test_branching_a_team_replay_is_refused_with_its_reason():
-    from colorgrid_apps.branch import branch
+    from colorgrid.replay.branch import branch
     from colorgrid.replay import ReplayError
 
     with pytest.raises(ReplayError, match="only 1:1 replays can be branched; this one's team is 2:1"):

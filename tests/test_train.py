@@ -696,7 +696,7 @@ def assert_reproduces(report: dict, card: dict) -> None:
 
 def test_the_shipped_follower_reproduces_its_card_and_assists_the_astar_leader():
     """The card's own command, and the bar: net pickups clearly positive (95% interval above zero)."""
-    from colorgrid_apps.evaluate import evaluate
+    from colorgrid.evaluate import evaluate
 
     report = evaluate(EnvConfig(), "astar", str(CARDS / "follower.pt"), episodes=100, seed=0)
     assert_reproduces(report, card_report("follower", "astar", "checkpoints/follower.pt"))
@@ -706,7 +706,7 @@ def test_the_shipped_follower_reproduces_its_card_and_assists_the_astar_leader()
 
 
 def test_the_shipped_leader_reproduces_its_card_and_collects_goal_blocks():
-    from colorgrid_apps.evaluate import evaluate
+    from colorgrid.evaluate import evaluate
 
     report = evaluate(EnvConfig(), str(CARDS / "leader.pt"), "bayes", episodes=100, seed=0)
     assert_reproduces(report, card_report("leader", "checkpoints/leader.pt", "bayes"))
@@ -736,7 +736,7 @@ def test_exact_training_tests_also_hold_on_a_second_cpu_path():
 
 def test_the_people_follower_reproduces_its_card_and_its_held_out_matrix():
     """The card's rows (beside the training population) and one cell of the held-out matrix it ships."""
-    from colorgrid_apps.evaluate import evaluate
+    from colorgrid.evaluate import evaluate
     from colorgrid_apps.matrix import cell
 
     follower = str(CARDS / "follower_people.pt")
@@ -757,7 +757,7 @@ def test_the_cautious_follower_reproduces_its_card_and_meets_its_held_out_figure
     """The card's row beside the training population, one held-out cell recomputed, and what the card claims of
     the held-out matrix it ships: more net pickups than ``bayes`` on average, better than ``copy`` beside every
     leader, fewer wrong pickups than the follower it was trained from and at most 2.0 an episode."""
-    from colorgrid_apps.evaluate import evaluate
+    from colorgrid.evaluate import evaluate
     from colorgrid_apps.matrix import cell
 
     follower = str(CARDS / "follower_cautious.pt")

@@ -272,7 +272,7 @@ def test_one_to_one_checkpoints_keep_their_layout(tmp_path):
 def test_a_team_followers_card_compares_it_with_the_baselines_in_its_team(tmp_path):
     """The card of a 1:2 shared follower network: a row per baseline and one for the checkpoint, every figure
     the same as ``colorgrid eval`` gives in that team on the same seeds, and the command that reproduces them."""
-    from colorgrid_apps.evaluate import evaluate
+    from colorgrid.evaluate import evaluate
     from train.card import TEAM_BASELINES, model_card
 
     changes = merge(RUNS["1L2F_shared"], {"total_steps": 64})

@@ -13,8 +13,8 @@ import os
 from pathlib import Path
 
 from colorgrid.config import AGENTS, FOLLOWER, LEADER, EnvConfig
-from colorgrid_apps.evaluate import evaluate
-from colorgrid_apps.machine import cpu_name
+from colorgrid.evaluate import evaluate
+from colorgrid.machine import cpu_name
 from train.acting import ACTING
 from train.checkpoint import load_checkpoint
 

@@ -81,7 +81,7 @@ def episode_columns(env: EnvConfig, totals: dict[str, np.ndarray]) -> dict[str, 
 
 
 def evaluation_row(env: EnvConfig, report: dict) -> dict[str, float]:
-    """An evaluation report's means (``colorgrid_apps.evaluate.summarize``) as log columns: the team reward, each
+    """An evaluation report's means (``colorgrid.evaluate.summarize``) as log columns: the team reward, each
     agent's goal, wrong and net pickups and goal-prediction accuracy (if it states a belief), then, beyond the 1:1
     team, each role's (``followers_net_pickups``: the sum over its agents; ``followers_goal_accuracy``: the mean)."""
     row = {"team_reward": report["team_reward"]["mean"]}

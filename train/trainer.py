@@ -30,7 +30,7 @@ from colorgrid.replay import describe_agent
 from colorgrid.rollout import run_team
 from colorgrid.state import EnvState
 from colorgrid.step_inputs import StepInputs
-from colorgrid_apps.evaluate import record_team, summarize
+from colorgrid.evaluate import record_team, summarize
 from train.checkpoint import (agent_entry, build_model, find_network, load_checkpoint, load_weights,
                               save_checkpoint, to_arrays, to_tensors)
 from train.config import TrainConfig, eval_stream
@@ -62,7 +62,7 @@ def device_name(device: torch.device) -> str:
     """What trained: the GPU's name, or the CPU's with its thread count."""
     if device.type == "cuda":
         return torch.cuda.get_device_name(device)
-    from colorgrid_apps.machine import cpu_name
+    from colorgrid.machine import cpu_name
 
     return f"{cpu_name()} ({torch.get_num_threads()} torch threads)"
 

@@ -1,4 +1,7 @@
-"""Replays: the file format, re-simulation and verification, recording, import and the index of a folder."""
+"""Replays: the file format, re-simulation and verification, recording, import and the index of a folder.
+
+Beside them, imported by name: ``export`` (GIF and MP4), ``branch`` (what-if branches and rescoring) and
+``human_follower`` (the measures of a person in the follower seat)."""
 
 from colorgrid.replay.format import FORMAT_VERSION, SUFFIX, Replay, ReplayError, describe_agent, load, save
 from colorgrid.replay.frames import import_frames

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from colorgrid.config import AGENTS, FOLLOWER
 from colorgrid.replay import Replay
-from colorgrid_apps.human_follower import answer_distribution, brier, human_followers, log_loss, person_measures
+from colorgrid.replay.human_follower import answer_distribution, brier, human_followers, log_loss, person_measures
 
 SEAT = AGENTS[FOLLOWER]
 """A study's games are 1:1: the follower seat is the agent ``follower``."""

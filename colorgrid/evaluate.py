@@ -1,7 +1,8 @@
 """The evaluation harness: metrics over a batch of episodes, as a table and as JSON.
 
-Any team shape: one policy per agent (``--leader`` for every leader, ``--follower`` for every follower,
-``--agent NAME=POLICY`` for one agent), metrics per agent and, beyond the 1:1 team, per role.
+Any team shape: one policy per agent (``leader`` for every leader, ``follower`` for every follower, ``agents``
+for one agent by name: ``colorgrid eval --leader``, ``--follower``, ``--agent NAME=POLICY``), metrics per agent
+and, beyond the 1:1 team, per role.
 """
 
 from __future__ import annotations

@@ -17,6 +17,7 @@ def _cpuinfo() -> dict[str, str]:
 
 
 def cpu_name() -> str:
+    """The CPU's model name (``/proc/cpuinfo``), else what ``platform`` knows of it."""
     return _cpuinfo().get("model name") or platform.processor() or platform.machine()
 
 
@@ -32,6 +33,7 @@ def cpu_family() -> str:
 
 
 def describe() -> str:
+    """The machine in one line: CPU, its family, CPU count, Python and the thread settings that change timings."""
     threads = os.environ.get("OMP_NUM_THREADS", "unset")
     capability = os.environ.get("ATEN_CPU_CAPABILITY")
     return (f"{cpu_name()} ({cpu_family()}); {os.cpu_count()} CPUs; Python {platform.python_version()}; "

@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from colorgrid.replay import Replay, load
-from colorgrid_apps.evaluate import catch_lags, mean_ci
+from colorgrid.evaluate import catch_lags, mean_ci
 
 LOG_LOSS_FLOOR = 1e-6
 PERSON = "person"
@@ -127,7 +127,7 @@ def human_follower_report(files: list[Path], followers: list[str], seed: int | N
     pooled, with paired differences (follower minus person) over games. ``pickups``: ``rescore``'s report, whose
     per-game net pickups of each follower (1:1 games) are set beside the person's. None when no game had a person in
     a follower seat."""
-    from colorgrid_apps.branch import watch
+    from colorgrid.replay.branch import watch
 
     games = []
     for path in files:

@@ -126,7 +126,7 @@ def watch(replay: Replay, follower: str, agent: int, seed: int | None = None) ->
 def rescore(files: list[Path], followers: list[str], seed: int | None = None) -> dict:
     """Every recorded leader's moves replayed with each follower (``branch`` at step 0): per-follower means
     and paired differences against the first follower, with 95% intervals over games."""
-    from colorgrid_apps.evaluate import mean_ci
+    from colorgrid.evaluate import mean_ci
 
     nets: dict[str, list[float]] = {f: [] for f in followers}
     wrongs: dict[str, list[float]] = {f: [] for f in followers}
