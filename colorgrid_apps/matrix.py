@@ -19,10 +19,11 @@ from concurrent.futures import ProcessPoolExecutor
 import numpy as np
 
 from colorgrid.config import ENV_ID, FOLLOWER, EnvConfig
+from colorgrid.evaluate import mean_ci, switch_lags
 from colorgrid.policies import make_policy
+from colorgrid.policies.names import PolicyKind, read_name
 from colorgrid.policies.population import load_population
 from colorgrid.rollout import run_episodes
-from colorgrid.evaluate import mean_ci, switch_lags
 
 
 def cell(config: EnvConfig, leader: str, follower: str, episodes: int, seed: int) -> tuple[dict, np.ndarray]:
@@ -93,8 +94,9 @@ def ray_cells(address: str, jobs: list[tuple]) -> list:
 
 def leaders_from(spec: str) -> dict[str, str]:
     """A population (``FILE[#PART]`` or ``population:NAME[#PART]``) or one policy spec, as name -> spec."""
-    if spec.startswith("population:") or spec.endswith(".json") or ".json#" in spec:
-        return load_population(spec.removeprefix("population:"))
+    name = read_name(spec)
+    if name is not None and name.kind is PolicyKind.POPULATION:
+        return load_population(name.target)
     return {spec: spec}
 
 

@@ -10,8 +10,9 @@ import numpy as np
 
 from colorgrid.config import FOLLOWER, EnvConfig
 from colorgrid.env import BatchEnv
-from colorgrid.policies import SCRIPTED, IdleFollower, make_policy, policy_teams, registry
+from colorgrid.policies import SCRIPTED, IdleFollower, make_policy, policy_teams
 from colorgrid.policies.base import AgentInput
+from colorgrid.policies.names import PolicyKind, read_name
 from colorgrid.replay import describe_agent
 from colorgrid.step_inputs import StepInputs
 from server.game import PAIR_VIEW
@@ -21,7 +22,8 @@ from server.inference import InferenceWorker, RemotePolicy
 def is_scripted(name: str) -> bool:
     """A scripted follower: cheap to build, and it plays at any agent index of any team; not a trained network
     or checkpoint (which takes a while to load: the server keeps those warm)."""
-    return name.partition(":")[0] in SCRIPTED
+    spec = read_name(name)
+    return spec is not None and spec.kind is PolicyKind.SCRIPTED
 
 
 def plays(name: str, team) -> bool:
@@ -93,10 +95,8 @@ description, whether it holds a belief over the goal. A scripted policy not list
 def is_leader_kind(name: str) -> bool:
     """Whether ``name`` may be an AI leader: a scripted leader (``LEADER_INFO``, with parameters: ``person:slip=0.1``),
     a trained leader's name, a population or a checkpoint path; not a follower's name."""
-    base = name.partition(":")[0]
-    trained = base in registry.registered_names() and base not in SCRIPTED
-    population = name.startswith("population:") or ".json" in name
-    return base in set(SCRIPTED) & set(LEADER_INFO) or trained or population or base.endswith(".pt")
+    spec = read_name(name)  # what the name means: colorgrid.policies.names
+    return spec is not None and (spec.kind is not PolicyKind.SCRIPTED or spec.target in LEADER_INFO)
 
 
 def leader_kinds_allowed() -> str:

@@ -20,7 +20,7 @@ from colorgrid import configkit
 from colorgrid.config import ROLES, EnvConfig
 from colorgrid.configkit import (ConfigError, Presets, check_bool, check_choice, check_int, check_number,
                                  check_strings, fail, merge, override_dict)
-from colorgrid.policies import SCRIPTED, registry
+from colorgrid.policies.names import policy_names, read_name
 
 PRESETS_DIR = Path(__file__).parent / "presets"
 ARCHS = ("fast", "paper")
@@ -46,14 +46,6 @@ def eval_stream(partner: str) -> str:
     import re
 
     return "eval_" + re.sub(r"[^A-Za-z0-9]+", "_", partner).strip("_")
-
-
-def _policy_spec(spec: str, names: list[str]) -> bool:
-    """Whether ``spec`` names a policy ``make_policy`` can build (checked by its form; built when the run starts)."""
-    if spec in names or spec.endswith(".pt") or spec.startswith("population:") or ".json" in spec:
-        return True
-    base, sep, _ = spec.partition(":")
-    return bool(sep) and base in SCRIPTED
 
 
 @dataclass(frozen=True)
@@ -150,15 +142,15 @@ class AgentConfig:
     def __post_init__(self):
         if not isinstance(self.policy, str) or not self.policy:
             fail(self, "policy", "'learn', a scripted policy name or a checkpoint path ending in .pt")
-        names = sorted(SCRIPTED) + registry.registered_names()
+        names = policy_names()
         allowed = (f"'learn', one of {names} (scripted ones with parameters as name:key=value,...), a population "
                    f"(population:NAME[#PART] or FILE.json[#PART]) or a checkpoint path ending in .pt")
-        if not self.learns and not _policy_spec(self.policy, names):
+        if not self.learns and read_name(self.policy) is None:
             fail(self, "policy", allowed)
         check_strings(self, "policies", allowed="a list of policies, one per agent of the role, or [] to give "
                                                 "every agent the role's policy")
         for spec in self.policies:
-            if spec != "learn" and not _policy_spec(spec, names):
+            if spec != "learn" and read_name(spec) is None:
                 fail(self, "policies", f"{spec!r} is not a policy: each one {allowed}")
         check_bool(self, "share_network")
         if self.init is not None and not isinstance(self.init, str):
@@ -168,7 +160,7 @@ class AgentConfig:
         check_number(self, "aux_coef", "a number in [0, 100]", _between(0.0, 100.0))
         learns = "learn" in (self.policies or (self.policy,))
         if self.aux_target != "goal" and not (isinstance(self.aux_target, str) and learns
-                                              and _policy_spec(self.aux_target, names)):
+                                              and read_name(self.aux_target) is not None):
             fail(self, "aux_target", "'goal', or for policy='learn' the name of a policy with a belief over the goal "
                                      f"(e.g. 'bayes-people') whose belief the auxiliary head is distilled from")
         check_choice(self, "train_reward", ("env", "own"), "'env' (the env's reward) or 'own' (own block reward)")
@@ -330,11 +322,11 @@ class TrainConfig:
         check_bool(self, "update_processes")
         if self.replay_episodes > self.eval_episodes:
             fail(self, "replay_episodes", f"at most eval_episodes={self.eval_episodes}")
-        names = sorted(SCRIPTED) + registry.registered_names()
+        names = policy_names()
         check_strings(self, "eval_partners", distinct=True, allowed=f"a list of distinct policies to evaluate beside: "
                                                                     f"one of {names}, a population or a checkpoint")
         for spec in self.eval_partners:
-            if spec == "learn" or not _policy_spec(spec, names):
+            if spec == "learn" or read_name(spec) is None:
                 fail(self, "eval_partners", f"{spec!r} is not a policy to evaluate beside: one of {names} (with "
                                             f"parameters as name:key=value,...), population:NAME[#PART] or a .pt file")
         if self.eval_partners and all(a.policy == "learn" for a in self.agents):

@@ -4,23 +4,11 @@ from __future__ import annotations
 
 from colorgrid.policies import registry
 from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
-from colorgrid.policies.bayes import BayesConfig, BayesFollower, PeopleBayesFollower
+from colorgrid.policies.bayes import BayesConfig, BayesFollower
+from colorgrid.policies.names import SCRIPTED, PolicyKind, policy_names, read_name
 from colorgrid.policies.people import PersonLeader, PersonStyle
 from colorgrid.policies.population import PopulationPolicy, load_population
 from colorgrid.policies.scripted import AStarLeader, CopyFollower, IdleFollower, OracleFollower, RandomPolicy
-
-SCRIPTED = {
-    "random": RandomPolicy,
-    "astar": AStarLeader,
-    "idle": IdleFollower,
-    "copy": CopyFollower,
-    "oracle": OracleFollower,
-    "bayes": BayesFollower,
-    "bayes-people": PeopleBayesFollower,
-    "person": PersonLeader,
-}
-"""Scripted policies by name. ``astar`` and ``person`` need the goal (leaders); ``idle`` never collects.
-Those with parameters take them in the name: ``person:slip=0.1,notice_delay=3``, ``bayes:lapse=0.2``."""
 
 
 def make_policy(name: str, role: str | None = None) -> Policy:
@@ -31,19 +19,16 @@ def make_policy(name: str, role: str | None = None) -> Policy:
 
     For a checkpoint holding both agents, ``role`` (``"leader"``/``"follower"``) says which to load.
     """
-    if name in SCRIPTED:
-        return SCRIPTED[name]()
-    if name.startswith("population:") or name.endswith(".json") or ".json#" in name:
-        return make_population(name.removeprefix("population:"), role)
-    base, sep, params = name.partition(":")
-    if sep and base in SCRIPTED:
-        return SCRIPTED[base](parse_params(SCRIPTED[base], params, name))
-    registered = registry.registered_spec(name)  # a registered name or file, with parameters: ``ippo:temperature=0``
-    if registered is not None:
-        target, params = registered
-        return registry.find(target, role, read_params(params, name), spec=name)
-    files = "".join(f" or {what}" for what in registry.registered_files())
-    raise ValueError(f"unknown policy {name!r}; choose one of {sorted(SCRIPTED) + registry.registered_names()}{files}")
+    spec = read_name(name)  # what the name means: colorgrid.policies.names
+    if spec is None:
+        files = "".join(f" or {what}" for what in registry.registered_files())
+        raise ValueError(f"unknown policy {name!r}; choose one of {policy_names()}{files}")
+    if spec.kind is PolicyKind.POPULATION:
+        return make_population(spec.target, role)
+    if spec.kind is PolicyKind.SCRIPTED:
+        kind = SCRIPTED[spec.target]
+        return kind() if spec.params is None else kind(parse_params(kind, spec.params, name))
+    return registry.find(spec.target, role, read_params(spec.params or "", name), spec=name)
 
 
 def read_params(text: str, name: str) -> dict:
@@ -83,17 +68,17 @@ def policy_teams(name: str) -> tuple[str, ...] | None:
     policies play any agent of any team), those its package registered for a trained network (``ippo``:
     ``("1:1",)``), and for a population those every member plays. Acting settings change nothing here:
     ``x.pt:temperature=0`` plays the teams ``x.pt`` plays."""
-    if name.startswith("population:") or name.endswith(".json") or ".json#" in name:
+    spec = read_name(name)
+    if spec is None or spec.kind is PolicyKind.SCRIPTED:
+        return None
+    if spec.kind is PolicyKind.POPULATION:
         teams = None
-        for member in load_population(name.removeprefix("population:")).values():
+        for member in load_population(spec.target).values():
             found = policy_teams(member)
             if found is not None:
                 teams = found if teams is None else tuple(t for t in teams if t in found)
         return teams
-    if name.partition(":")[0] in SCRIPTED:
-        return None
-    registered = registry.registered_spec(name)  # ``x.pt:temperature=0`` plays the teams ``x.pt`` plays
-    return None if registered is None else registry.teams_of(registered[0])
+    return registry.teams_of(spec.target)  # ``x.pt:temperature=0`` plays the teams ``x.pt`` plays
 
 
 _OPENING: list[str] = []  # populations being built, innermost last (one naming itself would never end)
