@@ -15,7 +15,8 @@ that did not learn appears under its own name with None.
     trainer_state: tensors and plain values (format 2: env state, last step's inputs, recurrent states,
                    partners' state_dicts, RNG states), or None when exported
 
-Nothing in a checkpoint is pickled: resuming a run is as safe as loading its weights.
+Nothing in a checkpoint is pickled: resuming a run is as safe as loading its weights. A trainer's
+checkpoint is written by ``trainer_payload`` and read back by ``restore_trainer``.
 """
 
 from __future__ import annotations
@@ -30,8 +31,10 @@ import numpy as np
 import torch
 
 from colorgrid.config import ROLES, EnvConfig
-from colorgrid.files import atomic_path
 from colorgrid.configkit import from_dict
+from colorgrid.files import atomic_path
+from colorgrid.replay import describe_agent
+from colorgrid.state import EnvState
 from train.acting import ACTING
 from train.config import NetConfig, TrainConfigError
 from train.nets import ActorCritic
@@ -205,3 +208,84 @@ def to_arrays(obj):
     if isinstance(obj, list):
         return [to_arrays(v) for v in obj]
     return obj
+
+
+# ------------------------------------------------------------ a trainer's own
+TRAINER_STATE_FORMAT = 2
+"""Version of the resumable trainer state in checkpoints (1 was a pickle, which ``--resume`` no longer reads)."""
+
+
+def watcher_state(policy) -> dict:
+    """What a resumed run needs of a partner or teacher policy: what it is, and its state."""
+    return {"describe": describe_agent(policy.describe()), "state": policy.state_dict()}
+
+
+def trainer_payload(trainer, device: str) -> dict:
+    """The resumable checkpoint of a ``train.trainer.Trainer`` (the layout above): each learner's weights and
+    optimizer (its placement's process, if any, first gives its optimizer state back), and everything that decides
+    what happens next: env state, last-step inputs, reward sums, recurrent states, generators, partners' and
+    teachers' states, torch's RNG. ``device`` names what trained."""
+    trainer.placement.sync_optimizers()
+    agents = {}
+    for i, name in enumerate(trainer.names):
+        if i in trainer.learners:
+            learner = trainer.learners[i]
+            agents[learner.name] = agent_entry(learner.model, learner.optimizer)
+        elif i in trainer.partners:
+            agents[name] = None
+    env = trainer.env
+    state = {
+        "format": TRAINER_STATE_FORMAT,
+        "env_state": {f.name: getattr(env.state, f.name) for f in dataclasses.fields(env.state)},
+        "penalty_coef": env.penalty_coef, "last_step": trainer.last.state_dict(), "shaped_sum": trainer.shaped_sum,
+        "learners": {lr.name: {"recurrent": None if lr.state is None else list(lr.state),
+                               "generator": lr.generator.get_state()} for lr in trainer.learners.values()},
+        "partners": {trainer.names[i]: watcher_state(p) for i, p in trainer.partners.items()},
+        "teachers": {trainer.names[i]: watcher_state(p) for i, p in trainer.teachers.items()},
+        "torch_rng": torch.get_rng_state(),
+    }
+    return {"config": trainer.config.to_dict(), "env_config": trainer.config.env.to_dict(), "step": trainer.step,
+            "iteration": trainer.iteration, "wall_time_s": trainer.wall_time, "device": device,
+            "agents": agents, "trainer_state": to_tensors(state)}
+
+
+def restore_trainer(trainer, path: str | Path) -> None:
+    """Continue ``trainer`` from a checkpoint of its run (``trainer_payload``'s): weights, optimizers, env,
+    recurrent states, RNGs. The trainer's placement is closed first: its update processes start again from the
+    restored optimizers."""
+    ckpt = load_checkpoint(path)
+    trainer.close()
+    if ckpt.get("trainer_state") is None:
+        raise ValueError(f"{path} is an exported policy (no trainer state); resume from a run's checkpoints/")
+    for learner in trainer.learners.values():
+        entry = ckpt["agents"].get(learner.name)
+        if entry is None:
+            raise ValueError(f"{path} holds no trained {learner.name}, but this run trains one")
+        load_weights(learner.model, entry["state_dict"], str(path))
+        learner.optimizer.load_state_dict(entry["optimizer"])
+    state = ckpt["trainer_state"]
+    if not isinstance(state, dict) or state.get("format") != TRAINER_STATE_FORMAT:
+        raise ValueError(f"{path} holds a trainer state this colorgrid cannot resume (written by an older version, "
+                         f"as a pickle); start a new run with its weights: --set follower.init={path}")
+    trainer.obs = trainer.env.load_state(EnvState(**to_arrays(state["env_state"])))
+    trainer.env.penalty_coef = float(state["penalty_coef"])
+    trainer.last.load_state_dict(to_arrays(state["last_step"]))
+    trainer.shaped_sum = to_arrays(state["shaped_sum"])
+    for learner in trainer.learners.values():
+        saved = state["learners"][learner.name]
+        learner.state = None if saved["recurrent"] is None else tuple(t.to(trainer.device) for t in saved["recurrent"])
+        learner.generator.set_state(saved["generator"])
+    names = trainer.names
+    for kind, watchers in (("partner", trainer.partners), ("teacher", trainer.teachers)):
+        for i, policy in watchers.items():
+            saved = state.get(f"{kind}s", {}).get(names[i])
+            if saved is None:
+                raise ValueError(f"{path} holds no {names[i]} {kind}, but this run has one; resume with "
+                                 f"the run's own settings")
+            if saved["describe"] != describe_agent(policy.describe()):
+                raise ValueError(f"{path}: the {names[i]} {kind} was {saved['describe']}, now it is "
+                                 f"{describe_agent(policy.describe())}; resume with the same {kind}")
+            policy.load_state_dict(saved["state"])
+    torch.set_rng_state(state["torch_rng"])
+    trainer.step, trainer.iteration = int(ckpt["step"]), int(ckpt["iteration"])
+    trainer.wall_time = float(ckpt.get("wall_time_s", 0.0))

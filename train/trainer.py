@@ -15,10 +15,9 @@ import dataclasses
 import json
 import time
 import warnings
-from concurrent.futures import ThreadPoolExecutor
-from contextlib import contextmanager, suppress
+from contextlib import suppress
 from pathlib import Path
-from typing import Callable, Iterator, TypeVar
+from typing import Callable
 
 import numpy as np
 import torch
@@ -26,28 +25,19 @@ import torch
 from colorgrid.config import EnvConfig
 from colorgrid.env import BatchEnv
 from colorgrid.policies import make_policy
-from colorgrid.replay import describe_agent
 from colorgrid.rollout import run_team
-from colorgrid.state import EnvState
 from colorgrid.step_inputs import StepInputs
 from colorgrid.evaluate import record_team, summarize
-from train.checkpoint import (agent_entry, build_model, find_network, load_checkpoint, load_weights,
-                              save_checkpoint, to_arrays, to_tensors)
+from train.checkpoint import (build_model, find_network, load_checkpoint, restore_trainer, save_checkpoint,
+                              trainer_payload)
 from train.config import TrainConfig, eval_stream
 from train.inputs import rows_of_agents, step_tensors
 from train.learner import Learner
 from train.memory import keep_freed_memory
 from train.metrics import MetricsLog, episode_columns, evaluation_row
 from train.nets import ActorCritic, with_leader_progress
+from train.placement import Placement
 from train.policy import NetPolicy, check_compatible
-from train.stacked import StackedActing, can_stack
-from train.update_process import AVAILABLE as UPDATE_PROCESSES, Unavailable, UpdateProcess
-
-
-R = TypeVar("R")
-
-TRAINER_STATE_FORMAT = 2
-"""Version of the resumable trainer state in checkpoints (1 was a pickle, which ``--resume`` no longer reads)."""
 
 
 def pick_device(name: str) -> torch.device:
@@ -65,31 +55,6 @@ def device_name(device: torch.device) -> str:
     from colorgrid.machine import cpu_name
 
     return f"{cpu_name()} ({torch.get_num_threads()} torch threads)"
-
-
-def side_by_side(learners: dict[int, Learner], work: Callable[[Learner], R],
-                 pool: ThreadPoolExecutor | None) -> dict[int, R]:
-    """``work(learner)`` for every learner, by key: the first on the calling thread and the others on ``pool``'s,
-    all at the calling thread's torch thread count (set on each worker itself: OpenMP keeps the count per thread);
-    one after the other without a pool. The learners share nothing (own model, optimizer, buffers, random
-    generator), so the results are those of the learners one after the other, whatever the threads' timing."""
-    if pool is None:
-        return {i: work(lr) for i, lr in learners.items()}
-    threads = torch.get_num_threads()
-    (first, learner), *others = learners.items()
-    futures = {i: pool.submit(at_threads, threads, work, lr) for i, lr in others}
-    return {first: work(learner), **{i: f.result() for i, f in futures.items()}}
-
-
-def at_threads(threads: int, work: Callable, *args):
-    """``work(*args)`` at ``threads`` torch threads, set on the calling thread."""
-    torch.set_num_threads(threads)
-    return work(*args)
-
-
-def watcher_state(policy) -> dict:
-    """What a resumed run needs of a partner or teacher policy: what it is, and its state."""
-    return {"describe": describe_agent(policy.describe()), "state": policy.state_dict()}
 
 
 class Trainer:
@@ -123,10 +88,7 @@ class Trainer:
         self._begin_episodes()
         self.tensorboard = tensorboard
         self.log: MetricsLog | None = None
-        self._pool: ThreadPoolExecutor | None = None
-        self._processes: dict[int, UpdateProcess] = {}  # by learner key: where that learner updates (update_processes)
-        self._processes_work = UPDATE_PROCESSES  # false once one could not start here (``Unavailable``)
-        self._stacked: StackedActing | None = None
+        self.placement = Placement(self.learners, self.device, config.update_processes)  # where the learners run
 
     def _make_learner(self, name: str, agents: tuple[int, ...]) -> Learner:
         """The network ``name`` that plays ``agents`` (one, or a role's learners sharing it), new or warm-started."""
@@ -212,33 +174,12 @@ class Trainer:
     def close(self) -> None:
         """End the threads and processes the learners update on (``train`` does when it ends); the next update
         starts them again."""
-        if self._pool is not None:
-            self._pool.shutdown()
-            self._pool = None
-        self._close_processes()
+        self.placement.close()
 
-    def _close_processes(self, keep_state: bool = True) -> None:
-        """End the learners' update processes, each learner's optimizer state brought back from its own (a process
-        in an update, or one that died, has none to give: it is ended, and the first such error raised after);
-        ``keep_state=False``: killed at once, their states lost (an update cut short)."""
-        processes, self._processes = self._processes, {}
-        errors = []
-        for i, process in processes.items():
-            if not keep_state:
-                process.kill()
-                continue
-            try:
-                self._fetch_optimizer(i, process)
-            except RuntimeError as error:
-                errors.append(error)
-            finally:
-                process.close()
-        if errors:
-            raise errors[0]
-
-    def _fetch_optimizer(self, i: int, process: UpdateProcess) -> None:
-        """Learner ``i``'s optimizer state from the process it updates in (whose state it is)."""
-        self.learners[i].optimizer.load_state_dict(process.optimizer_state())
+    # where the placement keeps its threads and processes (tests look at them)
+    _pool = property(lambda self: self.placement._pool)
+    _processes = property(lambda self: self.placement._processes)
+    _stacked = property(lambda self: self.placement._stacked)
 
     def train_iteration(self) -> dict:
         cfg = self.config
@@ -266,100 +207,8 @@ class Trainer:
         return row
 
     def _update_learners(self) -> dict[int, dict]:
-        """Every learner's PPO update on the rollout just collected, side by side where it can (``_threads_each``).
-
-        Each one's whole update, its bootstrap value included, runs at one thread count, so the
-        result is bit for bit the learners updated one after the other with that many threads,
-        on any CPU. (It is not bit for bit an update with all the threads: on some CPUs MKL and
-        oneDNN split a small matrix product's sum across threads; see docs/TRAINING.md.)
-        """
-        inputs = {lr.name: self._learner_tensors(lr) for lr in self.learners.values()}
-        work = lambda lr: lr.update(lr.value(inputs[lr.name]))  # noqa: E731
-        each, threads = self._threads_each(), torch.get_num_threads()
-        if each == 1 and len(self.learners) <= threads and self.config.update_processes and self._processes_work:
-            try:
-                return self._update_in_processes(inputs)
-            except Unavailable as error:
-                self._processes_work = False
-                warnings.warn(f"{error}: the learners update on threads instead (update_processes)", stacklevel=2)
-        self._close_processes()  # (a learner that updated in its process: its optimizer state comes back first)
-        if each is None:
-            return side_by_side(self.learners, work, None)
-        if self._pool is None:
-            self._pool = ThreadPoolExecutor(min(len(self.learners), threads) - 1, thread_name_prefix="learner")
-        torch.set_num_threads(each)
-        try:
-            return side_by_side(self.learners, work, self._pool)
-        finally:
-            torch.set_num_threads(threads)
-
-    def _update_in_processes(self, inputs: dict) -> dict[int, dict]:
-        """``_update_learners`` with the first learner on this thread and each other in its process
-        (``UpdateProcess``), all at one torch thread."""
-        first, *others = self.learners
-        threads = torch.get_num_threads()
-        torch.set_num_threads(1)
-        failed = True
-        try:
-            for i in others:
-                if i not in self._processes:
-                    self._processes[i] = UpdateProcess(self.learners[i])
-            for i in others:
-                learner = self.learners[i]
-                self._processes[i].start(learner, learner.value(inputs[learner.name]))
-            learner = self.learners[first]
-            results = {first: learner.update(learner.value(inputs[learner.name]))}
-            results.update({i: self._processes[i].finish(self.learners[i]) for i in others})
-            failed = False
-            return results
-        finally:
-            torch.set_num_threads(threads)
-            if failed:  # (the learners' states are those of an update cut short: end the processes now)
-                self._close_processes(keep_state=False)
-
-    def _threads_each(self) -> int | None:
-        """Torch threads per learner when the learners act and update side by side, else None.
-
-        On a CPU with two or more learners and two or more torch threads, they run on
-        ``min(learners, threads)`` threads with ``max(1, threads // learners)`` torch threads
-        each: small networks use one core each far better than two cores one after the other,
-        and torch ops and the compiled view kernels release the GIL.
-        """
-        threads = torch.get_num_threads()
-        if self.device.type != "cpu" or len(self.learners) < 2 or threads < 2:
-            return None
-        return max(1, threads // len(self.learners))
-
-    def _stacked_acting(self) -> StackedActing | None:
-        """The learners' acting in one set of batched operations (``refresh`` it to their current weights), where
-        their networks allow it (``train.stacked.can_stack``: the fast feed-forward network on the CPU), else None."""
-        if self._stacked is None and can_stack(list(self.learners.values())):
-            self._stacked = StackedActing(list(self.learners.values()))
-        return self._stacked
-
-    @contextmanager
-    def _acting_side_by_side(self, wanted: bool = True) -> Iterator[ThreadPoolExecutor | None]:
-        """The threads on which the learners act during one rollout (``_threads_each``; None: one after the other),
-        with this thread at the per-learner torch thread count while inside (the rollout's other torch ops too:
-        a rollout's operations are far too small to gain from more). ``wanted=False``: one thread, at one torch
-        thread (stacked acting)."""
-        each, threads = self._threads_each(), torch.get_num_threads()
-        if not wanted:
-            torch.set_num_threads(1)
-            try:
-                yield None
-            finally:
-                torch.set_num_threads(threads)
-            return
-        if each is None:
-            yield None
-            return
-        torch.set_num_threads(each)
-        try:
-            with ThreadPoolExecutor(min(len(self.learners), threads) - 1, thread_name_prefix="actor") as pool:
-                yield pool
-        finally:
-            torch.set_num_threads(threads)
+        """Every learner's PPO update on the rollout just collected, wherever its placement runs it."""
+        return self.placement.update({lr.name: self._learner_tensors(lr) for lr in self.learners.values()})
 
     def collect_rollout(self) -> tuple[dict, dict]:
         """``num_steps`` steps of every env; returns episode means and each learning agent's goal accuracy."""
@@ -371,20 +220,12 @@ class Trainer:
         done_eps: dict[str, list] = {}
         shaped_sum = self.shaped_sum
         hits = {a: 0 for learner in self.learners.values() for a in learner.agents}  # steps its goal head was right
-        stacked = self._stacked_acting()
-        with self._acting_side_by_side(stacked is None) as acting:
-            if stacked is not None:
-                stacked.refresh()  # this update's weights (at this thread count: the ops are small)
+        with self.placement.acting() as act:
             for _ in range(cfg.ppo.num_steps):
                 true_goal = env.state.goal.copy()
                 actions = np.zeros((B, A), dtype=np.int64)
                 targets = {i: self._aux_targets(lr, true_goal) for i, lr in self.learners.items()}
-                if stacked is None:
-                    acted = side_by_side(self.learners, lambda lr: lr.act(self._learner_tensors(lr, true_goal)),
-                                         acting)
-                else:
-                    acted = dict(zip(self.learners, stacked.act([self._learner_tensors(lr, true_goal)
-                                                                 for lr in self.learners.values()])))
+                acted = act(lambda lr: self._learner_tensors(lr, true_goal))
                 for i, learner in self.learners.items():
                     chosen, probs = acted[i]
                     for k, a in enumerate(learner.agents):  # rows are agent-major: agent k's envs are rows kB..(k+1)B
@@ -502,28 +343,8 @@ class Trainer:
         return out
 
     def checkpoint_payload(self) -> dict:
-        for i, process in self._processes.items():  # a learner updating in its process: its optimizer's state
-            self._fetch_optimizer(i, process)
-        agents = {}
-        for i, name in enumerate(self.names):
-            if i in self.learners:
-                learner = self.learners[i]
-                agents[learner.name] = agent_entry(learner.model, learner.optimizer)
-            elif i in self.partners:
-                agents[name] = None
-        state = {
-            "format": TRAINER_STATE_FORMAT,
-            "env_state": {f.name: getattr(self.env.state, f.name) for f in dataclasses.fields(self.env.state)},
-            "penalty_coef": self.env.penalty_coef, "last_step": self.last.state_dict(), "shaped_sum": self.shaped_sum,
-            "learners": {lr.name: {"recurrent": None if lr.state is None else list(lr.state),
-                                   "generator": lr.generator.get_state()} for lr in self.learners.values()},
-            "partners": {self.names[i]: watcher_state(p) for i, p in self.partners.items()},
-            "teachers": {self.names[i]: watcher_state(p) for i, p in self.teachers.items()},
-            "torch_rng": torch.get_rng_state(),
-        }
-        return {"config": self.config.to_dict(), "env_config": self.config.env.to_dict(), "step": self.step,
-                "iteration": self.iteration, "wall_time_s": self.wall_time, "device": device_name(self.device),
-                "agents": agents, "trainer_state": to_tensors(state)}
+        """The resumable checkpoint of this trainer now (``train.checkpoint.trainer_payload``)."""
+        return trainer_payload(self, device_name(self.device))
 
     def save(self) -> Path:
         """Write the resumable checkpoint ``checkpoints/latest.pt`` (and ``step_*.pt`` with ``keep_steps``)."""
@@ -534,39 +355,6 @@ class Trainer:
         return save_checkpoint(folder / "latest.pt", payload)
 
     def restore(self, path: str | Path) -> None:
-        """Continue from a checkpoint of this run: weights, optimizers, env, recurrent states, RNGs."""
-        ckpt = load_checkpoint(path)
-        self.close()  # the learners' update processes start again from the restored optimizers
-        if ckpt.get("trainer_state") is None:
-            raise ValueError(f"{path} is an exported policy (no trainer state); resume from a run's checkpoints/")
-        for learner in self.learners.values():
-            entry = ckpt["agents"].get(learner.name)
-            if entry is None:
-                raise ValueError(f"{path} holds no trained {learner.name}, but this run trains one")
-            load_weights(learner.model, entry["state_dict"], str(path))
-            learner.optimizer.load_state_dict(entry["optimizer"])
-        state = ckpt["trainer_state"]
-        if not isinstance(state, dict) or state.get("format") != TRAINER_STATE_FORMAT:
-            raise ValueError(f"{path} holds a trainer state this colorgrid cannot resume (written by an older version, "
-                             f"as a pickle); start a new run with its weights: --set follower.init={path}")
-        self.obs = self.env.load_state(EnvState(**to_arrays(state["env_state"])))
-        self.env.penalty_coef = float(state["penalty_coef"])
-        self.last.load_state_dict(to_arrays(state["last_step"]))
-        self.shaped_sum = to_arrays(state["shaped_sum"])
-        for learner in self.learners.values():
-            saved = state["learners"][learner.name]
-            learner.state = None if saved["recurrent"] is None else tuple(t.to(self.device) for t in saved["recurrent"])
-            learner.generator.set_state(saved["generator"])
-        for kind, watchers in (("partner", self.partners), ("teacher", self.teachers)):
-            for i, policy in watchers.items():
-                saved = state.get(f"{kind}s", {}).get(self.names[i])
-                if saved is None:
-                    raise ValueError(f"{path} holds no {self.names[i]} {kind}, but this run has one; resume with "
-                                     f"the run's own settings")
-                if saved["describe"] != describe_agent(policy.describe()):
-                    raise ValueError(f"{path}: the {self.names[i]} {kind} was {saved['describe']}, now it is "
-                                     f"{describe_agent(policy.describe())}; resume with the same {kind}")
-                policy.load_state_dict(saved["state"])
-        torch.set_rng_state(state["torch_rng"])
-        self.step, self.iteration = int(ckpt["step"]), int(ckpt["iteration"])
-        self.wall_time = float(ckpt.get("wall_time_s", 0.0))
+        """Continue from a checkpoint of this run: weights, optimizers, env, recurrent states, RNGs
+        (``train.checkpoint.restore_trainer``)."""
+        restore_trainer(self, path)
