@@ -1,6 +1,7 @@
 """The play protocol: JSON messages over the WebSocket ``/ws/play``, validated with pydantic.
 
-Every message is an object with a ``type``. See ``docs/SERVER_PROTOCOL.md``.
+Every message is an object with a ``type``. See ``docs/SERVER_PROTOCOL.md``. This module declares what the page
+sends; ``server.messages`` what the server sends back.
 """
 
 from __future__ import annotations

@@ -6,6 +6,8 @@ from urllib.parse import quote
 from playwright.sync_api import expect
 
 from colorgrid.config import COLOR_NAMES
+from colorgrid.enums import Ending
+from server.messages import ENDING_WORDS
 
 
 BAR_COLORS = "els => els.map(e => getComputedStyle(e).backgroundColor)"
@@ -578,8 +580,10 @@ def test_in_a_room_each_person_is_you_in_their_own_seat_and_only_the_opener_shar
         seat = {"L1": "leader_0", "L2": "leader_1"}
         assert ringed(page, int(board.get_attribute(f"data-{seat[you]}")))
         assert not ringed(page, int(board.get_attribute(f"data-{seat[other]}")))
-    for page in (opener, guest):
-        page.click("#quit")
+    guest.click("#quit")  # the guest leaves; a scripted leader plays on beside the opener
+    expect(guest.locator("#status")).to_have_text(ENDING_WORDS[Ending.LEFT])  # the server's words for it
+    opener.click("#quit")
+    expect(opener.locator("#status")).to_have_text(ENDING_WORDS[Ending.QUIT])
     for context in contexts:
         context.close()
 

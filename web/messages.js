@@ -43,13 +43,15 @@ export function plainError(msg, maxHorizon) {
   }
 }
 
+// How games end, in words: the server's (/api/options' `endings`, one per ending it may send), set once the page
+// has its options. The page keeps no list of endings of its own.
+let endings = {};
+
+export function setEndings(words) {
+  endings = words ?? {};
+}
+
 // A `game_over` reason as a sentence.
 export function plainEnding(reason) {
-  return {
-    complete: "Game over.",
-    quit: "You ended the game.",
-    idle: "The game ended: no key was pressed for a long while.",
-    disconnected: "The game ended: the connection was lost for too long.",
-    server_shutdown: "The server stopped: your game was saved.",
-  }[reason] ?? `The game ended (${reason}).`;
+  return endings[reason] ?? `The game ended (${reason}).`;
 }

@@ -5,9 +5,9 @@ import { agentBadge, drawBoard, drawBelief, setLook } from "./board.js";
 import { countdown } from "./countdown.js";
 import { PlaySocket } from "./socket.js";
 import { OwnMove } from "./predict.js";
-import { plainEnding, plainError, stepsMessage } from "./messages.js";
+import { plainEnding, plainError, setEndings, stepsMessage } from "./messages.js";
 import { queryParam } from "./params.js";
-import { LEFT_ENDING, drawBeliefs, markYou, openedRoom, plainRoomClosed, plainRoomError, showAgents, showRoom,
+import { drawBeliefs, markYou, openedRoom, plainRoomClosed, plainRoomError, showAgents, showRoom,
          showScores, showSeats, whoIs } from "./room.js";
 import { answerProbe, drawStated, followerSeat, probeRefused, seatKey, seatRequest, showProbeChoice,
          showProbeConfidence, showSeatChoice, startSeat } from "./follower_seat.js";
@@ -19,6 +19,7 @@ let options = null, game = null, room = null, seq = 0, own = null, beliefHidden 
 async function loadOptions() {
   options = await (await fetch("/api/options")).json();
   setLook(options.look);
+  setEndings(options.endings);
   fill($("team"), options.teams, options.teams[0].value);
   fill($("follower"), options.follower_info, options.default_follower);
   fill($("preset"), options.presets.map((v) => ({ value: v, label: v })), options.default_preset);
@@ -281,7 +282,7 @@ function onMessage(msg) {
     const link = $("replay-link");
     link.hidden = !msg.replay_id;
     if (msg.replay_id) link.href = `/replay?id=${encodeURIComponent(msg.replay_id)}`;
-    status(msg.reason === "left" ? LEFT_ENDING : plainEnding(msg.reason), "", `game_over: ${msg.reason}`);
+    status(plainEnding(msg.reason), "", `game_over: ${msg.reason}`);
   } else if (msg.type === "error" || msg.type === "full") {
     const detail = msg.type === "full" ? `full: ${msg.message}` : `${msg.code}: ${msg.message}`;
     console.info(detail);

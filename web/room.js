@@ -144,5 +144,3 @@ export function plainRoomClosed(msg) {
     failed: "The room's game could not start: open a new room.",
   }[msg.reason] ?? `The room closed (${msg.reason}).`;
 }
-
-export const LEFT_ENDING = "You left the game; it goes on with a scripted leader in your place.";

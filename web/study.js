@@ -5,7 +5,7 @@ import { setLook } from "./board.js";
 import { countdown } from "./countdown.js";
 import { PlaySocket } from "./socket.js";
 import { OwnMove } from "./predict.js";
-import { plainEnding } from "./messages.js";
+import { plainEnding, setEndings } from "./messages.js";
 import { describe, disc, drawLegend } from "./study_people.js";
 import { drawState, gameName, startGame } from "./study_game.js";
 import { answerProbe, drawStated, probeRefused, seatKey, showProbeConfidence, startSeat } from "./follower_seat.js";
@@ -50,7 +50,9 @@ function newSession() {
 }
 
 async function join() {
-  info = await (await fetch("/api/study/info")).json();
+  const [studyInfo, options] = await Promise.all([fetch("/api/study/info"), fetch("/api/options")]);
+  info = await studyInfo.json();
+  setEndings((await options.json()).endings);  // how a game ended, in the server's words
   document.title = info.title;
   $("study-title").textContent = info.title;
   const saved = JSON.parse(localStorage.getItem(storageKey()) ?? "null");

@@ -14,6 +14,7 @@ from server.backend import CurrentBackend
 from server.connection import Connection
 from server.followers import follower_info, leader_info
 from server.game import PAIR_VIEW
+from server.messages import ENDING_WORDS
 from server.protocol import BELIEF_KEYS, KEY_ACTIONS, MAX_HORIZON, ROOM_CODE_LENGTH, GoalView, Mode, SeatKind, Team
 from server.stated import ProbeKind
 
@@ -25,7 +26,8 @@ router = APIRouter()
 async def options(backend: CurrentBackend):
     """What a new game may choose (followers, with labels and descriptions in ``follower_info``, AI leaders to lead
     beside in a team of two leaders, in ``leader_info``, presets with their rewards, modes, teams, the horizon's
-    limit) and the defaults, plus what the page needs to draw and play: the look of boards and the move keys."""
+    limit) and the defaults, plus what the page needs to draw and play: the look of boards, the move keys and each
+    ending's words."""
     settings = backend.settings
     presets = {name: env_config(name) for name in sorted(PRESETS)}
     team_followers = {t: backend.hub.team_followers(t) for t in Team}
@@ -52,7 +54,7 @@ async def options(backend: CurrentBackend):
             "belief_keys": BELIEF_KEYS,
             "room_code_length": ROOM_CODE_LENGTH,
             "horizon": {"default": presets[settings.preset].horizon, "max": MAX_HORIZON},
-            "keys": KEY_ACTIONS, "look": look(),
+            "keys": KEY_ACTIONS, "look": look(), "endings": {e.value: words for e, words in ENDING_WORDS.items()},
             "tick_hz": settings.tick_hz, "show_belief": settings.show_belief}
 
 
