@@ -9,8 +9,11 @@ own metadata (``pyproject.toml``), so this module lists no dependency a second t
 
 from __future__ import annotations
 
+import importlib
+from dataclasses import dataclass
 from functools import cache
 from importlib.metadata import PackageNotFoundError, distribution
+from typing import Callable
 
 from packaging.requirements import Requirement
 
@@ -61,3 +64,23 @@ def require(extra: str, what: str, only: tuple[str, ...] | None = None) -> None:
     if absent:
         raise MissingExtra(f"{what} needs the {extra!r} extra ({', '.join(absent)} not installed): "
                            f"pip install 'colorgrid[{extra}]'")
+
+
+@dataclass(frozen=True)
+class Commands:
+    """What an application adds to the ``colorgrid`` command line, declared under the ``colorgrid.commands``
+    entry points (``pyproject.toml``). The command line reads it without importing the application: while part
+    of ``extra`` is missing, each of ``names`` is still listed and says in one line how to install the extra."""
+
+    names: tuple[str, ...]
+    """The commands it adds, e.g. ``("train", "checkpoint", "train-bc")``."""
+    extra: str
+    """The extra they need (``pyproject.toml``'s optional dependencies)."""
+    add: str
+    """``"module:function"``: the function ``add(subparsers)`` that adds them, imported only once ``extra`` is
+    installed."""
+
+    def load(self) -> Callable:
+        """The ``add(subparsers)`` function (an ``ImportError`` when its module cannot be imported)."""
+        module, _, name = self.add.partition(":")
+        return getattr(importlib.import_module(module), name)

@@ -145,11 +145,22 @@ class OneLineParser(argparse.ArgumentParser):
 
     ``needs``: the extra this command needs and that is not installed; whatever follows the command
     (``--help`` too) then ends in one line saying how to install it, exit code 2.
+
+    The parsed arguments' ``command_words`` are the command as typed (``["checkpoint", "export"]``), for error
+    lines: the words of the innermost sub-parser that ran (its ``prog`` after ``colorgrid``), then the value of each
+    of its positional arguments with fixed choices (a sub-command written as a choice: ``checkpoint export``).
     """
 
     def __init__(self, *args, needs: str | None = None, **kwargs):
         super().__init__(*args, **kwargs)
         self.needs = needs
+        self.word_dests: list[str] = []
+
+    def add_argument(self, *args, **kwargs):
+        action = super().add_argument(*args, **kwargs)
+        if not action.option_strings and action.choices is not None:
+            self.word_dests.append(action.dest)
+        return action
 
     def parse_known_args(self, args=None, namespace=None):
         if self.needs is not None:
@@ -157,7 +168,11 @@ class OneLineParser(argparse.ArgumentParser):
 
             self.exit(2, f"{self.prog}: error: this command needs the {self.needs!r} extra "
                          f"({', '.join(missing(self.needs))} not installed): pip install 'colorgrid[{self.needs}]'\n")
-        return super().parse_known_args(args, namespace)
+        namespace, rest = super().parse_known_args(args, namespace)
+        if not hasattr(namespace, "command_words"):  # a sub-parser, which finishes first, has set them
+            chosen = [getattr(namespace, dest, None) for dest in self.word_dests]
+            namespace.command_words = self.prog.split()[1:] + [word for word in chosen if isinstance(word, str)]
+        return namespace, rest
 
     def error(self, message: str):
         self.exit(2, f"{self.prog}: error: {message} (see {self.prog} -h)\n")
@@ -217,12 +232,6 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-PLUGIN_EXTRAS = {"play": ("play", ("play",)), "train": ("train", ("train", "checkpoint", "train-bc")),
-                 "study": ("study", ("study",)), "sweep": ("sweep", ("sweep",))}
-"""For each ``colorgrid.commands`` entry point: the extra it needs (``colorgrid.extras``) and the commands it
-adds. (``view``, a core command, checks the ``viewer`` extra itself.)"""
-
-
 def missing_extra_commands(extra: str, names: tuple[str, ...]):
     """``add(subparsers)`` for commands whose extra is not installed: each takes anything and says in one line
     which extra to install (``OneLineParser.needs``)."""
@@ -233,33 +242,25 @@ def missing_extra_commands(extra: str, names: tuple[str, ...]):
 
 
 def plugin_commands() -> list:
-    """``add(subparsers)`` functions that other packages declare under the ``colorgrid.commands`` entry
-    points (the play server, the trainer), in name order. A command whose extra is not installed is added
-    in its place by ``missing_extra_commands``; one from a package that cannot be imported is left out."""
+    """``add(subparsers)`` functions of the applications that declare their commands under the
+    ``colorgrid.commands`` entry points (each a ``colorgrid.extras.Commands``: the play server, the trainer, ...),
+    in entry-point name order. Commands whose extra is not installed are added in their place by
+    ``missing_extra_commands``; those of a package that cannot be imported are left out."""
     from importlib.metadata import entry_points
 
     from colorgrid.extras import missing
 
     found = []
     for point in sorted(entry_points(group="colorgrid.commands"), key=lambda p: p.name):
-        extra, names = PLUGIN_EXTRAS.get(point.name, (None, ()))
-        if extra is not None and missing(extra):
-            found.append(missing_extra_commands(extra, names))
-            continue
         try:
-            found.append(point.load())
+            commands = point.load()
+            if missing(commands.extra):
+                found.append(missing_extra_commands(commands.extra, commands.names))
+            else:
+                found.append(commands.load())
         except ImportError:  # that application is not installed here
             continue
     return found
-
-
-def command_name(args: argparse.Namespace) -> str:
-    """The command as typed, for error lines: ``eval``, ``replay verify``, ``checkpoint export``."""
-    words = [args.command]
-    for sub_command in ("replay_command", "action"):  # the sub-commands' dests in cli_replay and train/cli
-        if isinstance(getattr(args, sub_command, None), str):
-            words.append(getattr(args, sub_command))
-    return " ".join(words)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -269,7 +270,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except (ValueError, OSError, MissingExtra) as err:  # FileNotFoundError is an OSError
-        print(f"colorgrid {command_name(args)}: error: {err}", file=sys.stderr)
+        print(f"colorgrid {' '.join(args.command_words)}: error: {err}", file=sys.stderr)
         return 2
 
 

@@ -1,15 +1,21 @@
-"""What the trainer adds to the core: its shipped agents by name and checkpoint files as policies.
+"""What the trainer adds to the core: its shipped agents by name and checkpoint files as policies, and its
+commands.
 
-Registered through the ``colorgrid.policies`` entry point (``pyproject.toml``); torch is
-imported only when one of these policies is asked for.
+Registered through the ``colorgrid.policies`` and ``colorgrid.commands`` entry points (``pyproject.toml``); torch
+is imported only when one of these policies is asked for or one of the commands runs.
 """
 
 from __future__ import annotations
 
-from colorgrid.extras import require
+from colorgrid.extras import Commands, require
 from colorgrid.resources import shipped
 from train.acting import ACTING
 from train.model_cache import ModelCache
+
+TRAIN_COMMANDS = Commands(("train", "checkpoint", "train-bc"), "train", "train.cli:add_train_commands")
+"""``colorgrid train``, ``checkpoint`` and ``train-bc`` (the ``colorgrid.commands`` entry point ``train``)."""
+SWEEP_COMMANDS = Commands(("sweep",), "sweep", "train.sweep.cli:add_sweep_commands")
+"""``colorgrid sweep`` (the ``colorgrid.commands`` entry point ``sweep``)."""
 
 CHECKPOINTS_DIR = shipped("checkpoints")
 SHIPPED = {"ippo": "follower.pt", "ippo-people": "follower_people.pt", "ippo-cautious": "follower_cautious.pt",
