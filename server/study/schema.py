@@ -93,7 +93,7 @@ def _game(study: Study) -> list[Column]:
 
 
 def stated_figures() -> list[Column]:
-    """The trials' columns of a game in the follower seat (``colorgrid_apps.human_follower``'s measures; empty in a
+    """The trials' columns of a game in the follower seat (``colorgrid.replay.human_follower``'s measures; empty in a
     leader's game)."""
     return [
         Column("stated_steps", "Int64", "steps", "the follower seat: steps at which the participant had said which "

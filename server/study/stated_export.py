@@ -1,7 +1,7 @@
 """The export's view of the follower seat: what a participant stated they believed, from a game's replay.
 
 ``server.study.export`` calls these for every game whose replay is found: the ``trials`` columns of the person's
-measures (``colorgrid_apps.human_follower``, the same computation as ``colorgrid replay rescore``), each step's stated
+measures (``colorgrid.replay.human_follower``, the same computation as ``colorgrid replay rescore``), each step's stated
 color, and the rows of the ``probes`` and ``statements`` tables (their columns are declared in
 ``server.study.schema``). A leader's game has none of them.
 """
