@@ -1,5 +1,5 @@
 """The FastAPI application: this process's ``Backend`` over the ``Shared`` parts, and the routers
-(``server.routes``: pages, replays, play, health; ``server.study.routes`` while a study runs)."""
+(``server.routes``: pages, replays, play, health), plus what a plugin installs (a study's routes and game source)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ from fastapi import FastAPI
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from colorgrid import __version__
-from server.backend import Backend, Shared
+from server.backend import Backend, Plugin, Shared
 from server.followers import follower_info
 from server.jobs import Busy
 from server.routes import health, pages, play, replays
@@ -19,9 +19,9 @@ from server.settings import ServerSettings
 __all__ = ["create_app", "file_part", "follower_info", "shutdown"]
 
 
-def create_app(settings: ServerSettings | None = None, study=None) -> FastAPI:
-    """The play server; with ``study`` (a ``server.study.cli.StudySetup``) it serves that study instead of free play."""
-    shared = Shared.open(settings or ServerSettings(), study)
+def create_app(settings: ServerSettings | None = None, plugin: Plugin | None = None) -> FastAPI:
+    """The play server; with ``plugin`` (a study's) it serves that application instead of free play."""
+    shared = Shared(settings or ServerSettings(), plugin)
     backend = Backend(shared)
 
     @asynccontextmanager
@@ -31,17 +31,13 @@ def create_app(settings: ServerSettings | None = None, study=None) -> FastAPI:
             yield
         finally:
             await backend.stop()
-            shared.close()
 
     # The documentation pages are served with local assets (FastAPI's defaults load them from a CDN).
     app = FastAPI(title="ColorGrid play server", version=__version__, lifespan=lifespan,
                   docs_url=None, redoc_url=None)
     app.state.backend = backend
-    if study is not None:
-        from server.study.routes import mount_study
-
-        mount_study(app, shared.service, study.admin_token, pages.WEB_DIR, backend.jobs, study.study_file,
-                    shared.recordings, backend.study_games)
+    if plugin is not None:
+        plugin.install(app, backend)
     # Requests naming another host are refused (a page on another site cannot reach us by DNS rebinding).
     app.add_middleware(TrustedHostMiddleware, allowed_hosts=shared.settings.hosts, www_redirect=False)
     for module in (pages, health, play, replays):

@@ -10,22 +10,35 @@ replay worker processes and what it has cached of the shared folder. Routes reac
 from __future__ import annotations
 
 import asyncio
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from typing import TYPE_CHECKING, Annotated, Protocol
 
-from fastapi import Depends
+from fastapi import Depends, FastAPI
 from starlette.requests import HTTPConnection
 
 from server.connection import CLOSE_RESTART, SocketRegistry
-from server.hub import GameHub
 from server.jobs import ReplayJobs
 from server.library import ReplayLibrary
+from server.play.hub import GameHub
 from server.settings import ServerSettings
 
-if TYPE_CHECKING:  # the study's extra is imported only when a study runs
+if TYPE_CHECKING:  # a cluster's membership is known only where several processes run
     from server.cluster.plan import Membership
-    from server.study.service import StudyService
+
+
+class Plugin(Protocol):
+    """An application the play server serves instead of free play (a study: ``colorgrid study run``). It is
+    picklable: a cluster's launcher hands it to every backend process, and each installs it in its own app."""
+
+    routing_params: tuple[str, ...]
+    """The URL parameters that name a person (a participant id): behind HAProxy, a browser's requests go to the
+    backend this value hashes to."""
+
+    def install(self, app: FastAPI, backend: Backend) -> None:
+        """Add its routes and pages to ``app``, and plug into ``backend``: its game source (``hub.source``) and
+        listeners (``hub.listeners``); what it opens it closes through ``backend.closing``."""
 
 
 @dataclass(frozen=True)
@@ -34,26 +47,13 @@ class Shared:
 
     settings: ServerSettings
     """How every process runs (``colorgrid play``'s flags)."""
-    study: object | None = None
-    """The study being served (``server.study.cli.StudySetup``: its file and admin token), or None for free play."""
-    service: StudyService | None = None
-    """The study's service over its store (``server.study.service.StudyService``), where every process records
-    participants and their games; None for free play."""
-
-    @classmethod
-    def open(cls, settings: ServerSettings, study=None) -> Shared:
-        """The shared parts for ``settings``, connected to the study's store when ``study`` is given."""
-        return cls(settings, study, study.service() if study is not None else None)
+    plugin: Plugin | None = None
+    """The application served (a study: its file, store and admin token), or None for free play."""
 
     @property
     def recordings(self) -> Path:
         """The recordings folder: every process saves its games' replays (and branches) here and lists them."""
         return self.settings.replays_dir
-
-    def close(self) -> None:
-        """Close this process's connection to the study store (the store itself stays)."""
-        if self.service is not None:
-            self.service.store.close()
 
 
 class Backend:
@@ -69,12 +69,11 @@ class Backend:
         settings = shared.settings
         self.shared = shared
         self.hub = GameHub(settings)
-        if shared.service is not None:  # a study's games are recorded in its store as they start and end
-            self.hub.listeners.append(shared.service)
         self.sockets = SocketRegistry(settings)
         self.jobs = ReplayJobs(settings.max_exports, int(settings.export_cache_mb * 1e6))
         self.replays = ReplayLibrary(settings, self.jobs)
         self.member: Membership | None = None  # set by server.cluster.siblings.join_cluster
+        self.closing: list[Callable[[], None]] = []  # what a plugin opened in this process, closed at the end
         self._warm_up: asyncio.Task | None = None
 
     @property
@@ -94,15 +93,13 @@ class Backend:
                              return_exceptions=True)
 
     async def stop(self) -> None:
-        """``shutdown``, then stop the replay workers and remove the export cache."""
+        """``shutdown``, then stop the replay workers, remove the export cache and close what a plugin opened."""
         if self._warm_up is not None:
             self._warm_up.cancel()
         await self.shutdown()
         self.jobs.close()
-
-    def study_games(self) -> int:
-        """This process's live games that belong to the study."""
-        return sum(g.study is not None for g in self.hub.games.values())
+        for close in self.closing:
+            close()
 
 
 def current_backend(conn: HTTPConnection) -> Backend:

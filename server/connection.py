@@ -18,16 +18,15 @@ from urllib.parse import urlsplit
 from fastapi import WebSocket, WebSocketDisconnect
 from pydantic import ValidationError
 
-from server.game import BadSeq
-from server.hub import GameHub, ServerFull
+from server.keylog import BadSeq
 from server.limits import AddressLimits, FloodRule, TokenBucket
+from server.play.hub import GameHub, ServerFull
 from server.protocol import (
     CLIENT_TYPES,
     Belief,
     CreateRoom,
     JoinRoom,
     Key,
-    Mode,
     NewGame,
     PageEvent,
     Ping,
@@ -35,7 +34,6 @@ from server.protocol import (
     Quit,
     Ready,
     Rejoin,
-    Team,
     client_message,
     error,
 )
@@ -82,8 +80,8 @@ class SocketRegistry:
 class Connection:
     """One browser tab's WebSocket: validation, rate limits, and an outgoing queue per socket."""
 
-    def __init__(self, ws: WebSocket, hub: GameHub, new_games: TokenBucket, study=None):
-        self.ws, self.hub, self.new_games, self.study = ws, hub, new_games, study
+    def __init__(self, ws: WebSocket, hub: GameHub, new_games: TokenBucket):
+        self.ws, self.hub, self.new_games = ws, hub, new_games
         self.settings = settings = hub.settings
         self.game = None
         self.room = None  # the room this tab waits in, before its game starts
@@ -248,15 +246,16 @@ class Connection:
                 raise ValueError("this connection already has a live game; send quit first")
             if self.hub.room_of(self, self.room) is not None:
                 raise ValueError(f"this connection waits in room {self.room.code}; send quit to leave it first")
-            if self.study is not None and isinstance(msg, (CreateRoom, JoinRoom)):
-                raise ValueError("this server runs a study: games start from the study page")
+            refusal = self.hub.source.room_refusal  # an application choosing people's games may keep them apart
+            if refusal is not None and isinstance(msg, (CreateRoom, JoinRoom)):
+                raise ValueError(refusal)
             # joining a room counts as a new game: room codes cannot be tried quickly
             if not isinstance(msg, Rejoin) and not self.new_games.allow():
                 raise ValueError(f"too many new games from this address: at most "
                                  f"{self.settings.new_games_per_minute:g} a minute (rooms opened and joined "
                                  f"count too); try again in {self.new_games.retry_after():.0f} s")
-            if isinstance(msg, NewGame):
-                self.game = await self.new_game(msg)
+            if isinstance(msg, NewGame):  # the player's choice, or the game an application chooses for them
+                self.game = await self.hub.source.new_game(self.hub.new_game, msg, self, self.client_info(msg.viewport))
             elif isinstance(msg, CreateRoom):
                 self.room = await self.hub.create_room(msg.team, msg.follower, msg.preset, msg.mode, msg.horizon,
                                                        msg.show_belief, self, self.client_info(msg.viewport))
@@ -286,36 +285,11 @@ class Connection:
         elif isinstance(msg, PageEvent):
             self.game.page_event(msg.event, msg.visible, msg.t_client, seat)
         elif isinstance(msg, Quit) and self.hub.controls(self.game, self):  # a quit after the last step changes nothing
-            if self.game.study is not None:
-                raise ValueError("a study's game cannot be ended early")
+            if self.hub.source.quit_refusal is not None:
+                raise ValueError(self.hub.source.quit_refusal)
             await self.hub.quit(self.game, self)
 
     def client_info(self, viewport) -> dict:
         """What a replay records of the page: its user agent and, when sent, its viewport."""
         return {"user_agent": self.ws.headers.get("user-agent", "")[:500],
                 "viewport": list(viewport) if viewport else None}
-
-    async def new_game(self, msg: NewGame):
-        client_info = self.client_info(msg.viewport)
-        if self.study is None:
-            if msg.study is not None:
-                raise ValueError("this server runs no study")
-            return await self.hub.new_game(msg.follower, msg.preset, msg.mode, msg.horizon, msg.show_belief, self,
-                                           client_info=client_info, team=msg.team, followers=msg.followers,
-                                           leader=msg.leader, seat=msg.seat, goal=msg.goal, probes=msg.probes)
-        if msg.study is None:
-            raise ValueError("this server runs a study: games start from the study page")
-        if msg.team != Team.ONE_TO_ONE:
-            raise ValueError("a study's games are one person with one AI follower (team 1:1); the study file sets "
-                             "everything else")
-        from server.study.service import Invalid as StudyInvalid
-        from server.study.service import Refused as StudyRefused
-
-        try:
-            game, meta = await asyncio.get_running_loop().run_in_executor(
-                None, self.study.game_for, msg.study.participant, msg.study.session)
-        except (StudyRefused, StudyInvalid) as err:
-            raise ValueError(str(err)) from None
-        return await self.hub.new_game(game.follower, game.preset, Mode(game.mode), game.horizon, game.show_belief,
-                                       self, tick_hz=game.tick_hz, study=meta, client_info=client_info,
-                                       **game.seat_settings())

@@ -9,13 +9,13 @@ import time
 import numpy as np
 
 from colorgrid.config import FOLLOWER, EnvConfig
+from colorgrid.enums import SeatFit
 from colorgrid.env import BatchEnv
 from colorgrid.policies import SCRIPTED, IdleFollower, make_policy, policy_teams
 from colorgrid.policies.base import AgentInput
 from colorgrid.policies.names import PolicyKind, read_name
 from colorgrid.replay import describe_agent
 from colorgrid.step_inputs import StepInputs
-from server.game import PAIR_VIEW
 from server.inference import InferenceWorker, RemotePolicy
 
 
@@ -33,14 +33,19 @@ def plays(name: str, team) -> bool:
     return teams is None or team.value in teams
 
 
-def leads(name: str, team) -> str | None:
-    """How the AI leader ``name`` plays a leader seat of ``team`` (a ``Team``): ``"direct"`` (a scripted policy,
-    or a network trained in that team), ``PAIR_VIEW`` (a network trained in the 1:1 team, in a team with one
-    follower), or None (it does not)."""
+PAIR_VIEW = SeatFit.PAIR_VIEW
+"""``SeatFit.PAIR_VIEW``, by the name callers compare ``leads`` with."""
+
+
+def leads(name: str, team) -> SeatFit | None:
+    """How the AI leader ``name`` plays a leader seat of ``team`` (a ``Team``): ``SeatFit.DIRECT`` (a scripted
+    policy, or a network trained in that team), ``SeatFit.PAIR_VIEW`` (a network trained in the 1:1 team, in a team
+    with one follower: it sees the game as a 1:1 game of its seat and the follower, ``server.seats.pair_view``), or
+    None (it does not)."""
     teams = policy_teams(name)
     if teams is None or team.value in teams:
-        return "direct"
-    return PAIR_VIEW if "1:1" in teams and team.num_followers == 1 else None
+        return SeatFit.DIRECT
+    return SeatFit.PAIR_VIEW if "1:1" in teams and team.num_followers == 1 else None
 
 
 def follower_label(followers: tuple[str, ...]) -> str:

@@ -6,12 +6,12 @@ seats); each follower and AI leader is an ``AIPlayer``: a slot in the pool built
 A person may take the follower seat instead (``Game.seat``): then every leader is an AI leader, the
 goal may be hidden from them, and what they state they believe is recorded (``server.stated``).
 When a person leaves a game that other people still play, a scripted leader takes their seat (an
-``AIPlayer`` at the seat's agent index) and the replay says from which step.
+``AIPlayer`` at the seat's agent index) and the replay says from which step. Seats and AI players are
+declared in ``server.seats``, the key log in ``server.keylog``.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import secrets
 import time
 from dataclasses import dataclass, field
@@ -19,105 +19,20 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from colorgrid.config import EnvConfig
-from colorgrid.env import ACTION_DELTAS, ACTION_NAMES, BatchEnv
+from colorgrid.enums import KeyStatus, SeatFit
+from colorgrid.env import ACTION_DELTAS, BatchEnv
 from colorgrid.policies.base import AgentInput
 from colorgrid.render import look
 from colorgrid.replay import Replay
 from colorgrid.roles import columns, scores
 from colorgrid.step_inputs import StepInputs
+from server.keylog import PENDING, CappedLog, KeyLog, now_ms
 from server.protocol import KEY_ACTIONS, GoalView, Mode, SeatKind, belief_keys
+from server.seats import STAND_IN, AIPlayer, Seat, lineup, pair_view
 from server.stated import ProbePlan, StatedBeliefs, Via
-
-STAY = ACTION_NAMES.index("stay")
-STAND_IN = "astar"
-"""The scripted leader that plays on in the seat of a person who left a game other people still play."""
-PAIR_VIEW = "1:1"
-"""How a network trained in the 1:1 team leads in a larger team with one follower: it sees the game as a 1:1 game
-of its own seat and the follower (``pair_view``); the other leaders are not in its view."""
-
 
 MAX_PAGE_EVENTS = 1000
 """Focus and visibility changes recorded per game; later ones are counted in ``meta.page_events_dropped``."""
-
-
-class BadSeq(ValueError):
-    """A key whose ``seq`` is not after the last one of its person in this game: refused, so that ``(game, seq)``
-    names one key (per person in a team) across reloads and reconnects."""
-
-
-def now_ms() -> float:
-    return time.time() * 1000.0
-
-
-@dataclass(eq=False)
-class Seat:
-    """A leader played by a person: their connection, their latest key, and whether they are still there."""
-
-    agent: int  # the leader's agent index
-    name: str  # the agent's name (``config.agent_names``)
-    client: object | None = None  # the connection playing this seat; None while waiting for a rejoin
-    client_info: dict = field(default_factory=dict)  # the page's user agent and viewport
-    token: str = field(default_factory=lambda: secrets.token_urlsafe(18))
-    pending: dict | None = None  # the latest key not yet applied (its key-log entry)
-    disconnected_at: float | None = None  # monotonic time the connection closed; None while connected
-    last_key_at: float = field(default_factory=time.monotonic)
-    left: str | None = None  # why the person left ("quit", "disconnected", "idle"); None while they play
-    left_at_step: int | None = None
-    last_applied_seq: int | None = None  # the highest ``seq`` of this person's keys applied so far
-    last_seq: int | None = None  # the highest ``seq`` of this person's keys received (each is logged, or counted)
-
-    @property
-    def next_seq(self) -> int:
-        """The ``seq`` this person's next key takes (the ``welcome`` says it, so a reloaded page numbers on)."""
-        return 0 if self.last_seq is None else self.last_seq + 1
-
-    def action(self) -> int:
-        """The pending key's move, or stay (real time with no key pending)."""
-        return STAY if self.pending is None else self.pending["action"]
-
-    def status(self) -> str:
-        """How the other people see this seat: ``playing``, ``reconnecting`` or ``left``."""
-        return "left" if self.left else "reconnecting" if self.client is None else "playing"
-
-
-@dataclass(eq=False)
-class AIPlayer:
-    """An agent played by a policy: its slot in the pool built for its agent index."""
-
-    agent: int
-    pool: object = field(repr=False)  # the FollowerPool serving this agent index
-    slot: int
-    beliefs: list = field(default_factory=list)  # [t][C] the policy's belief when acting, when it gives one
-    fresh: bool = True  # no step acted yet: its first input starts an episode (clears the slot's memory)
-    view: tuple[int, int] | None = None  # a network trained in 1:1 leading here: the agents it sees (``pair_view``)
-
-
-def leader_seats(config: EnvConfig, ai_leaders: int) -> tuple[range, range]:
-    """The agent indices of the leader seats that people play and of those that AI leaders play (the last
-    ``ai_leaders``)."""
-    people = config.num_leaders - ai_leaders
-    return config.leaders[:people], config.leaders[people:]
-
-
-def lineup(config: EnvConfig, seat: SeatKind, ai_leaders: int) -> tuple[tuple[int, ...], ...]:
-    """Who plays each agent: the agent indices of the people, of the AI leaders and of the AI followers. A person in
-    the follower seat plays the first follower, beside an AI leader in every leader seat; people in leader seats play
-    the first leaders, ``ai_leaders`` AI leaders the last ones (``leader_seats``), AI followers every follower."""
-    if SeatKind(seat) == SeatKind.FOLLOWER:
-        return (config.followers[0],), tuple(config.leaders), tuple(config.followers[1:])
-    people, ai = leader_seats(config, ai_leaders)
-    return tuple(people), tuple(ai), tuple(config.followers)
-
-
-def pair_view(inp: AgentInput, config: EnvConfig, agents: tuple[int, int]) -> AgentInput:
-    """``inp`` (an agent's input in ``config``'s team) as the input of a 1:1 game of ``agents`` (a leader, then
-    the follower): the color planes and those two agents' planes, and their last actions and pickups. Every other
-    agent is left out: a network trained in the 1:1 team reads the board it knows, and another leader is, to it,
-    an obstacle it cannot see."""
-    C, agents = config.num_colors, list(agents)
-    return dataclasses.replace(inp, observation=inp.observation[:, [*range(C), *(C + a for a in agents)]],
-                               prev_picked_color=inp.prev_picked_color[:, agents],
-                               prev_actions=inp.prev_actions[:, agents])
 
 
 @dataclass
@@ -154,8 +69,7 @@ class Game:
         self.env = BatchEnv(cfg, num_envs=1, seed=self.seed, autoreset=False)
         self.obs, _ = self.env.reset()
         self.last = StepInputs.begin(cfg, 1)
-        self.key_log: list[dict] = []
-        self.keys_dropped = 0  # key presses past ``max_key_log`` (not recorded)
+        self.keys = KeyLog(self.max_key_log)  # key presses; past ``max_key_log`` only counted
         self.state_sent_ms: list[float] = [now_ms()]  # when each state t went out (reaction times)
         self.actions: list = []
         self.goals: list = []
@@ -168,8 +82,7 @@ class Game:
         self.finished = False
         self.replay_id: str | None = None
         self.last_events: list[dict] = []
-        self.page_events: list[dict] = []  # the pages' focus and visibility changes
-        self.page_events_dropped = 0
+        self.page_events = CappedLog(MAX_PAGE_EVENTS)  # the pages' focus and visibility changes
 
     # ------------------------------------------------------------ who plays
     @property
@@ -221,37 +134,31 @@ class Game:
         game's last step is logged ``unapplied``.
         """
         seat = seat or self.seats[0]
-        if seat.last_seq is not None and seq <= seat.last_seq:
-            raise BadSeq(f"key seq {seq} is not after your last key in this game ({seat.last_seq}): number keys on "
-                         f"from {seat.next_seq} (the welcome's next_seq)")
-        seat.last_seq = seq
-        entry = {"seq": seq, "key": key, "t_client": t_client, "t_server": now_ms(), "applied_step": None}
-        if not self.solo:
-            entry = {"agent": seat.name, **entry}
+        entry = self.keys.entry(seat, key, seq, t_client, tagged=not self.solo)
         action, color = KEY_ACTIONS.get(key), self.belief_keys.get(key)
         if color is not None:  # "I believe the goal is this color": no move (after the last step: recorded only)
-            entry.update(status="unapplied" if self.finished else "stated", color=color)
+            entry.update(status=KeyStatus.UNAPPLIED if self.finished else KeyStatus.STATED, color=color)
             if not self.finished:
                 self.stated.state(color, Via.KEY, t_client, int(self.env.state.t[0]))
-            self._log(entry)
+            self.keys.add(entry)
             return None
         if action is None:
-            entry["status"] = "ignored"
-            self._log(entry)
+            entry["status"] = KeyStatus.IGNORED
+            self.keys.add(entry)
             if self.stated is None:
                 return f"key {key!r} is not a move; use the arrow keys or WASD"
             return (f"key {key!r} is not a move or a color of this game: move with the arrow keys or WASD; say "
                     f"which color you believe is the goal with {'/'.join(self.belief_keys)}")
         entry["action"] = action
         if self.finished:  # on its way when the last step was made: recorded, never applied
-            entry["status"] = "unapplied"
-            self._log(entry)
+            entry["status"] = KeyStatus.UNAPPLIED
+            self.keys.add(entry)
             return None
         if seat.pending is not None:
-            seat.pending["status"] = "superseded"
-        entry["status"] = "pending"
+            seat.pending["status"] = KeyStatus.SUPERSEDED
+        entry["status"] = PENDING
         seat.pending = entry
-        self._log(entry)
+        self.keys.add(entry)
         seat.last_key_at = time.monotonic()
         return None
 
@@ -275,18 +182,9 @@ class Game:
 
     def page_event(self, event: str, visible: bool | None, t_client: float, seat: Seat | None = None) -> None:
         """Record that a page lost or got focus, was hidden or shown (capped like the key log)."""
-        if len(self.page_events) < MAX_PAGE_EVENTS:
-            entry = {"event": event, "visible": visible, "t_client": t_client, "t_server": now_ms(),
-                     "step": int(self.env.state.t[0])}
-            self.page_events.append(entry if self.solo else {"agent": (seat or self.seats[0]).name, **entry})
-        else:
-            self.page_events_dropped += 1
-
-    def _log(self, entry: dict) -> None:
-        if len(self.key_log) < self.max_key_log:
-            self.key_log.append(entry)
-        else:
-            self.keys_dropped += 1
+        entry = {"event": event, "visible": visible, "t_client": t_client, "t_server": now_ms(),
+                 "step": int(self.env.state.t[0])}
+        self.page_events.add(entry if self.solo else {"agent": (seat or self.seats[0]).name, **entry})
 
     def ready(self) -> bool:
         """Whether the world should step now. Real time: on the clock, unless a person is reconnecting.
@@ -318,7 +216,7 @@ class Game:
         for seat in self.people:
             joint[0, seat.agent] = seat.action()
             if seat.pending is not None:
-                seat.pending["status"], seat.pending["applied_step"] = "applied", t
+                seat.pending["status"], seat.pending["applied_step"] = KeyStatus.APPLIED, t
                 seat.last_applied_seq = max(seat.pending["seq"], seat.last_applied_seq or 0)
                 seat.pending = None
         missed = False
@@ -428,9 +326,7 @@ class Game:
     def to_replay(self, ended: str, descriptions: dict[int, dict]) -> Replay:
         """The game as a replay; ``descriptions``: agent index -> its policy's ``agents`` entry (each AI follower
         and AI leader; one that saw the game through ``pair_view`` says so under ``view``)."""
-        for entry in self.key_log:
-            if entry["status"] == "pending":
-                entry["status"] = "unapplied"  # pressed after the last step the game made
+        self.keys.close()
         if self.stated is not None:
             self.stated.close()
         names = self.config.agent_names
@@ -440,14 +336,14 @@ class Game:
             if seat is None:
                 view = self.ai[i].view if i in self.ai else None
                 agents[name] = descriptions[i] if view is None else {
-                    **descriptions[i], "view": {"team": PAIR_VIEW, "agents": [names[a] for a in view]}}
+                    **descriptions[i], "view": {"team": SeatFit.PAIR_VIEW, "agents": [names[a] for a in view]}}
             elif seat.left is None:
                 agents[name] = {"policy": "human"}
             else:  # a person who left: the stand-in leader's moves from that step on
                 agents[name] = {"policy": "human", "replaced_by": STAND_IN, "from_step": seat.left_at_step}
         meta = {"game_id": self.game_id, "mode": self.mode.value, "preset": self.preset,
                 "deadline_misses": self.deadline_misses, "state_sent_ms": self.state_sent_ms,
-                "key_events_dropped": self.keys_dropped, "show_belief": self.show_belief,
+                "key_events_dropped": self.keys.dropped, "show_belief": self.show_belief,
                 "tick_hz": self.tick_hz if self.mode == Mode.REALTIME else None}
         if self.solo:
             meta["client"] = self.seats[0].client_info
@@ -456,7 +352,7 @@ class Game:
                         clients={s.name: s.client_info for s in self.seats},
                         seats_left=[{"agent": s.name, "reason": s.left, "from_step": s.left_at_step,
                                      "replaced_by": STAND_IN} for s in self.seats if s.left])
-        meta.update(page_events=self.page_events, page_events_dropped=self.page_events_dropped,
+        meta.update(page_events=self.page_events.entries, page_events_dropped=self.page_events.dropped,
                     **({"study": self.study} if self.study else {}))
         stated = {}
         if self.stated is not None:
@@ -469,5 +365,5 @@ class Game:
             picked_color=self.picked, goal_switched=self.switched,
             goal_probs={names[p.agent]: p.beliefs for p in self.followers()
                         if p.beliefs and len(p.beliefs) == len(self.actions)},
-            state_hashes=self.hashes, ended=ended, key_events=self.key_log, meta=meta, **stated,
+            state_hashes=self.hashes, ended=ended, key_events=self.keys.entries, meta=meta, **stated,
         )

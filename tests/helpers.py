@@ -40,7 +40,7 @@ def check_consistent(env: BatchEnv) -> None:
 
 
 class Inbox:
-    """A player's connection as the game hub sees it (``server.hub.Client``): it keeps the messages sent to it and
+    """A player's connection as the game hub sees it (``server.play.live.Client``): it keeps the messages sent to it and
     the game it plays."""
 
     def __init__(self):

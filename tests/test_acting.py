@@ -124,7 +124,7 @@ def test_a_checkpoint_with_acting_settings_plays_the_teams_its_file_plays():
     """``x.pt:temperature=0`` is ``x.pt`` acting greedily: offered in the team it was trained in, not in every team
     (as follower), and as leader where the plain file leads."""
     from server.followers import leads, plays
-    from server.game import PAIR_VIEW
+    from server.followers import PAIR_VIEW
     from server.protocol import Team
 
     team_file = str(Path(CHECKPOINT).with_name("follower_1L2F.pt"))

@@ -7,8 +7,8 @@ import time
 import pytest
 
 from colorgrid.replay import load, verify
-from server import hub as hub_module
-from server.hub import GameHub
+from server.play import pools as hub_module
+from server.play.hub import GameHub
 from server.settings import ServerSettings
 from tests.helpers import Inbox
 

@@ -13,7 +13,7 @@ from playwright.sync_api import expect
 
 from colorgrid.replay import load, verify
 from colorgrid_apps.cli import main
-from server.hub import GameHub
+from server.play.hub import GameHub
 from server.protocol import Team
 from server.settings import ServerSettings
 from tests.conftest import ROOT, start_server, stop_server

@@ -12,7 +12,7 @@ from playwright.sync_api import expect
 from websockets.exceptions import ConnectionClosed
 
 from colorgrid.replay import load, verify
-from server.hub import GameHub, ServerFull
+from server.play.hub import GameHub, ServerFull
 from server.protocol import ROOM_CODE_ALPHABET, ROOM_CODE_LENGTH
 from server.settings import ServerSettings
 from tests.conftest import start_server, stop_server

@@ -215,7 +215,7 @@ class Cluster:
             say(said)
 
     def id_params(self) -> tuple[str, ...]:
-        return tuple(self.study.study.id_params) if self.study is not None else ()
+        return tuple(self.study.routing_params) if self.study is not None else ()
 
     def write_files(self) -> None:
         """``cluster.json`` (the backends read it) and ``haproxy.cfg`` (checked by HAProxy) in the folder."""

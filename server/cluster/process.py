@@ -29,7 +29,7 @@ class BackendSpec:
     """Its ``server.cluster.plan.Membership``."""
     log_level: str = "info"
     study: object | None = None
-    """The study it serves (``server.study.cli.StudySetup``), or None for free play."""
+    """The application it serves instead of free play (``server.backend.Plugin``: a study's), or None."""
     launcher_pid: int = 0
     """The launcher's process id: the process stops once its parent is another (0: its parent when it starts)."""
 

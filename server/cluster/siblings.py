@@ -33,7 +33,7 @@ ASK_TIMEOUT_S = 1.5
 PAGES = ("/", "/study")
 """The pages that set the routing cookie (every later request of the page carries it)."""
 KEY = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
-"""What a routing key may be (a participant id is one, ``server.study.config.ID_PATTERN``)."""
+"""What a routing key may be (a participant id is one: a plugin's ``routing_params`` name it)."""
 SUMMED = ("games", "rooms", "connections", "max_sessions")
 """Counts that add up over the backends."""
 REPORTED = ("ready", "pid", "restarts", *SUMMED, "tick_lateness_p50_ms", "tick_lateness_p99_ms", "max_lateness_ms",
@@ -143,8 +143,7 @@ async def game_here(pid: str, backend: CurrentBackend, authorization: Annotated[
     """A sibling asks whether this backend runs participant ``pid``'s study game: 200 with what rejoins it (its id
     and token), or 404."""
     sibling_only(backend, authorization)
-    service = backend.shared.service
-    game = service.live.get(pid) if service is not None else None
+    game = backend.hub.source.game_of(pid)
     if game is None or game.finished:
         raise HTTPException(404, "no game of this participant runs here")
     return {"game_id": game.game_id, "token": game.token}
@@ -155,17 +154,16 @@ def join_cluster(app: FastAPI, membership: Membership) -> None:
     sibling holding the room, and ``/api/health`` reports every backend."""
     backend = app.state.backend
     backend.member = membership
-    study = backend.shared.study
-    id_params = tuple(study.study.id_params) if study is not None else ()
+    plugin = backend.shared.plugin
+    id_params = tuple(plugin.routing_params) if plugin is not None else ()
     app.include_router(router)
-    if backend.shared.service is not None:  # a participant's game may run in a sibling (see StudyService.interrupted)
-        backend.shared.service.elsewhere = lambda pid: game_elsewhere(membership, pid)
+    backend.hub.source.elsewhere = lambda pid: game_elsewhere(membership, pid)  # a person's game may run in a sibling
 
     @app.middleware("http")
     async def routing_cookie(request: Request, call_next):
         if request.method != "GET" or request.url.path not in PAGES:
             return await call_next(request)
-        code = normalise_room_code(request.query_params.get("room", "")) if study is None else None
+        code = normalise_room_code(request.query_params.get("room", "")) if plugin is None else None
         if code is not None and code not in backend.hub.rooms:
             moved = await send_to_room(request, code)
             if moved is not None:

@@ -8,12 +8,12 @@ import logging
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
+from colorgrid.enums import SeatFit
 from colorgrid.presets import PRESETS, env_config
 from colorgrid.render import look
 from server.backend import CurrentBackend
 from server.connection import Connection
 from server.followers import follower_info, leader_info
-from server.game import PAIR_VIEW
 from server.messages import ENDING_WORDS
 from server.protocol import BELIEF_KEYS, KEY_ACTIONS, MAX_HORIZON, ROOM_CODE_LENGTH, GoalView, Mode, SeatKind, Team
 from server.stated import ProbeKind
@@ -34,10 +34,10 @@ async def options(backend: CurrentBackend):
     team_leaders = {t: backend.hub.team_leaders(t) for t in Team}
     seat_leaders = {t: backend.hub.seat_leaders(t) for t in Team}
     fits = {name: fit for offered in team_leaders.values() for name, fit in offered.items()}
-    fits.update({name: "direct" for offered in seat_leaders.values() for name in offered if name not in fits})
+    fits.update({name: SeatFit.DIRECT for offered in seat_leaders.values() for name in offered if name not in fits})
     return {"followers": list(settings.follower_choices), "default_follower": settings.follower,
             "follower_info": [follower_info(name) for name in settings.follower_choices],
-            "leader_info": [leader_info(name, fits[name] == PAIR_VIEW) for name in settings.leaders if name in fits],
+            "leader_info": [leader_info(name, fits[name] == SeatFit.PAIR_VIEW) for name in settings.leaders if name in fits],
             "presets": list(presets), "default_preset": settings.preset,
             "preset_settings": {name: {"goal_reward": c.goal_reward, "wrong_penalty": c.wrong_penalty,
                                        "horizon": c.horizon} for name, c in presets.items()},
@@ -69,7 +69,7 @@ async def play_socket(ws: WebSocket, backend: CurrentBackend):
         await ws.close(refusal[0], refusal[1])
         return
     await ws.accept()
-    conn = Connection(ws, hub, sockets.new_games.bucket(ws.client.host if ws.client else "?"), backend.shared.service)
+    conn = Connection(ws, hub, sockets.new_games.bucket(ws.client.host if ws.client else "?"))
     sockets.open.add(conn)
     writer = asyncio.create_task(conn.writer())
     try:

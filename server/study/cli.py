@@ -4,10 +4,8 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import logging
 import os
 import secrets
-from dataclasses import dataclass
 from pathlib import Path
 
 from colorgrid.configkit import add_arguments, from_args
@@ -18,34 +16,6 @@ from server.study.config import Study, check_followers, load_study
 
 ADMIN_TOKEN_ENV = "COLORGRID_ADMIN_TOKEN"
 """Set it to fix the admin token (a deployment); otherwise a new one is printed at every start."""
-
-
-@dataclass(frozen=True)
-class StudySetup:
-    """What the play server needs to serve a study."""
-
-    study: Study
-    study_file: Path
-    database: str | Path
-    """The study's database: an SQLite file, or a URL (``server.study.store.database_url``)."""
-    admin_token: str
-
-    def store(self):
-        """The study's database, opened (created, or brought to the current schema) and checked."""
-        from server.study.service import study_hash
-        from server.study.store import StudyStore
-
-        return StudyStore(self.database, self.study.id, study_hash(self.study))
-
-    def service(self):
-        from server.study.service import StudyService
-
-        store = self.store()
-        if store.changed_study:
-            logging.getLogger("colorgrid.server").warning(
-                "%s was made with another version of %s: participants who started keep their assignment, but "
-                "changed pages or conditions apply to everyone from now on", store.name, self.study_file)
-        return StudyService(self.study, store)
 
 
 def study_folder(study: Study, replays_dir: Path | None) -> Path:
@@ -107,6 +77,8 @@ def cmd_run(args: argparse.Namespace) -> int:
     check_writable(folder, "--replays-dir")
     check_followers(study, args.study_file)  # a follower named in the study file is blamed on its field there
     token = os.environ.get(ADMIN_TOKEN_ENV) or secrets.token_urlsafe(18)
+    from server.study.plugin import StudySetup  # the study's extra (its database) is loaded only to run one
+
     setup = StudySetup(study, args.study_file.resolve(), study_database(args, folder), token)
     check_address_free(settings.host, settings.port)  # another study there: refused before its database is touched
     store = setup.store()  # a database of another study or schema stops here, in one line

@@ -12,14 +12,19 @@ from __future__ import annotations
 import secrets
 import shutil
 import tempfile
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Annotated
 
-from fastapi import FastAPI, Header, HTTPException, Request, Response
+from fastapi import APIRouter, Depends, FastAPI, Header, HTTPException, Request, Response
 from fastapi.responses import FileResponse, JSONResponse, RedirectResponse
 from pydantic import BaseModel, ConfigDict, Field
 from starlette.background import BackgroundTask
 from starlette.concurrency import run_in_threadpool
+from starlette.requests import HTTPConnection
 
+from server.backend import CurrentBackend
+from server.routes.pages import WEB_DIR
 from server.study.service import AnswerProblems, Finished, Invalid, Refused, StudyService
 
 NOT_SERVED = ("/replays", "/replay", "/api/replays")
@@ -60,105 +65,144 @@ def export_zip(study_file: str, db: str, replays_dir: str, out: str) -> str:
     return archive
 
 
-def mount_study(app: FastAPI, service: StudyService, admin_token: str, web_dir: Path, jobs, study_file: Path,
-                replays_dir: Path, live_games) -> None:
-    study = service.study
+@dataclass(frozen=True)
+class Served:
+    """The study this process serves: its service over the store, its file and the admin's token."""
 
-    @app.middleware("http")
-    async def study_only(request: Request, call_next):
-        path = request.url.path
-        if path == "/":
-            query = f"?{request.url.query}" if request.url.query else ""
-            return RedirectResponse(f"/study{query}", status_code=307)
-        if any(path == p or path.startswith(p + "/") for p in NOT_SERVED):
-            return JSONResponse({"detail": "not served while a study runs (replays name participants); the "
-                                           "admin downloads the data from /study/admin"}, status_code=404)
-        return await call_next(request)
+    service: StudyService
+    study_file: Path
+    admin_token: str
 
-    def run(fn, *args):
-        try:
-            return fn(*args)
-        except Finished as err:  # what the debrief page said, again: the completion code
-            raise HTTPException(403, {"message": str(err), "completion_code": err.completion_code,
-                                      "redirect_url": err.redirect_url}) from None
-        except Refused as err:
-            raise HTTPException(403, str(err)) from None
-        except AnswerProblems as err:  # every problem, for the page to show beside each question
-            raise HTTPException(422, {"message": f"{len(err.problems)} answer(s) need attention",
-                                      "problems": err.problems}) from None
-        except Invalid as err:
-            raise HTTPException(409, str(err)) from None
 
-    def pinned(view: dict, response: Response) -> dict:
-        """A page whose game another process of the cluster runs: its browser's next requests (the socket that
-        rejoins the game) go to that process."""
-        where = view.get("live", {}).pop("backend", None)
-        if where is not None:
-            from server.cluster.siblings import pin
+def served(conn: HTTPConnection) -> Served:
+    """The study of the app serving this request (``install_routes`` put it there)."""
+    return conn.app.state.study
 
-            pin(response, where)
-        return view
 
-    @app.get("/study", include_in_schema=False)
-    async def study_page():
-        return FileResponse(web_dir / "study.html")
+CurrentStudy = Annotated[Served, Depends(served)]
+"""A route's parameter type for the study this process serves (a FastAPI dependency)."""
 
-    @app.get("/study/admin", include_in_schema=False)
-    async def admin_page():
-        return FileResponse(web_dir / "study_admin.html")
 
-    @app.get("/api/study/info", tags=["study"])
-    async def info() -> dict:
-        """The study's title and which URL parameters carry the participant id."""
-        return {"id": study.id, "title": study.title, "id_params": list(study.id_params),
-                "anonymous": study.anonymous}
+def admin_only(study: CurrentStudy, authorization: Annotated[str | None, Header()] = None) -> None:
+    """Let only the admin through: ``Authorization: Bearer TOKEN`` with the token printed when the study started."""
+    scheme, _, token = (authorization or "").partition(" ")
+    if scheme.lower() != "bearer" or not secrets.compare_digest(token.encode(), study.admin_token.encode()):
+        raise HTTPException(401, "the admin pages need the token printed when the study started "
+                                 "(Authorization: Bearer TOKEN)", headers={"WWW-Authenticate": "Bearer"})
 
-    @app.post("/api/study/join", tags=["study"])
-    def join(body: Join, request: Request, response: Response) -> dict:
-        """Start, or resume, the participant the link names; answers their session key and current page. Refused:
-        403 with a sentence for the participant; one who finished the study, from another browser: ``detail:
-        {message, completion_code, redirect_url}``."""
-        who = run(service.join, body.params, body.session, request.headers.get("user-agent", ""))
-        return {**who, "view": pinned(run(service.view, who["pid"], who["session"]), response)}
 
-    @app.post("/api/study/view", tags=["study"])
-    def view(body: Who, response: Response) -> dict:
-        """The participant's current page."""
-        return pinned(run(service.view, body.pid, body.session), response)
+router = APIRouter(tags=["study"])
+admin = APIRouter(prefix="/api/study/admin", tags=["study"], dependencies=[Depends(admin_only)])
 
-    @app.post("/api/study/advance", tags=["study"])
-    def advance(body: Advance) -> dict:
-        """Finish the current page (consent agreed, answers, a game over) and get the next one. Answers that
-        cannot be taken answer 422 with ``detail: {message, problems: [{question, prompt, problem}]}``, every
-        problem at once; other refusals 409 with a sentence."""
-        return run(service.advance, body.pid, body.session, body.step, body.answers, body.agree)
 
-    def admin(authorization: str | None):
-        scheme, _, token = (authorization or "").partition(" ")
-        if scheme.lower() != "bearer" or not secrets.compare_digest(token.encode(), admin_token.encode()):
-            raise HTTPException(401, "the admin pages need the token printed when the study started "
-                                     "(Authorization: Bearer TOKEN)", headers={"WWW-Authenticate": "Bearer"})
+def answered(fn, *args):
+    """``fn(*args)``, with the service's refusals as the HTTP answers the study page reads."""
+    try:
+        return fn(*args)
+    except Finished as err:  # what the debrief page said, again: the completion code
+        raise HTTPException(403, {"message": str(err), "completion_code": err.completion_code,
+                                  "redirect_url": err.redirect_url}) from None
+    except Refused as err:
+        raise HTTPException(403, str(err)) from None
+    except AnswerProblems as err:  # every problem, for the page to show beside each question
+        raise HTTPException(422, {"message": f"{len(err.problems)} answer(s) need attention",
+                                  "problems": err.problems}) from None
+    except Invalid as err:
+        raise HTTPException(409, str(err)) from None
 
-    @app.get("/api/study/admin/summary", tags=["study"])
-    async def summary(request: Request, authorization: str | None = Header(default=None)) -> dict:
-        """Participants by status and arm, quotas, completion times and live games; behind HAProxy, every
-        backend's live games and tick lateness (``backends``) and the live games of them all."""
-        admin(authorization)
-        live, backends = live_games(), None
-        member = request.app.state.backend.member
-        if member is not None:
-            from server.cluster.siblings import cluster_health
-            from server.routes.health import backend_health
 
-            cluster = await cluster_health(member, backend_health(request.app.state.backend))
-            live, backends = cluster["cluster"]["games"], cluster["backends"]
-        return {**await run_in_threadpool(service.summary, live), "backends": backends}
+def pinned(view: dict, response: Response) -> dict:
+    """A page whose game another process of the cluster runs: its browser's next requests (the socket that
+    rejoins the game) go to that process."""
+    where = view.get("live", {}).pop("backend", None)
+    if where is not None:
+        from server.cluster.siblings import pin
 
-    @app.get("/api/study/admin/export.zip", tags=["study"])
-    async def export(authorization: str | None = Header(default=None)):
-        """Every table of ``colorgrid study export`` (Parquet and CSV) in one zip file."""
-        admin(authorization)
-        out = Path(tempfile.mkdtemp(prefix="colorgrid-study-export-")) / f"{study.id}-data"
-        archive = await jobs.run(export_zip, str(study_file), service.store.address, str(replays_dir), str(out))
-        return FileResponse(archive, filename=f"{study.id}-data.zip", media_type="application/zip",
-                            background=BackgroundTask(shutil.rmtree, str(out.parent), True))
+        pin(response, where)
+    return view
+
+
+async def study_only(request: Request, call_next):
+    """While a study runs, the free-play page sends visitors to the study and the replay pages are not served."""
+    path = request.url.path
+    if path == "/":
+        query = f"?{request.url.query}" if request.url.query else ""
+        return RedirectResponse(f"/study{query}", status_code=307)
+    if any(path == p or path.startswith(p + "/") for p in NOT_SERVED):
+        return JSONResponse({"detail": "not served while a study runs (replays name participants); the "
+                                       "admin downloads the data from /study/admin"}, status_code=404)
+    return await call_next(request)
+
+
+@router.get("/study", include_in_schema=False)
+async def study_page():
+    return FileResponse(WEB_DIR / "study.html")
+
+
+@router.get("/study/admin", include_in_schema=False)
+async def admin_page():
+    return FileResponse(WEB_DIR / "study_admin.html")
+
+
+@router.get("/api/study/info")
+async def info(study: CurrentStudy) -> dict:
+    """The study's title and which URL parameters carry the participant id."""
+    about = study.service.study
+    return {"id": about.id, "title": about.title, "id_params": list(about.id_params), "anonymous": about.anonymous}
+
+
+@router.post("/api/study/join")
+def join(body: Join, request: Request, response: Response, study: CurrentStudy) -> dict:
+    """Start, or resume, the participant the link names; answers their session key and current page. Refused:
+    403 with a sentence for the participant; one who finished the study, from another browser: ``detail:
+    {message, completion_code, redirect_url}``."""
+    service = study.service
+    who = answered(service.join, body.params, body.session, request.headers.get("user-agent", ""))
+    return {**who, "view": pinned(answered(service.view, who["pid"], who["session"]), response)}
+
+
+@router.post("/api/study/view")
+def view(body: Who, response: Response, study: CurrentStudy) -> dict:
+    """The participant's current page."""
+    return pinned(answered(study.service.view, body.pid, body.session), response)
+
+
+@router.post("/api/study/advance")
+def advance(body: Advance, study: CurrentStudy) -> dict:
+    """Finish the current page (consent agreed, answers, a game over) and get the next one. Answers that
+    cannot be taken answer 422 with ``detail: {message, problems: [{question, prompt, problem}]}``, every
+    problem at once; other refusals 409 with a sentence."""
+    return answered(study.service.advance, body.pid, body.session, body.step, body.answers, body.agree)
+
+
+@admin.get("/summary")
+async def summary(study: CurrentStudy, backend: CurrentBackend) -> dict:
+    """Participants by status and arm, quotas, completion times and live games; behind HAProxy, every
+    backend's live games and tick lateness (``backends``) and the live games of them all."""
+    live, backends = sum(g.study is not None for g in backend.hub.games.values()), None
+    if backend.member is not None:
+        from server.cluster.siblings import cluster_health
+        from server.routes.health import backend_health
+
+        cluster = await cluster_health(backend.member, backend_health(backend))
+        live, backends = cluster["cluster"]["games"], cluster["backends"]
+    return {**await run_in_threadpool(study.service.summary, live), "backends": backends}
+
+
+@admin.get("/export.zip")
+async def export(study: CurrentStudy, backend: CurrentBackend):
+    """Every table of ``colorgrid study export`` (Parquet and CSV) in one zip file."""
+    study_id = study.service.study.id
+    out = Path(tempfile.mkdtemp(prefix="colorgrid-study-export-")) / f"{study_id}-data"
+    archive = await backend.jobs.run(export_zip, str(study.study_file), study.service.store.address,
+                                     str(backend.shared.recordings), str(out))
+    return FileResponse(archive, filename=f"{study_id}-data.zip", media_type="application/zip",
+                        background=BackgroundTask(shutil.rmtree, str(out.parent), True))
+
+
+def install_routes(app: FastAPI, served_study: Served) -> None:
+    """Serve the study's pages and API from ``app``, and keep the free-play and replay pages from its visitors."""
+    app.state.study = served_study
+    app.middleware("http")(study_only)
+    app.include_router(router)
+    app.include_router(admin)

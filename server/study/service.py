@@ -24,6 +24,7 @@ from dataclasses import dataclass
 
 from markdown_it import MarkdownIt
 
+from colorgrid.enums import Ending, GameKind
 from colorgrid.presets import env_config
 from colorgrid.render import look
 from server.study.assign import arm_labels, arms, choose_arm, trial_order
@@ -32,11 +33,10 @@ from server.study.config import ID_PATTERN, GameSettings, Page, Question, Study
 from server.study.figures import game_figures, score_figures
 from server.study.store import StudyStore
 
-SERVER_LOST = "server_lost"
-"""The ending of a game whose process stopped without saving it (killed, crashed): written when the participant
-starts the game again, on whichever process they reach."""
-LOST = ("disconnected", "server_shutdown", SERVER_LOST)
-"""Game endings that do not count: the participant plays that game again."""
+LOST = Ending.lost()
+"""Game endings that do not count: the participant plays that game again. ``Ending.SERVER_LOST`` is written when the
+participant starts a game again whose process stopped without saving it (killed, crashed), on whichever process they
+reach."""
 SESSION_PATTERN = re.compile(r"^[A-Za-z0-9_-]{32,128}$")
 """A session key a browser may propose at its first join: random URL-safe text, 32 to 128 characters."""
 END_RETRIES = 1
@@ -99,7 +99,7 @@ class Step:
 
     @property
     def has_game(self) -> bool:
-        return self.kind in ("practice", "trial")
+        return self.kind in (GameKind.PRACTICE, GameKind.TRIAL)
 
 
 def study_hash(study: Study) -> str:
@@ -124,13 +124,13 @@ class StudyService:
                 out.append(Step(page.kind, page))
                 continue
             for i, c in enumerate(conditions):
-                out.append(Step("trial", page, i, c))
+                out.append(Step(GameKind.TRIAL, page, i, c))
                 if page.after_each:
                     out.append(Step("questions", page, i, c))
         return out
 
     def game_settings(self, step: Step) -> GameSettings:
-        if step.kind == "practice":
+        if step.kind == GameKind.PRACTICE:
             return self.study.practice_game(step.page)
         return self.study.conditions[step.condition]
 
@@ -214,7 +214,7 @@ class StudyService:
         row = self.check(pid, session)
         steps = self.steps(json.loads(row["conditions"]))
         step = steps[row["step"]]
-        trials = sum(s.kind == "trial" for s in steps)
+        trials = sum(s.kind == GameKind.TRIAL for s in steps)
         out = {"pid": pid, "step": row["step"], "steps": len(steps), "kind": step.kind,
                "title": f"About game {step.trial_index + 1}" if step.kind == "questions" else step.page.title,
                "study": self.study.title, "html": _markdown.render(step.page.text) if step.kind != "questions" else "",
@@ -332,13 +332,13 @@ class StudyService:
         self.live[m["participant"]] = game
         with self.store.transaction() as tx:
             if m["attempt"] > 0:  # an interrupted attempt before it gets its ending now (a lost one keeps its own)
-                tx.end_game(m["participant"], m["step"], m["attempt"] - 1, {"ended": SERVER_LOST,
+                tx.end_game(m["participant"], m["step"], m["attempt"] - 1, {"ended": Ending.SERVER_LOST,
                                                                             "finished": time.time()}, running=True)
             tx.add_game({"pid": m["participant"], "step": m["step"], "attempt": m["attempt"], "kind": m["kind"],
                          "trial_index": m["trial_index"], "condition": m["condition_index"],
                          "settings": json.dumps(m["condition"]), "game_id": game.game_id, "started": time.time()})
 
-    def game_over(self, game, reason: str, scores: dict) -> None:
+    def game_over(self, game, reason: Ending, scores: dict) -> None:
         """Record the end of a game with its figures (``server.study.figures``), read from the game's own record
         (descriptions of the AI agents do not enter them)."""
         m = game.study

@@ -22,7 +22,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -45,6 +45,7 @@ from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.engine import URL, Connection, Engine, make_url
 from sqlalchemy.exc import ArgumentError, DBAPIError
 
+from colorgrid.enums import GameKind
 from server.study.figures import FIGURES, SCORES, score_figures
 
 SCHEMA_VERSION = 2
@@ -330,13 +331,14 @@ class StudyStore:
         with self.reading() as tx:
             return {r["ended"]: r["games"] for r in rows_of(tx.conn.execute(query))}
 
-    def figures_by_arm(self, lost: tuple[str, ...]) -> dict[int, dict]:
+    def figures_by_arm(self, lost: Iterable[str]) -> dict[int, dict]:
         """Per arm, over its trials that ended (but not ``lost``): how many, and the mean of each figure."""
         means = {name: func.avg(games.c[name]) for name in ("team_score", "follower_net_pickups",
                                                              "follower_wrong_pickups", "belief_accuracy")}
         query = (select(participants.c.arm, func.count().label("games"), *(m.label(n) for n, m in means.items()))
                  .join_from(games, participants, games.c.pid == participants.c.pid)
-                 .where(games.c.kind == "trial", games.c.ended.is_not(None), games.c.ended.not_in(lost))
+                 .where(games.c.kind == GameKind.TRIAL, games.c.ended.is_not(None),
+                        games.c.ended.not_in(sorted(map(str, lost))))
                  .group_by(participants.c.arm))
         with self.reading() as tx:
             return {r["arm"]: {k: (float(v) if v is not None and k != "games" else v) for k, v in r.items()
