@@ -5,7 +5,8 @@ Every config of the project (``EnvConfig``, the training configs, ``BayesConfig`
 ``__post_init__`` with the checks below, built from plain data by ``from_dict`` (nested
 dataclasses included), changed with ``KEY=VALUE`` overrides (``parse_override``,
 ``apply_overrides``), named in presets (``Presets``), and turned into command-line flags
-(``add_arguments``, ``from_args``). Each class says how its errors read with ``ERROR_STYLE``.
+(``add_arguments``, ``from_args``). ``resolve`` is the one way a config is resolved from a preset, a file
+and overrides. Each class says how its errors read with ``ERROR_STYLE`` (and unknown keys with ``UNKNOWN_STYLE``).
 """
 
 from __future__ import annotations
@@ -110,25 +111,44 @@ def check_strings(owner, name: str, choices=None, *, distinct: bool = False, all
 
 
 # ---------------------------------------------------------------- building
+UNKNOWN_FIELDS = "unknown {label}field(s) {unknown}{place}; allowed: {allowed}"
+"""How ``from_dict`` names unknown keys unless the class says otherwise with ``UNKNOWN_STYLE`` (fields:
+``where``, ``label``, ``place`` (`` in where``), ``unknown`` (the sorted list), ``first`` (its first), ``allowed``)."""
+
+
 def from_dict(cls, data: Any, where: str = ""):
-    """An instance of the frozen dataclass ``cls`` from plain data (e.g. JSON), nested dataclasses
-    included; lists become tuples where the field is a tuple; unknown keys are an error naming the allowed
-    ones. ``where`` names the section in errors (``ppo``, ``follower.net``)."""
+    """An instance of the frozen dataclass ``cls`` from plain data (e.g. JSON or TOML), nested dataclasses included
+    (a field ``X``, ``X | None`` or ``tuple[X, ...]``: a table, or a list of tables); lists become tuples where the
+    field is a tuple; unknown keys are an error naming the allowed ones (in the class's ``UNKNOWN_STYLE``), and so
+    are missing required ones. Keys the class lists in ``NOTES`` (a preset's ``description``) are notes for people,
+    dropped. ``where`` names the section in errors (``ppo``, ``follower.net``, ``pages[3].questions[0]``)."""
     label = getattr(cls, "CONFIG_NAME", "")
     if not isinstance(data, dict):
         what = label or where or "a config"
         raise ConfigError(f"{what} must be built from a dict (a JSON object), got {type(data).__name__}")
-    names = [f.name for f in dataclasses.fields(cls)]
+    data = {k: v for k, v in data.items() if k not in getattr(cls, "NOTES", ())}
+    fields = dataclasses.fields(cls)
+    names = [f.name for f in fields]
     unknown = sorted(set(data) - set(names))
     if unknown:
-        place = f" in {where}" if where and not label else ""
-        raise ConfigError(f"unknown {label + ' ' if label else ''}field(s) {unknown}{place}; allowed: {names}")
+        style = getattr(cls, "UNKNOWN_STYLE", UNKNOWN_FIELDS)
+        raise ConfigError(style.format(where=where, label=label + " " if label else "", unknown=unknown,
+                                       first=unknown[0], allowed=names,
+                                       place=f" in {where}" if where and not label else "").lstrip(": "))
+    missing = [f.name for f in fields if f.name not in data and f.default is dataclasses.MISSING
+               and f.default_factory is dataclasses.MISSING]
+    if missing:
+        raise ConfigError(f"{where or label or 'the ' + cls.__name__.lower()}: missing {', '.join(missing)} "
+                          f"(fields: {names})")
     hints = typing.get_type_hints(cls)
     values = {}
     for name, value in data.items():
-        kind = hints[name]
+        kind, inner = _plain_type(hints[name]), f"{where}.{name}" if where else name
+        item = _tuple_item(kind)
         if dataclasses.is_dataclass(kind) and isinstance(value, dict):
-            value = from_dict(kind, value, f"{where}.{name}" if where else name)
+            value = from_dict(kind, value, inner)
+        elif dataclasses.is_dataclass(item) and isinstance(value, list):
+            value = tuple(from_dict(item, v, f"{inner}[{i}]") for i, v in enumerate(value))
         elif _is_tuple(kind) and isinstance(value, list):
             value = tuple(value)
         elif kind is Path and isinstance(value, str):
@@ -138,6 +158,21 @@ def from_dict(cls, data: Any, where: str = ""):
         return cls(**values)
     except ConfigError as err:
         raise err.within(where) from None
+
+
+def read_toml(path: str | Path, what: str) -> dict:
+    """The plain data of the TOML file ``path`` (a sweep file, a study file); ``ConfigError`` in one line saying why
+    not (``no such sweep file``, ``not valid TOML (...)``), without the path: the caller names the file."""
+    import tomllib
+
+    try:
+        return tomllib.loads(Path(path).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise ConfigError(f"no such {what}") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(f"cannot be read ({err})") from None
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"not valid TOML ({err})") from None
 
 
 def to_dict(obj) -> dict:
@@ -156,6 +191,12 @@ def to_dict(obj) -> dict:
 
 def _is_tuple(kind) -> bool:
     return kind is tuple or typing.get_origin(kind) is tuple
+
+
+def _tuple_item(kind):
+    """``tuple[X, ...]`` -> X; None for other types."""
+    args = typing.get_args(kind) if typing.get_origin(kind) is tuple else ()
+    return args[0] if len(args) == 2 and args[1] is Ellipsis else None
 
 
 def _plain_type(kind):
@@ -210,6 +251,33 @@ def apply_overrides(data: dict, items, cls=None, **kwargs) -> dict:
     for text in items:
         data = merge(data, override_dict(text, cls, **kwargs))
     return data
+
+
+# --------------------------------------------------------------- resolving
+def resolve_data(*layers: Mapping, overrides=(), cls=None, where: str | None = None, **kwargs) -> dict:
+    """Plain data of settings given in layers, each on top of the last: plain dicts first (a preset's, a config
+    file's, a saved run's, a table of changes), then every ``KEY=VALUE`` of ``overrides`` (checked against
+    ``cls``'s fields: ``override_dict``). ``where``: an override's error names its place in a list of that name
+    (``set[2]: ...``)."""
+    data: dict = {}
+    for layer in layers:
+        data = merge(data, dict(layer))
+    for i, text in enumerate(overrides):
+        try:
+            data = merge(data, override_dict(text, cls, **kwargs))
+        except ConfigError as err:
+            if where is None:
+                raise
+            raise ConfigError(f"{where}[{i}]: {err}") from None
+    return data
+
+
+def resolve(cls, *layers: Mapping, overrides=(), where: str | None = None, **kwargs):
+    """The one way a config is resolved: the ``cls`` instance that a preset, then a file, then ``KEY=VALUE``
+    overrides describe (``resolve_data``'s layers, built by ``from_dict``). ``colorgrid train`` (preset, ``--config``,
+    ``--set``), the sweep file (preset, ``set``, each trial's parameters) and the study file (its tables) all
+    resolve their configs here."""
+    return from_dict(cls, resolve_data(*layers, overrides=overrides, cls=cls, where=where, **kwargs))
 
 
 def _coerce(cls, path: list[str], value, text: str, prefix: str = ""):

@@ -11,8 +11,9 @@ import time
 from pathlib import Path
 
 from colorgrid.config import ROLES
+from colorgrid.extras import MissingExtra
 from colorgrid.files import JSONFileError, read_json_object
-from train.config import TrainConfig, from_dict, load_preset, merge, parse_override, preset_names
+from train.config import TrainConfig, load_preset, preset_names, resolve
 
 
 def add_train_commands(sub) -> None:
@@ -79,15 +80,14 @@ def add_train_commands(sub) -> None:
 
 
 def resolve_config(args: argparse.Namespace) -> TrainConfig:
-    data = load_preset(args.preset)
+    """The run's config: the preset, then the ``--config`` file, then the ``--set`` overrides (``train.config.resolve``)."""
+    file = {}
     if args.config:
         try:
-            data = merge(data, read_json_object(args.config, "a JSON object of training settings (as in a preset)"))
+            file = read_json_object(args.config, "a JSON object of training settings (as in a preset)")
         except JSONFileError as err:
             raise ValueError(f"--config {err}") from None
-    for text in args.set:
-        data = merge(data, parse_override(text))
-    return from_dict(data)
+    return resolve(load_preset(args.preset), file, overrides=args.set)
 
 
 def resumed_config(run_dir: Path, overrides: list[str]) -> TrainConfig:
@@ -96,10 +96,8 @@ def resumed_config(run_dir: Path, overrides: list[str]) -> TrainConfig:
     if not saved.exists():
         raise FileNotFoundError(f"--resume {run_dir}: no config.json there; is it a run directory?")
     data = read_json_object(saved, "a JSON object of training settings (the run's config)")
-    for text in overrides:
-        data = merge(data, parse_override(text))
     try:
-        return from_dict(data)
+        return resolve(data, overrides=overrides)
     except ValueError as err:
         raise ValueError(f"{saved}{' with the --set overrides' if overrides else ''}: {err}") from None
 
@@ -202,6 +200,13 @@ def cmd_train_bc(args: argparse.Namespace) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from colorgrid_apps.cli import main as colorgrid_main
-
-    return colorgrid_main(["train", *(argv if argv is not None else __import__("sys").argv[1:])])
+    """``python -m train ARGS`` is ``colorgrid train ARGS``, on this package's own parser; a bad input ends it with
+    one line, ``colorgrid train: error: ...``, and exit code 2, as the ``colorgrid`` command ends it."""
+    parser = argparse.ArgumentParser(prog="python -m")  # (its sub-command "train" completes the name)
+    add_train_commands(parser.add_subparsers(dest="command", required=True))
+    args = parser.parse_args(["train", *(sys.argv[1:] if argv is None else argv)])
+    try:
+        return int(args.func(args) or 0)
+    except (ValueError, OSError, MissingExtra) as err:  # FileNotFoundError is an OSError
+        print(f"colorgrid train: error: {err}", file=sys.stderr)
+        return 2

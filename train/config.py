@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
+from typing import ClassVar
 
 from colorgrid import configkit
 from colorgrid.config import ROLES, EnvConfig
@@ -264,6 +265,9 @@ class ScheduleConfig:
 class TrainConfig:
     """One training run."""
 
+    NOTES: ClassVar[tuple[str, ...]] = ("description",)
+    """Keys a preset or config file may hold for people, not settings (``configkit.from_dict`` drops them)."""
+
     env: EnvConfig = field(default_factory=EnvConfig)
     """The environment; ``env.num_leaders`` and ``env.num_followers`` set the team."""
     leader: AgentConfig = field(default_factory=AgentConfig)
@@ -390,15 +394,21 @@ class TrainConfig:
         return from_dict(data)
 
 
+OVERRIDE_EXAMPLE = "ppo.lr=3e-4 or follower.net.lstm=true"
 PRESETS = Presets(folder=PRESETS_DIR, what="preset")
 """Training presets: one JSON file each in ``train/presets/``, holding the fields that differ from the defaults."""
 
 
 def from_dict(data: dict) -> TrainConfig:
     """A TrainConfig from nested plain data (as in preset files); unknown keys are errors."""
-    if isinstance(data, dict):
-        data = {k: v for k, v in data.items() if k != "description"}
     return configkit.from_dict(TrainConfig, data)
+
+
+def resolve(*layers: dict, overrides=()) -> TrainConfig:
+    """The TrainConfig that settings in layers describe, each on top of the last: a preset's data, a config file's
+    (or a saved run's), then ``KEY=VALUE`` overrides (``--set``). ``colorgrid train`` and the sweep file resolve
+    their configs here (``configkit.resolve``)."""
+    return configkit.resolve(TrainConfig, *layers, overrides=overrides, example=OVERRIDE_EXAMPLE)
 
 
 def preset_names() -> list[str]:
@@ -412,4 +422,4 @@ def load_preset(name: str) -> dict:
 
 def parse_override(text: str) -> dict:
     """``a.b.c=value`` to ``{"a": {"b": {"c": value}}}``; the value is JSON if it parses, else a string."""
-    return override_dict(text, TrainConfig, example="ppo.lr=3e-4 or follower.net.lstm=true")
+    return override_dict(text, TrainConfig, example=OVERRIDE_EXAMPLE)

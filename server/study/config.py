@@ -12,13 +12,12 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from colorgrid import configkit
 from colorgrid.configkit import ConfigError, check_bool, check_choice, check_int, check_number, check_strings, fail
-from colorgrid.configkit import from_dict
 from colorgrid.presets import PRESETS
 from server.protocol import MAX_HORIZON, GoalView, SeatKind
 from server.stated import PROBE_FORMS, ProbePlan
@@ -386,54 +385,17 @@ def check_followers(study: Study, path: str | Path) -> None:
             raise blame(place, name, "a leader of another team: a study's games are one leader and one follower")
 
 
-def _build(cls, data: Any, where: str):
-    """``from_dict`` for the study's nested tables, lists of tables included."""
-    try:
-        if cls is Page and isinstance(data, dict):
-            data = dict(data)
-            for name in ("questions", "after_each"):
-                if isinstance(data.get(name), list):
-                    data[name] = tuple(_build(Question, q, f"{where}.{name}[{i}]")
-                                       for i, q in enumerate(data[name]))
-            if isinstance(data.get("game"), dict):
-                data["game"] = _build(GameSettings, data["game"], f"{where}.game")
-        return from_dict(cls, data, where)
-    except StudyError:
-        raise
-    except ConfigError as err:
-        message = str(err)
-        if where and not message.startswith(where):
-            message = f"{where}: {message}"
-        raise StudyError(message) from None
-    except TypeError as err:  # a required field is missing
-        missing = re.findall(r"'(\w+)'", str(err))
-        raise StudyError(f"{where or 'the study'}: missing {', '.join(missing) or 'fields'} "
-                         f"(fields: {[f.name for f in dataclasses.fields(cls)]})") from None
-
-
 def parse_study(data: dict) -> Study:
-    """A ``Study`` from the parsed file."""
-    data = dict(data)
-    if isinstance(data.get("pages"), list):
-        data["pages"] = tuple(_build(Page, p, f"pages[{i}]") for i, p in enumerate(data["pages"]))
-    for name, cls in (("defaults", GameSettings), ("design", Design)):
-        if isinstance(data.get(name), dict):
-            data[name] = _build(cls, data[name], name)
-    return _build(Study, data, "")
+    """A ``Study`` from the parsed file (its tables resolved as every config is: ``configkit.resolve``)."""
+    try:
+        return configkit.resolve(Study, data)
+    except ConfigError as err:  # every mistake in the file is a StudyError
+        raise StudyError(str(err), err.field) from None
 
 
 def load_study(path: str | Path) -> Study:
     """Read and check a study file; ``StudyError`` (one line, naming the file) when it is wrong."""
-    path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise StudyError(f"{path}: no such study file") from None
-    except (OSError, UnicodeDecodeError) as err:
-        raise StudyError(f"{path}: cannot be read ({err})") from None
-    except tomllib.TOMLDecodeError as err:
-        raise StudyError(f"{path}: not valid TOML ({err})") from None
-    try:
-        return parse_study(data)
-    except StudyError as err:
+        return parse_study(configkit.read_toml(path, "study file"))
+    except ConfigError as err:
         raise StudyError(f"{path}: {err}") from None

@@ -3,8 +3,10 @@
 A sweep is a base training config (a preset and ``--set`` overrides, exactly as ``colorgrid
 train`` takes them), parameters that vary over training-config keys, and seeds. Every grid
 combination, times ``num_samples`` draws of the random parameters, times every seed is one
-trial. ``load_sweep`` raises ``SweepError`` with the place in the file and what is allowed
-(``params.aux.grid[1]: follower.aux_coef=-1 is invalid: a number >= 0``). See docs/SWEEPS.md.
+trial. The file's tables are declared in ``train.sweep.file`` and built by ``configkit.from_dict``; the
+base and each trial's training config are resolved as ``colorgrid train`` resolves its own
+(``train.config.resolve``). ``load_sweep`` raises ``SweepError`` with the place in the file and what is
+allowed (``params (aux=-1.0): follower.aux_coef=-1.0 is invalid: a number >= 0``). See docs/SWEEPS.md.
 """
 
 from __future__ import annotations
@@ -13,23 +15,16 @@ import dataclasses
 import itertools
 import math
 import re
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from colorgrid.configkit import ConfigError, merge
+from colorgrid.configkit import ConfigError, from_dict, read_toml, resolve_data
+from train.config import TrainConfig, eval_stream, load_preset, parse_override, resolve
 from train.sweep.checks import SUMMARY_SUFFIXES, SweepError, bad, same_value
 from train.sweep.claim_spec import parse_claims
-from train.config import TrainConfig, eval_stream, from_dict, load_preset, parse_override
+from train.sweep.file import KINDS, RANDOM_KINDS, PaperFigure, ParamTable, Resources, Scheduler, SweepFile, written
 
-GRID_KINDS = ("grid", "options")
-RANDOM_KINDS = ("choice", "uniform", "loguniform")
-KINDS = GRID_KINDS + RANDOM_KINDS
-MODES = ("max", "min")
-SCHEDULERS = ("none", "asha")
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
-TOP_LEVEL = ("description", "preset", "set", "seeds", "params", "num_samples", "metric", "mode", "final_window",
-             "out", "resources", "scheduler", "paper", "claim", "results")
 MAX_COMBINATIONS = 10_000
 RESERVED = ("seed", "sample", "trial", "configuration", "step", "steps", "total_steps", "finished", "node")
 """Names a parameter may not take: Tune's axes and the columns of the sweep's tables."""
@@ -67,36 +62,6 @@ class Param:
     def corners(self) -> tuple:
         """The values a check on load builds configs from: every listed value, or both ends of a range."""
         return self.values
-
-
-@dataclass(frozen=True)
-class Resources:
-    cpus_per_trial: float = 1
-    """CPU cores each trial gets; its torch and numba threads are limited to it (rounded up, at least 1)."""
-    gpus_per_trial: float = 0
-    """GPUs each trial gets (fractions share one); with any, the trials train on ``cuda``."""
-    max_concurrent: int = 0
-    """Trials at once (0: as many as the cluster's CPUs fit)."""
-
-
-@dataclass(frozen=True)
-class Scheduler:
-    kind: str = "none"
-    """``none`` (every trial runs to the end) or ``asha`` (stops trials whose metric trails, at rungs)."""
-    grace_period: int = 0
-    """``asha``: env steps before a trial may be stopped (0: a tenth of ``total_steps``)."""
-    reduction_factor: float = 3
-    """``asha``: at each rung, the best 1/reduction_factor of trials go on."""
-
-
-@dataclass(frozen=True)
-class PaperFigure:
-    """A number the paper reports for one configuration, shown beside the sweep's own in its report."""
-
-    where: dict
-    """The configuration: ``{parameter name: value or option label}``."""
-    value: float
-    note: str = ""
 
 
 @dataclass(frozen=True)
@@ -145,11 +110,8 @@ class SweepSpec:
 
     def config(self, values: dict, seed: int) -> TrainConfig:
         """The training config of the trial with parameter ``values`` (by name) and ``seed``."""
-        data = self.base
-        for param in self.params:
-            for line in param.overrides(values[param.name]):
-                data = merge(data, parse_override(line))
-        return from_dict({**data, "seed": seed})
+        lines = [line for param in self.params for line in param.overrides(values[param.name])]
+        return resolve(self.base, {"seed": seed}, overrides=lines)
 
     def missing_files(self) -> list[str]:
         """``SETTING=PATH`` for each checkpoint file a trial names (a learner's ``init``, a frozen partner's file) that
@@ -228,29 +190,20 @@ def load_sweep(path: str | Path, out: str | Path | None = None) -> SweepSpec:
     from colorgrid.resources import find_shipped
 
     path = find_shipped(path, "sweeps", ".toml")
-    if not path.is_file():
-        raise SweepError(f"{path}: no such sweep file")
-    text = path.read_text()
     try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise SweepError(f"{path}: not valid TOML: {err}") from None
-    try:
-        return parse_sweep(data, path, text, out)
-    except SweepError as err:
+        if not path.is_file():
+            raise SweepError("no such sweep file")
+        text = path.read_text()
+        return parse_sweep(read_toml(path, "sweep file"), path, text, out)
+    except ConfigError as err:
         raise SweepError(f"{path}: {err}") from None
 
 
 def parse_sweep(data: dict, path: Path, text: str = "", out: str | Path | None = None) -> SweepSpec:
-    unknown = sorted(set(data) - set(TOP_LEVEL))
-    if unknown:
-        raise SweepError(f"unknown field {unknown[0]!r}; allowed: {list(TOP_LEVEL)}")
-    base = base_config(data)
-    seeds = data.get("seeds", [0])
-    if (not isinstance(seeds, list) or not seeds or not all(_is_int(s) and s >= 0 for s in seeds)
-            or len(set(seeds)) != len(seeds)):
-        raise bad("seeds", seeds, "a list of distinct whole numbers >= 0, e.g. [0, 1, 2]")
-    params = tuple(parse_param(name, value) for name, value in _table(data, "params").items())
+    """The checked ``SweepSpec`` of a sweep file's plain data: its tables built (``SweepFile``), then what takes
+    several of them at once checked: parameters, the trials' training configs, the metric, figures and claims."""
+    file = from_dict(SweepFile, data)
+    params = tuple(parse_param(name, value) for name, value in file.params.items())
     owners: dict[str, str] = {}
     for param in params:
         for key in {*param.keys, *(k for o in param.options.values() for k in o)}:
@@ -258,59 +211,42 @@ def parse_sweep(data: dict, path: Path, text: str = "", out: str | Path | None =
                 raise bad(f"params.{param.name}", key, f"a key no other parameter sets (params.{owners[key]} "
                                                        f"sets it too)")
             owners[key] = param.name
-    num_samples = data.get("num_samples", 1)
-    if not _is_int(num_samples) or num_samples < 1:
-        raise bad("num_samples", num_samples, "a whole number >= 1 (draws of the random parameters per grid point)")
-    if num_samples > 1 and not any(p.random for p in params):
-        raise bad("num_samples", num_samples, "1 unless a parameter is random (choice, uniform, loguniform)")
-    mode = data.get("mode", "max")
-    if mode not in MODES:
-        raise bad("mode", mode, "'max' or 'min'")
-    final_window = data.get("final_window", 10)
-    if not _is_int(final_window) or final_window < 1:
-        raise bad("final_window", final_window, "a whole number >= 1 (reports averaged for a final value)")
+    if file.num_samples > 1 and not any(p.random for p in params):
+        raise bad("num_samples", file.num_samples, "1 unless a parameter is random (choice, uniform, loguniform)")
     spec = SweepSpec(
-        name=path.stem, path=path, base=base, seeds=tuple(seeds), params=params,
-        metric=data.get("metric", "team_reward"), mode=mode, final_window=final_window, num_samples=num_samples,
-        out=Path(out) if out is not None else Path(_string(data, "out", f"runs/sweeps/{path.stem}")),
-        resources=parse_resources(_table(data, "resources")), scheduler=parse_scheduler(_table(data, "scheduler")),
-        paper=(), description=_string(data, "description", ""), text=text)
-    results = data.get("results")
-    if results is not None and (not isinstance(results, str) or not results.strip()):
-        raise bad("results", results, "a folder for the finished trials' results, e.g. 'docs/reproduction/x'")
+        name=path.stem, path=path, base=base_config(file), seeds=file.seeds, params=params, metric=file.metric,
+        mode=file.mode, final_window=file.final_window, num_samples=file.num_samples,
+        out=Path(out if out is not None else file.out or f"runs/sweeps/{path.stem}"), resources=file.resources,
+        scheduler=file.scheduler, description=file.description, text=text,
+        results=Path(file.results) if file.results else None)
     check_configs(spec)
     check_metric(spec)
-    spec = _with_paper(spec, data.get("paper", []))
+    spec = dataclasses.replace(spec, paper=tuple(paper_figure(spec, i, row) for i, row in enumerate(file.paper)))
     return dataclasses.replace(spec, claims=parse_claims(spec.params, spec.metric, summarised_columns(spec),
-                                                         data.get("claim", [])),
-                               results=Path(results) if results else None)
+                                                         list(written(file.claim)) if isinstance(file.claim, tuple)
+                                                         else file.claim))
 
 
-def base_config(data: dict) -> dict:
-    preset = _string(data, "preset", "default")
+def base_config(file: SweepFile) -> dict:
+    """The sweep's base training config as plain data: its preset, then its ``set`` lines (any key but ``seed``)."""
+    for i, line in enumerate(file.set):
+        if "=" in line and line.split("=", 1)[0].strip() == "seed":
+            raise bad(f"set[{i}]", line, "any training key but seed (the sweep's seeds set it)")
     try:
-        base = load_preset(preset)
+        preset = load_preset(file.preset)
     except ConfigError as err:
         raise SweepError(f"preset: {err}") from None
-    lines = data.get("set", [])
-    if not isinstance(lines, list) or not all(isinstance(s, str) for s in lines):
-        raise bad("set", lines, "a list of KEY=VALUE strings, as colorgrid train --set takes them")
-    for i, line in enumerate(lines):
-        try:
-            override = parse_override(line)
-        except ConfigError as err:
-            raise SweepError(f"set[{i}]: {err}") from None
-        if "seed" in override:
-            raise bad(f"set[{i}]", line, "any training key but seed (the sweep's seeds set it)")
-        base = merge(base, override)
+    base = resolve_data(preset, overrides=file.set, cls=TrainConfig, where="set",
+                        example="ppo.lr=3e-4 or follower.net.lstm=true")
     try:
-        from_dict(base)
+        resolve(base)
     except ConfigError as err:
-        raise SweepError(f"preset {preset!r} with set: {err}") from None
+        raise SweepError(f"preset {file.preset!r} with set: {err}") from None
     return {k: v for k, v in base.items() if k != "description"}
 
 
 def parse_param(name: str, value) -> Param:
+    """One ``[params.NAME]`` table (or the short form ``NAME = [values]``: a grid over the training key NAME)."""
     where = f"params.{name}"
     if not NAME_PATTERN.match(name) or name in RESERVED:
         raise bad("params", name, f"names of 1 to 64 letters, digits, '_', '.' or '-', other than {list(RESERVED)}")
@@ -318,41 +254,22 @@ def parse_param(name: str, value) -> Param:
         value = {"grid": value}
     if not isinstance(value, dict):
         raise bad(where, value, f"a list of values, or a table with one of {list(KINDS)}")
-    kinds = [k for k in KINDS if k in value]
-    unknown = sorted(set(value) - set(KINDS) - {"keys"})
-    if unknown:
-        raise SweepError(f"{where}: unknown field {unknown[0]!r}; allowed: 'keys' and one of {list(KINDS)}")
-    if len(kinds) != 1:
-        raise SweepError(f"{where}: needs exactly one of {list(KINDS)}, found {kinds or 'none'}")
-    kind = kinds[0]
-    raw = value[kind]
+    try:
+        table = from_dict(ParamTable, value, where)
+    except ConfigError as err:
+        raise SweepError(str(err) if str(err).startswith(where) else f"{where}: {err}") from None
+    kind = table.kinds[0]
     if kind == "options":
-        if "keys" in value:
-            raise SweepError(f"{where}: 'keys' is for listed or random values; each option names its own keys")
-        if not isinstance(raw, dict) or not raw:
-            raise bad(f"{where}.options", raw, "a table of labels, each a table of {training key = value}")
-        for label, settings in raw.items():
-            if not isinstance(settings, dict):
-                raise bad(f"{where}.options.{label}", settings, "a table of {training key = value} ({} for none)")
+        for label, settings in table.options.items():
             for key in settings:
                 _check_key(f"{where}.options.{label}", key)
-        return Param(name, kind, tuple(raw), (), {label: dict(s) for label, s in raw.items()})
-    keys = value.get("keys", [name])
-    if not isinstance(keys, list) or not keys or not all(isinstance(k, str) for k in keys):
-        raise bad(f"{where}.keys", keys, "a list of training keys, e.g. ['leader.aux_coef', 'follower.aux_coef']")
-    for key in keys:
-        _check_key(f"{where}.keys" if "keys" in value else where, key)
-    if kind in ("grid", "choice"):
-        if not isinstance(raw, list) or not raw:
-            raise bad(f"{where}.{kind}", raw, "a non-empty list of values")
-        if len({to_json(v) for v in raw}) != len(raw):
-            raise bad(f"{where}.{kind}", raw, "distinct values")
-        return Param(name, kind, tuple(raw), tuple(keys))
-    if (not isinstance(raw, list) or len(raw) != 2 or not all(_is_number(v) for v in raw) or not raw[0] < raw[1]
-            or (kind == "loguniform" and raw[0] <= 0)):
-        low = "0 < low < high" if kind == "loguniform" else "low < high"
-        raise bad(f"{where}.{kind}", raw, f"[low, high] with {low}")
-    return Param(name, kind, (float(raw[0]), float(raw[1])), tuple(keys))
+        return Param(name, kind, tuple(table.options), (), {label: dict(s) for label, s in table.options.items()})
+    for key in table.keys or (name,):
+        _check_key(f"{where}.keys" if table.keys is not None else where, key)
+    values = getattr(table, kind)
+    if kind in RANDOM_KINDS[1:]:
+        values = (float(values[0]), float(values[1]))
+    return Param(name, kind, values, table.keys or (name,))
 
 
 def _check_key(where: str, key: str) -> None:
@@ -363,34 +280,6 @@ def _check_key(where: str, key: str) -> None:
         parse_override(probe)
     except ConfigError as err:
         raise SweepError(f"{where}: {str(err).replace(f' in {probe!r}', '')}") from None
-
-
-def parse_resources(data: dict) -> Resources:
-    _no_unknown("resources", data, ("cpus_per_trial", "gpus_per_trial", "max_concurrent"))
-    cpus, gpus, concurrent = (data.get("cpus_per_trial", 1), data.get("gpus_per_trial", 0),
-                              data.get("max_concurrent", 0))
-    if not _is_number(cpus) or cpus <= 0:
-        raise bad("resources.cpus_per_trial", cpus, "a number > 0")
-    if not _is_number(gpus) or gpus < 0:
-        raise bad("resources.gpus_per_trial", gpus, "a number >= 0")
-    if not _is_int(concurrent) or concurrent < 0:
-        raise bad("resources.max_concurrent", concurrent, "a whole number >= 0 (0: as many as fit)")
-    return Resources(cpus, gpus, concurrent)
-
-
-def parse_scheduler(data: dict) -> Scheduler:
-    _no_unknown("scheduler", data, ("kind", "grace_period", "reduction_factor"))
-    kind = data.get("kind", "none")
-    if kind not in SCHEDULERS:
-        raise bad("scheduler.kind", kind, f"one of {list(SCHEDULERS)}")
-    grace, factor = data.get("grace_period", 0), data.get("reduction_factor", 3)
-    if not _is_int(grace) or grace < 0:
-        raise bad("scheduler.grace_period", grace, "a whole number of env steps >= 0 (0: a tenth of total_steps)")
-    if not _is_number(factor) or factor <= 1:
-        raise bad("scheduler.reduction_factor", factor, "a number > 1")
-    if kind == "none" and len(data) > 1:
-        raise SweepError("scheduler: grace_period and reduction_factor need kind = 'asha'")
-    return Scheduler(kind, grace, factor)
 
 
 def check_configs(spec: SweepSpec) -> None:
@@ -461,58 +350,17 @@ def check_metric(spec: SweepSpec) -> None:
         raise bad("metric", spec.metric, "a training column, or set eval_every > 0 for an evaluation column")
 
 
-def _with_paper(spec: SweepSpec, rows) -> SweepSpec:
-    import dataclasses
-
-    if not isinstance(rows, list):
-        raise bad("paper", rows, "a list of tables: [[paper]] where = {...}, value = ...")
-    figures = []
-    for i, row in enumerate(rows):
-        where = f"paper[{i}]"
-        if not isinstance(row, dict):
-            raise bad(where, row, "a table with 'where' and 'value'")
-        _no_unknown(where, row, ("where", "value", "note"))
-        match, value = row.get("where", {}), row.get("value")
-        if not isinstance(match, dict) or not match:
-            raise bad(f"{where}.where", match, "a non-empty table of {parameter name = value}")
-        for name, v in match.items():
-            param = next((p for p in spec.params if p.name == name), None)
-            if param is None or param.random:
-                listed = [p.name for p in spec.params if not p.random]
-                raise bad(f"{where}.where", name, f"one of the listed parameters {listed}")
-            listed = [p for p in param.values if same_value(p, v)]
-            if not listed:
-                raise bad(f"{where}.where.{name}", v, f"one of {list(param.values)}")
-            match[name] = listed[0]
-        if not _is_number(value):
-            raise bad(f"{where}.value", value, "a number")
-        figures.append(PaperFigure(dict(match), float(value), _string(row, "note", "")))
-    return dataclasses.replace(spec, paper=tuple(figures))
-
-
-def _table(data: dict, name: str) -> dict:
-    value = data.get(name, {})
-    if not isinstance(value, dict):
-        raise bad(name, value, f"a table ([{name}])")
-    return value
-
-
-def _string(data: dict, name: str, default: str) -> str:
-    value = data.get(name, default)
-    if not isinstance(value, str):
-        raise bad(name, value, "a string")
-    return value
-
-
-def _no_unknown(where: str, data: dict, allowed: tuple[str, ...]) -> None:
-    unknown = sorted(set(data) - set(allowed))
-    if unknown:
-        raise SweepError(f"{where}: unknown field {unknown[0]!r}; allowed: {list(allowed)}")
-
-
-def _is_int(v) -> bool:
-    return isinstance(v, int) and not isinstance(v, bool)
-
-
-def _is_number(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+def paper_figure(spec: SweepSpec, i: int, figure: PaperFigure) -> PaperFigure:
+    """``[[paper]]`` row ``i`` with its configuration checked against the sweep's listed parameters (each value as
+    the parameter lists it)."""
+    where, match = f"paper[{i}]", {}
+    for name, v in figure.where.items():
+        param = next((p for p in spec.params if p.name == name), None)
+        if param is None or param.random:
+            listed = [p.name for p in spec.params if not p.random]
+            raise bad(f"{where}.where", name, f"one of the listed parameters {listed}")
+        listed = [p for p in param.values if same_value(p, v)]
+        if not listed:
+            raise bad(f"{where}.where.{name}", v, f"one of {list(param.values)}")
+        match[name] = listed[0]
+    return dataclasses.replace(figure, where=match, value=float(figure.value))
