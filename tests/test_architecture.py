@@ -75,3 +75,27 @@ def test_there_are_no_import_circles():
         if v not in index:
             visit(v)
     assert not circles, circles
+
+
+def test_the_trainer_and_the_server_import_no_command_line():
+    """Library code (evaluation, export, branching, the human-follower measures) lives in the core; only the
+    command line and the viewer live in ``colorgrid_apps``."""
+    bad = [(m, i) for m, deps in graph().items() if m.split(".")[0] in ("train", "server")
+           for i in deps if i.split(".")[0] == "colorgrid_apps"]
+    assert not bad, bad
+
+
+def test_only_the_study_imports_the_study():
+    """The study plugs into the play engine through its hooks (``server.backend.Plugin``, the hub's game source
+    and listeners): nothing else under ``server`` imports ``server.study``, not even lazily."""
+    bad = [(m, i) for m, deps in graph().items() if not m.startswith("server.study")
+           for i in deps if i.startswith("server.study")]
+    assert not bad, bad
+
+
+def test_each_job_of_the_server_and_the_trainer_fits_a_file_a_reader_can_hold():
+    """No module of the server over about 400 lines, the trainer about 350 (split one concern out instead)."""
+    limits = {path: 360 if path.name == "trainer.py" else 420
+              for path in [*(ROOT / "server").rglob("*.py"), ROOT / "train" / "trainer.py"]}
+    long = {str(p.relative_to(ROOT)): n for p, limit in limits.items() if (n := len(p.read_text().splitlines())) > limit}
+    assert not long, long
