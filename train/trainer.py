@@ -11,7 +11,6 @@ continues exactly as if never stopped.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import time
 import warnings
@@ -22,22 +21,21 @@ from typing import Callable
 import numpy as np
 import torch
 
-from colorgrid.config import EnvConfig
 from colorgrid.env import BatchEnv
 from colorgrid.policies import make_policy
 from colorgrid.rollout import run_team
 from colorgrid.step_inputs import StepInputs
 from colorgrid.evaluate import record_team, summarize
-from train.checkpoint import (build_model, find_network, load_checkpoint, restore_trainer, save_checkpoint,
-                              trainer_payload)
+from train.checkpoint import restore_trainer, save_checkpoint, trainer_payload
 from train.config import TrainConfig, eval_stream
 from train.inputs import rows_of_agents, step_tensors
 from train.learner import Learner
 from train.memory import keep_freed_memory
 from train.metrics import MetricsLog, episode_columns, evaluation_row
-from train.nets import ActorCritic, with_leader_progress
+from train.nets import ActorCritic
 from train.placement import Placement
-from train.policy import NetPolicy, check_compatible
+from train.policy import NetPolicy
+from train.warm_start import warm_start
 
 
 def pick_device(name: str) -> torch.device:
@@ -58,6 +56,9 @@ def device_name(device: torch.device) -> str:
 
 
 class Trainer:
+    """One ``TrainConfig``'s run in ``run_dir``: ``train()`` loops rollout -> update -> log -> evaluate -> save;
+    where the learners run is its ``placement``'s business (``train.placement``)."""
+
     def __init__(self, config: TrainConfig, run_dir: str | Path, progress: bool = True, tensorboard: bool = True,
                  keep_steps: bool = True):
         """``keep_steps``: keep every saved checkpoint (``step_*.pt``) beside ``latest.pt``; false keeps only the
@@ -97,20 +98,7 @@ class Trainer:
         if agent.init is None:
             model = ActorCritic(agent.net, cfg.env, agents if len(agents) > 1 else agents[0])
         else:
-            ckpt = load_checkpoint(agent.init)
-            trained_env = EnvConfig.from_dict(ckpt["env_config"])
-            check_compatible(trained_env, cfg.env, agent.init)
-            _, entry = find_network(ckpt, trained_env, name, f"{role}.init={agent.init!r}")
-            trained = build_model(entry, trained_env, agent.init)
-            if agent.net.leader_progress and trained.net == dataclasses.replace(agent.net, leader_progress=False):
-                trained = with_leader_progress(trained)  # the new input starts with zero weight
-            if trained.net != agent.net:
-                raise ValueError(f"{role}.init={agent.init!r} was trained with {trained.net}, but this run "
-                                 f"asks for {agent.net}; set {role}.net to match the checkpoint")
-            if trained.agents != agents:
-                raise ValueError(f"{role}.init={agent.init!r} was trained to play agents {list(trained.agents)}, "
-                                 f"but this run's {name} plays {list(agents)}")
-            model = trained
+            model = warm_start(agent.init, f"{role}.init", name, agents, agent.net, cfg.env)
         return Learner(model, cfg.ppo, cfg.ppo.loss_weights(agent.aux_coef), agent.lr or cfg.ppo.lr,
                        cfg.seed * 2 + agents[0] + 1, self.device, name)
 
