@@ -8,6 +8,7 @@ import time
 
 import numpy as np
 
+from colorgrid.commandline import OneLineParser
 from colorgrid.extras import MissingExtra, require
 from colorgrid_apps.cli_env import add_config_arguments, config_from_args
 
@@ -140,44 +141,6 @@ def cmd_view(args: argparse.Namespace) -> int:
     return 0
 
 
-class OneLineParser(argparse.ArgumentParser):
-    """A parser whose usage errors are one line (``colorgrid play: error: ...``, exit code 2); ``-h`` has the rest.
-
-    ``needs``: the extra this command needs and that is not installed; whatever follows the command
-    (``--help`` too) then ends in one line saying how to install it, exit code 2.
-
-    The parsed arguments' ``command_words`` are the command as typed (``["checkpoint", "export"]``), for error
-    lines: the words of the innermost sub-parser that ran (its ``prog`` after ``colorgrid``), then the value of each
-    of its positional arguments with fixed choices (a sub-command written as a choice: ``checkpoint export``).
-    """
-
-    def __init__(self, *args, needs: str | None = None, **kwargs):
-        super().__init__(*args, **kwargs)
-        self.needs = needs
-        self.word_dests: list[str] = []
-
-    def add_argument(self, *args, **kwargs):
-        action = super().add_argument(*args, **kwargs)
-        if not action.option_strings and action.choices is not None:
-            self.word_dests.append(action.dest)
-        return action
-
-    def parse_known_args(self, args=None, namespace=None):
-        if self.needs is not None:
-            from colorgrid.extras import missing
-
-            self.exit(2, f"{self.prog}: error: this command needs the {self.needs!r} extra "
-                         f"({', '.join(missing(self.needs))} not installed): pip install 'colorgrid[{self.needs}]'\n")
-        namespace, rest = super().parse_known_args(args, namespace)
-        if not hasattr(namespace, "command_words"):  # a sub-parser, which finishes first, has set them
-            chosen = [getattr(namespace, dest, None) for dest in self.word_dests]
-            namespace.command_words = self.prog.split()[1:] + [word for word in chosen if isinstance(word, str)]
-        return namespace, rest
-
-    def error(self, message: str):
-        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} -h)\n")
-
-
 def build_parser() -> argparse.ArgumentParser:
     from colorgrid import __version__
 
@@ -248,17 +211,24 @@ def plugin_commands() -> list:
     ``missing_extra_commands``; those of a package that cannot be imported are left out."""
     from importlib.metadata import entry_points
 
-    from colorgrid.extras import missing
+    from colorgrid.extras import Commands, missing
 
     found = []
     for point in sorted(entry_points(group="colorgrid.commands"), key=lambda p: p.name):
         try:
             commands = point.load()
-            if missing(commands.extra):
-                found.append(missing_extra_commands(commands.extra, commands.names))
-            else:
-                found.append(commands.load())
         except ImportError:  # that application is not installed here
+            continue
+        except AttributeError:  # the installed metadata names what this code no longer has
+            commands = None
+        if not isinstance(commands, Commands):
+            print(f"colorgrid: error: the installed entry point colorgrid.commands {point.name} = {point.value} does "
+                  "not match this code; install colorgrid again (in a checkout: pip install -e .)", file=sys.stderr)
+            sys.exit(2)
+        try:
+            found.append(missing_extra_commands(commands.extra, commands.names) if missing(commands.extra)
+                         else commands.load())
+        except ImportError:
             continue
     return found
 

@@ -266,3 +266,20 @@ def test_training_settings_of_the_wrong_type_name_field_value_and_type(data, mes
     with pytest.raises(TrainConfigError) as err:
         from_dict(data)
     assert str(err.value) == message or str(err.value).startswith(message), str(err.value)
+
+
+def test_an_install_whose_command_list_names_what_the_code_no_longer_has_says_so_in_one_line(tmp_path):
+    # As after pulling new code into a checkout installed before: the installed metadata's entry points name a
+    # function where this code declares a record (colorgrid.extras.Commands), or a name the code no longer has.
+    root = Path(__file__).resolve().parents[1]
+    for value in ("server.cli:add_play_command", "server.plugin:NO_SUCH_RECORD"):
+        info = tmp_path / value.replace(":", "_") / "colorgrid-0.1.0.dist-info"
+        info.mkdir(parents=True)
+        (info / "METADATA").write_text("Metadata-Version: 2.1\nName: colorgrid\nVersion: 0.1.0\n")
+        (info / "entry_points.txt").write_text(f"[colorgrid.commands]\nplay = {value}\n")
+        env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(info.parent), str(root)])}
+        run = subprocess.run([sys.executable, "-m", "colorgrid_apps", "eval", "--help"], capture_output=True,
+                             text=True, env=env, cwd=tmp_path)
+        assert run.returncode == 2, run.stderr
+        lines = run.stderr.strip().splitlines()
+        assert len(lines) == 1 and f"play = {value} does not match this code" in lines[0], run.stderr

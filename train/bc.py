@@ -87,9 +87,8 @@ def bc_config(changes: dict, overrides: list[str]) -> BCConfig:
     """A ``BCConfig`` from plain ``changes`` (``{"epochs": 5, "net": {"hidden": 64}}``), then ``KEY=VALUE``
     overrides."""
     # on top of the defaults, so that changing one network field keeps the others (goal_fusion="planes")
-    data = configkit.merge(BCConfig().to_dict(), changes)
-    data = configkit.apply_overrides(data, overrides, BCConfig, example="net.lstm=true or lr=3e-4")
-    return configkit.from_dict(BCConfig, data)
+    return configkit.resolve(BCConfig, BCConfig().to_dict(), changes, overrides=overrides,
+                             example="net.lstm=true or lr=3e-4")
 
 
 # ------------------------------------------------------------------ finding and reading recordings

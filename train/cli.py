@@ -10,6 +10,7 @@ import threading
 import time
 from pathlib import Path
 
+from colorgrid.commandline import OneLineParser
 from colorgrid.config import ROLES
 from colorgrid.extras import MissingExtra
 from colorgrid.files import JSONFileError, read_json_object
@@ -202,8 +203,8 @@ def cmd_train_bc(args: argparse.Namespace) -> int:
 def main(argv: list[str] | None = None) -> int:
     """``python -m train ARGS`` is ``colorgrid train ARGS``, on this package's own parser; a bad input ends it with
     one line, ``colorgrid train: error: ...``, and exit code 2, as the ``colorgrid`` command ends it."""
-    parser = argparse.ArgumentParser(prog="python -m")  # (its sub-command "train" completes the name)
-    add_train_commands(parser.add_subparsers(dest="command", required=True))
+    parser = OneLineParser(prog="colorgrid")  # its sub-command "train" completes the name in error lines
+    add_train_commands(parser.add_subparsers(dest="command", required=True, parser_class=OneLineParser))
     args = parser.parse_args(["train", *(sys.argv[1:] if argv is None else argv)])
     try:
         return int(args.func(args) or 0)

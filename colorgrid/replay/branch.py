@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from colorgrid.config import FOLLOWER, LEADER
+from colorgrid.enums import Ending
 from colorgrid.env import BatchEnv
 from colorgrid.policies import make_policy
 from colorgrid.replay import Replay, ReplayError, describe_agent, load
@@ -87,7 +88,7 @@ def branch(parent: Replay, step: int, follower: str, leader: str = "recorded", s
     return Replay(
         config=cfg, seed=parent.seed, source=parent.source, agents=agents,
         goal_probs={"follower": beliefs} if len(beliefs) == steps else {}, state_hashes=hashes,
-        penalty_coef=parent.penalty_coef, ended="complete" if steps == cfg.horizon else parent.ended,
+        penalty_coef=parent.penalty_coef, ended=Ending.COMPLETE if steps == cfg.horizon else parent.ended,
         key_events=keys,
         meta={**{k: v for k, v in parent.meta.items() if k not in ("state_sent_ms", "deadline_misses")},
               "branch_of": {"file": parent_name, "created": parent.created, "step": step,
