@@ -62,9 +62,11 @@ def add_cluster_arguments(parser: argparse.ArgumentParser) -> None:
                              "script (not for a shell's `nohup ... &`, whose shell ends)")
 
 
-def serve_or_launch(args: argparse.Namespace, settings: ServerSettings, folder: Path, announce, study=None) -> int:
+def serve_or_launch(args: argparse.Namespace, settings: ServerSettings, folder: Path, announce,
+                    plugin=None) -> int:
     """One play server (``--cluster``: one backend of several), or the launcher of several behind HAProxy
-    (``--processes N``), or HAProxy alone (``--backends``); ``announce(url)`` prints where people connect."""
+    (``--processes N``), or HAProxy alone (``--backends``); ``announce(url)`` prints where people connect;
+    ``plugin``: the application served (a study), or None for free play."""
     from server.cluster.plan import check_processes
     from server.run import serve
 
@@ -79,9 +81,9 @@ def serve_or_launch(args: argparse.Namespace, settings: ServerSettings, folder: 
     if args.processes > 1 or args.backends:
         from server.cluster.launcher import Cluster
 
-        cluster = (Cluster.local(settings, args.processes, folder, study, args.log_level) if args.processes > 1
-                   else Cluster.proxy_only(settings, args.backends, folder, study))
-        if args.backends and study is not None and not str(study.database).startswith("postgresql"):
+        cluster = (Cluster.local(settings, args.processes, folder, plugin, args.log_level) if args.processes > 1
+                   else Cluster.proxy_only(settings, args.backends, folder, plugin))
+        if args.backends and plugin is not None and not str(plugin.database).startswith("postgresql"):
             print("warning: backends on other machines need one PostgreSQL database (--database "
                   "postgresql+psycopg://...): SQLite's locking is not safe over a network folder", flush=True)
         announce(cluster.url)
@@ -95,7 +97,7 @@ def serve_or_launch(args: argparse.Namespace, settings: ServerSettings, folder: 
 
         member = Membership.of(args.cluster, settings.port)
     announce(f"http://{settings.host}:{settings.port}")
-    serve(settings, log_level=args.log_level, study=study, member=member)
+    serve(settings, log_level=args.log_level, plugin=plugin, member=member)
     return 0
 
 

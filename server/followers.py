@@ -33,10 +33,6 @@ def plays(name: str, team) -> bool:
     return teams is None or team.value in teams
 
 
-PAIR_VIEW = SeatFit.PAIR_VIEW
-"""``SeatFit.PAIR_VIEW``, by the name callers compare ``leads`` with."""
-
-
 def leads(name: str, team) -> SeatFit | None:
     """How the AI leader ``name`` plays a leader seat of ``team`` (a ``Team``): ``SeatFit.DIRECT`` (a scripted
     policy, or a network trained in that team), ``SeatFit.PAIR_VIEW`` (a network trained in the 1:1 team, in a team
@@ -118,7 +114,7 @@ def follower_info(name: str) -> dict:
 
 def leader_info(name: str, pair_view: bool = False) -> dict:
     """``{value, label, description, has_belief}`` for an AI leader's name (``policy_info``); ``pair_view``: it
-    leads through ``PAIR_VIEW``, which its description says."""
+    leads through ``SeatFit.PAIR_VIEW``, which its description says."""
     info = policy_info(name, LEADER_INFO, "leader")
     if pair_view:
         info["description"] += ("; trained beside one follower (1:1), it sees the game as 1:1: itself and the "

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from colorgrid.config import EnvConfig
-from colorgrid.enums import KeyStatus, SeatFit
+from colorgrid.enums import Ending, KeyStatus, SeatFit
 from colorgrid.env import ACTION_DELTAS, BatchEnv
 from colorgrid.policies.base import AgentInput
 from colorgrid.render import look
@@ -113,7 +113,7 @@ class Game:
         """Every agent has a player (false while a stand-in leader is being loaded)."""
         return len(self.people) + len(self.ai) == self.config.num_agents
 
-    def leave(self, seat: Seat, reason: str) -> None:
+    def leave(self, seat: Seat, reason: Ending) -> None:
         """The person in ``seat`` left; a stand-in must be attached (``attach``) before the next step."""
         seat.left, seat.left_at_step = reason, int(self.env.state.t[0])
         seat.client, seat.pending = None, None
@@ -122,6 +122,11 @@ class Game:
         """``agent`` is played from now on by ``pool``'s ``slot`` (seeing the game through ``pair_view`` of
         ``view`` when given)."""
         self.ai[agent] = AIPlayer(agent, pool, slot, view=view)
+
+    def release_slots(self) -> None:
+        """Give back the pool slots of this game's AI players."""
+        for player in self.ai.values():
+            player.pool.release(player.slot)
 
     # ------------------------------------------------------------ keys
     def press(self, key: str, seq: int, t_client: float, seat: Seat | None = None) -> str | None:
@@ -323,7 +328,7 @@ class Game:
             seat.name: seat.last_applied_seq for seat in self.seats}
         return message
 
-    def to_replay(self, ended: str, descriptions: dict[int, dict]) -> Replay:
+    def to_replay(self, ended: Ending, descriptions: dict[int, dict]) -> Replay:
         """The game as a replay; ``descriptions``: agent index -> its policy's ``agents`` entry (each AI follower
         and AI leader; one that saw the game through ``pair_view`` says so under ``view``)."""
         self.keys.close()

@@ -9,7 +9,8 @@ from colorgrid.enums import KeyStatus
 
 PENDING = "pending"
 """A key's status while it waits for the next step: it becomes ``applied`` or ``superseded``, or ``unapplied`` when
-the game ends first (``KeyLog.close``), so no record holds it."""
+the game ends first (``KeyLog.close``), so no record holds it. Not a ``KeyStatus`` member for that reason: a key has it
+only until the next step takes it, and ``KeyStatus`` lists what a saved record may say."""
 
 
 class BadSeq(ValueError):

@@ -33,7 +33,6 @@ ENDING_WORDS: dict[Ending, str] = {
     Ending.SERVER_LOST: "The game was cut short when its server stopped; you will play it again.",
 }
 """Each ending as a page says it (``/api/options``' ``endings``)."""
-assert set(ENDING_WORDS) == set(Ending), "every ending needs its words"
 
 AGENT_NAME = re.compile(r"(leader|follower)(_\d+)?")
 """An agent's name (``colorgrid.config.EnvConfig.agent_names``): ``leader``, ``follower_1``, ..."""

@@ -72,10 +72,10 @@ class PlayServer(uvicorn.Server):
         await super().shutdown(sockets)
 
 
-def serve(settings: ServerSettings, log_level: str = "info", study=None, member=None) -> None:
-    """Run the play server until interrupted (serving ``study``, a ``StudySetup``, when given; as one backend of
-    a cluster behind HAProxy with ``member``, a ``server.cluster.plan.Membership``)."""
-    app = create_app(settings, study)
+def serve(settings: ServerSettings, log_level: str = "info", plugin=None, member=None) -> None:
+    """Run the play server until interrupted (serving ``plugin``, the application served (a study), when given; as
+    one backend of a cluster behind HAProxy with ``member``, a ``server.cluster.plan.Membership``)."""
+    app = create_app(settings, plugin)
     log_config = uvicorn.config.LOGGING_CONFIG
     if member is not None:
         from server.cluster.siblings import join_cluster

@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass, field
 
 from colorgrid.config import EnvConfig
-from colorgrid.enums import SeatFit
+from colorgrid.enums import Ending, SeatFit
 from colorgrid.env import ACTION_NAMES
 from colorgrid.policies.base import AgentInput
 from server.followers import leads
@@ -41,7 +41,7 @@ class Seat:
     pending: dict | None = None  # the latest key not yet applied (its key-log entry)
     disconnected_at: float | None = None  # monotonic time the connection closed; None while connected
     last_key_at: float = field(default_factory=time.monotonic)
-    left: str | None = None  # why the person left (an ``Ending``: quit, disconnected, idle); None while they play
+    left: Ending | None = None  # why the person left (an ``Ending``: quit, disconnected, idle); None while they play
     left_at_step: int | None = None
     last_applied_seq: int | None = None  # the highest ``seq`` of this person's keys applied so far
     last_seq: int | None = None  # the highest ``seq`` of this person's keys received (each is logged, or counted)

@@ -123,12 +123,13 @@ def test_an_exported_checkpoint_carries_how_it_acts_and_a_name_can_override_it(t
 def test_a_checkpoint_with_acting_settings_plays_the_teams_its_file_plays():
     """``x.pt:temperature=0`` is ``x.pt`` acting greedily: offered in the team it was trained in, not in every team
     (as follower), and as leader where the plain file leads."""
+    from colorgrid.enums import SeatFit
     from server.followers import leads, plays
-    from server.followers import PAIR_VIEW
     from server.protocol import Team
 
     team_file = str(Path(CHECKPOINT).with_name("follower_1L2F.pt"))
     leader_file = str(Path(CHECKPOINT).with_name("leader.pt"))
+    PAIR_VIEW = SeatFit.PAIR_VIEW
     assert policy_teams(f"{team_file}:temperature=0") == policy_teams(team_file) == ("1:2",)
     assert policy_teams(f"{CHECKPOINT}:temperature=0,min_belief=0.5") == ("1:1",)
     assert [t for t in Team if plays(f"{team_file}:temperature=0", t)] == [Team.TWO_FOLLOWERS]

@@ -11,8 +11,8 @@ import pytest
 from pydantic import ValidationError
 
 from colorgrid.enums import Ending
-from server.hub import GameHub
 from server.messages import ENDING_WORDS, SERVER_TYPES, messages_table, server_message
+from server.play.hub import GameHub
 from server.settings import ServerSettings
 from tests.conftest import ROOT, start_server, stop_server
 from tests.helpers import Inbox

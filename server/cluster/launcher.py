@@ -159,9 +159,9 @@ class Child:
 class Cluster:
     """Backends on this machine (or elsewhere) and HAProxy in front of them, as one thing to start and stop."""
 
-    def __init__(self, plan: ClusterPlan, settings: ServerSettings, folder: Path, study=None, log_level: str = "info",
+    def __init__(self, plan: ClusterPlan, settings: ServerSettings, folder: Path, plugin=None, log_level: str = "info",
                  local: bool = True):
-        self.plan, self.settings, self.folder, self.study, self.log_level = plan, settings, folder, study, log_level
+        self.plan, self.settings, self.folder, self.plugin, self.log_level = plan, settings, folder, plugin, log_level
         self.binary = haproxy_binary()
         self.plan_file, self.proxy_file = folder / CLUSTER_FILE, folder / PROXY_FILE
         self.backends = [self.backend(m) for m in plan.members] if local else []
@@ -170,20 +170,20 @@ class Cluster:
         self._stop = threading.Event()
 
     @classmethod
-    def local(cls, settings: ServerSettings, processes: int, folder: Path, study=None,
+    def local(cls, settings: ServerSettings, processes: int, folder: Path, plugin=None,
               log_level: str = "info") -> Cluster:
         """``processes`` backends on loopback ports of this machine, HAProxy on ``settings``' host and port (a
         free port for 0)."""
         check_processes(processes)
         port = settings.port or free_port(settings.host if settings.host not in ("0.0.0.0", "::") else "127.0.0.1")
-        return cls(ClusterPlan.local(settings.host, port, processes), settings, folder, study, log_level)
+        return cls(ClusterPlan.local(settings.host, port, processes), settings, folder, plugin, log_level)
 
     @classmethod
-    def proxy_only(cls, settings: ServerSettings, backends: str, folder: Path, study=None) -> Cluster:
+    def proxy_only(cls, settings: ServerSettings, backends: str, folder: Path, plugin=None) -> Cluster:
         """HAProxy alone, in front of the backends ``--backends`` names (other machines sharing the database and
         the recordings folder; each started with ``--cluster`` and the plan file this writes)."""
         port = settings.port or free_port()
-        return cls(ClusterPlan.remote(settings.host, port, backends), settings, folder, study, local=False)
+        return cls(ClusterPlan.remote(settings.host, port, backends), settings, folder, plugin, local=False)
 
     @property
     def url(self) -> str:
@@ -201,7 +201,7 @@ class Cluster:
 
     def backend(self, member) -> Child:
         spec = BackendSpec(self.backend_settings(member), Membership(self.plan_file, member.name), self.log_level,
-                           self.study, launcher_pid=os.getpid())
+                           self.plugin, launcher_pid=os.getpid())
         package_root = str(Path(server.__file__).resolve().parent.parent)  # the child imports this very code
         path = os.pathsep.join(p for p in (package_root, os.environ.get("PYTHONPATH", "")) if p)
         warnings = ",".join(w for w in (os.environ.get("PYTHONWARNINGS", ""), QUIET_WARNINGS) if w)
@@ -215,7 +215,7 @@ class Cluster:
             say(said)
 
     def id_params(self) -> tuple[str, ...]:
-        return tuple(self.study.routing_params) if self.study is not None else ()
+        return tuple(self.plugin.routing_params) if self.plugin is not None else ()
 
     def write_files(self) -> None:
         """``cluster.json`` (the backends read it) and ``haproxy.cfg`` (checked by HAProxy) in the folder."""

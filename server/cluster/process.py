@@ -1,10 +1,10 @@
 """One backend process of a cluster: ``python -m server.cluster.process``, started by the launcher.
 
 The launcher writes a ``BackendSpec`` (pickled) to the process's standard input: the settings it serves with
-(its loopback port), the study when one runs, and its membership. The process then is an ordinary play server
-(uvicorn, one worker, its own inference process) that also answers as one of the cluster
-(``server.cluster.siblings``). It stops the usual way on SIGTERM (every live game saved, each player told), and
-stops so, too, if the launcher dies without stopping it.
+(its loopback port), the plugin when one runs (the application served: a study), and its membership. The process
+then is an ordinary play server (uvicorn, one worker, its own inference process) that also answers as one of the
+cluster (``server.cluster.siblings``). It stops the usual way on SIGTERM (every live game saved, each player told),
+and stops so, too, if the launcher dies without stopping it.
 """
 
 from __future__ import annotations
@@ -28,8 +28,8 @@ class BackendSpec:
     member: object
     """Its ``server.cluster.plan.Membership``."""
     log_level: str = "info"
-    study: object | None = None
-    """The application it serves instead of free play (``server.backend.Plugin``: a study's), or None."""
+    plugin: object | None = None
+    """The application served (a study) instead of free play (a ``server.backend.Plugin``), or None."""
     launcher_pid: int = 0
     """The launcher's process id: the process stops once its parent is another (0: its parent when it starts)."""
 
@@ -53,7 +53,7 @@ def main() -> int:
     sys.stdin.close()
     launcher = spec.launcher_pid or parent
     threading.Thread(target=stop_with_parent, args=(launcher,), daemon=True, name="launcher-watch").start()
-    serve(spec.settings, spec.log_level, spec.study, spec.member)
+    serve(spec.settings, spec.log_level, spec.plugin, spec.member)
     return 0
 
 

@@ -15,7 +15,6 @@ from colorgrid.replay import save
 from colorgrid.roles import scores
 from server.game import Game
 from server.play.live import Live
-from server.play.pools import release
 
 log = logging.getLogger("colorgrid.server")
 LATE_KEYS_S = 0.3
@@ -76,7 +75,7 @@ class Finisher:
         if live.games.pop(game.game_id, None) is None and live.finishing.pop(game.game_id, None) is None:
             return
         game.finished = True
-        release(game)
+        game.release_slots()
         if game.actions:
             try:
                 await self._save(game, reason)

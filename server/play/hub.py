@@ -40,10 +40,10 @@ class GameHub:
         self.settings = settings
         self.live = Live(settings)
         self.offer = Offer(settings)
-        self.followers = Pools(settings, self.offer, self.live.stats)
+        self.pool_keeper = Pools(settings, self.offer, self.live.stats)
         self.finisher = Finisher(self.live)
-        self.clock = Clock(self.live, self.followers, self.finisher)
-        self.sessions = Sessions(self.live, self.offer, self.followers, self.clock, self.finisher)
+        self.clock = Clock(self.live, self.pool_keeper, self.finisher)
+        self.sessions = Sessions(self.live, self.pool_keeper, self.clock, self.finisher)
         self.lobby = Lobby(self.live, self.offer, self.sessions)
         self.source: GameSource = FreePlay()
         self._tasks: list[asyncio.Task] = []  # the sweeper and the warm-up
@@ -54,17 +54,17 @@ class GameHub:
     stats = property(lambda self: self.live.stats, doc="Ticks, lateness, deadline misses, games saved (health).")
     stopped = property(lambda self: self.live.stopped, doc="Whether ``stop`` ran: no game starts any more.")
     lateness_ms = property(lambda self: self.clock.lateness_ms, doc="The last ticks' lateness.")
-    pools = property(lambda self: self.followers.pools, doc="(kind, config, agent index) -> each follower pool.")
-    inference = property(lambda self: self.followers.inference, doc="The process every pool's policy runs in.")
-    executor = property(lambda self: self.followers.executor, doc="The thread that waits on the inference process.")
-    ready = property(lambda self: self.followers.ready, doc="Whether the offered followers are warmed up.")
+    pools = property(lambda self: self.pool_keeper.pools, doc="(kind, config, agent index) -> each follower pool.")
+    inference = property(lambda self: self.pool_keeper.inference, doc="The process every pool's policy runs in.")
+    executor = property(lambda self: self.pool_keeper.executor, doc="The thread that waits on the inference process.")
+    ready = property(lambda self: self.pool_keeper.ready, doc="Whether the offered followers are warmed up.")
     listeners = property(lambda self: self.finisher.listeners, doc="Told of each game's start and end.")
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         """Start the sweeper, the followers' warm-up and the server's clock (in the event loop)."""
         Path(self.settings.replays_dir).mkdir(parents=True, exist_ok=True)
-        self._tasks = [asyncio.create_task(self._sweep_loop()), asyncio.create_task(self.followers.warm_up())]
+        self._tasks = [asyncio.create_task(self._sweep_loop()), asyncio.create_task(self.pool_keeper.warm_up())]
         self.clock.run(self.settings.tick_hz)
 
     async def stop(self) -> list[Client]:
@@ -94,7 +94,7 @@ class GameHub:
                 await self.finish(game, Ending.SERVER_SHUTDOWN)
             except Exception:
                 log.exception("could not finish game %s at shutdown", game.game_id)
-        await self.followers.close()
+        await self.pool_keeper.close()
         self.finisher.close()
         return told
 
@@ -112,7 +112,7 @@ class GameHub:
         now = time.monotonic()
         await self.sessions.sweep(now)
         await self.lobby.expire(now)
-        self.followers.free_idle()
+        self.pool_keeper.free_idle()
 
     # ------------------------------------------------------------ what a player may choose
     make_config = staticmethod(make_config)
@@ -131,7 +131,7 @@ class GameHub:
 
     async def pool_for(self, follower: str, config: EnvConfig, agent_index: int = FOLLOWER) -> FollowerPool:
         """The pool for this follower, config and agent index (``Pools.pool_for``)."""
-        return await self.followers.pool_for(follower, config, agent_index)
+        return await self.pool_keeper.pool_for(follower, config, agent_index)
 
     def live_games(self) -> int:
         """Games in play or past their last step but not yet saved (each holds its followers' slots)."""

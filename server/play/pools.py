@@ -16,7 +16,6 @@ from functools import partial
 from colorgrid.config import FOLLOWER, LEADER, EnvConfig
 from colorgrid.enums import SeatFit
 from server.followers import FollowerPool, is_scripted
-from server.game import Game
 from server.inference import InferenceLost, InferenceWorker
 from server.play.offer import Offer, make_config
 from server.protocol import Mode, Team
@@ -25,12 +24,6 @@ from server.settings import ServerSettings
 
 log = logging.getLogger("colorgrid.server")
 POOL_IDLE_S = 120.0  # a follower pool with no game for this long is freed (the default follower's stay)
-
-
-def release(game: Game) -> None:
-    """Give back the pool slots of ``game``'s AI players."""
-    for player in game.ai.values():
-        player.pool.release(player.slot)
 
 
 class Pools:

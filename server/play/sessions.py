@@ -15,8 +15,7 @@ from server.game import Game
 from server.play.clock import Clock
 from server.play.ending import Finisher, game_over_message
 from server.play.live import Client, Live, ServerFull, send_to
-from server.play.offer import Offer
-from server.play.pools import Pools, release
+from server.play.pools import Pools
 from server.protocol import GoalView, Mode, SeatKind
 from server.seats import STAND_IN, Seat, lineup
 from server.stated import ProbePlan
@@ -32,8 +31,8 @@ def secrets_equal(a: str, b: str) -> bool:
 class Sessions:
     """Opens games for people and keeps each person's seat: their keys, their rejoin, their leaving."""
 
-    def __init__(self, live: Live, offer: Offer, pools: Pools, clock: Clock, finisher: Finisher):
-        self.live, self.offer, self.pools, self.clock, self.finisher = live, offer, pools, clock, finisher
+    def __init__(self, live: Live, pools: Pools, clock: Clock, finisher: Finisher):
+        self.live, self.pools, self.clock, self.finisher = live, pools, clock, finisher
         self._seed_counter = int(time.time())
         self._notices: set[asyncio.Task] = set()  # seat changes being told to the other people of a game
 
@@ -69,7 +68,7 @@ class Sessions:
             try:
                 await self.finisher.started(game)  # recorded before the player sees the game
             except BaseException:
-                release(game)
+                game.release_slots()
                 raise
             live.games[game.game_id] = game  # counted here before the reservation ends: no gap
         finally:

@@ -18,8 +18,9 @@ from typing import Any
 
 from colorgrid import configkit
 from colorgrid.configkit import ConfigError, check_bool, check_choice, check_int, check_number, check_strings, fail
+from colorgrid.enums import SeatFit
 from colorgrid.presets import PRESETS
-from server.protocol import MAX_HORIZON, GoalView, SeatKind
+from server.protocol import MAX_HORIZON, GoalView, SeatKind, Team
 from server.stated import PROBE_FORMS, ProbePlan
 
 PAGE_KINDS = ("consent", "instructions", "practice", "trials", "questionnaire", "debrief")
@@ -362,7 +363,6 @@ def check_followers(study: Study, path: str | Path) -> None:
     before it serves, not ``load_study``."""
     from colorgrid.policies import make_policy
     from server.followers import is_leader_kind, leader_kinds_allowed, leads
-    from server.protocol import Team
 
     def blame(place: str, name: str, problem: str) -> StudyError:
         what = f"{place}: level {name!r}" if place.startswith("factors.") else f"{place}={name!r}"
@@ -381,7 +381,7 @@ def check_followers(study: Study, path: str | Path) -> None:
             fit = leads(name, Team.ONE_TO_ONE)
         except (ValueError, FileNotFoundError, OSError) as err:
             raise blame(place, name, str(err)) from None
-        if fit != "direct":
+        if fit != SeatFit.DIRECT:
             raise blame(place, name, "a leader of another team: a study's games are one leader and one follower")
 
 
