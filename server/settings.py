@@ -83,6 +83,10 @@ class ServerSettings:
     ``meta.key_events_dropped``."""
     header_timeout_s: float = 10.0
     """An HTTP request whose headers are not complete this long after it began is closed."""
+    first_seed: int = 0
+    """The seed of the first game this process opens; each later game gets the next. 0: the clock's seconds at
+    start, so games differ from run to run. A fixed seed replays the same boards (demonstrations, pictures); the
+    processes of a cluster each count on their own."""
 
     def __post_init__(self) -> None:
         check_strings(self, "followers", allowed="a tuple of follower names")
@@ -106,6 +110,7 @@ class ServerSettings:
                      "header_timeout_s"):
             check_number(self, name, "a finite number > 0", lambda v: v > 0)
         check_int(self, "max_message_bytes", 256, 1 << 20)
+        check_int(self, "first_seed", 0, 2**31 - 1, allowed="an integer in [0, 2147483647] (0: from the clock)")
         check_bool(self, "show_belief")
         for name in ("allowed_hosts", "allowed_origins"):
             check_strings(self, name)

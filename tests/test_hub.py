@@ -116,6 +116,7 @@ def test_the_key_log_is_capped_and_the_dropped_keys_are_counted(tmp_path):
     ({"connection_idle_s": float("nan")}, "connection_idle_s must be a finite number > 0"),
     ({"allowed_origins": ("",)}, "allowed_origins must be a tuple of non-empty strings"),
     ({"idle_timeout_s": float("inf")}, "idle_timeout_s must be a finite number > 0"),
+    ({"first_seed": -1}, r"first_seed must be an integer in \[0, 2147483647\] \(0: from the clock\)"),
 ])
 def test_settings_refuse_what_would_break_the_server(changes, words):
     with pytest.raises(ValueError, match=words):
@@ -209,3 +210,19 @@ def test_a_follower_that_cannot_be_built_is_refused_with_its_reason_and_the_proc
 
     hub, client = asyncio.run(scenario())
     assert client.last("game_over")["reason"] == "complete" and hub.inference.generation == 1
+
+
+def test_a_first_seed_fixes_the_games_boards_and_each_later_game_gets_the_next(tmp_path):
+    async def scenario(first_seed):
+        hub = make_hub(tmp_path / str(first_seed), first_seed=first_seed)
+        games = [(await start(hub))[0] for _ in range(2)]
+        boards = [game.env.state.block_cell.copy() for game in games]
+        await hub.stop()
+        return [game.seed for game in games], boards
+
+    seeds, boards = asyncio.run(scenario(2026))
+    again, same_boards = asyncio.run(scenario(2026))
+    assert seeds == again == [2026, 2027]
+    assert all((a == b).all() for a, b in zip(boards, same_boards)) and not (boards[0] == boards[1]).all()
+    clock_seeds, _ = asyncio.run(scenario(0))
+    assert abs(clock_seeds[0] - time.time()) < 600 and clock_seeds[1] == clock_seeds[0] + 1

@@ -12,8 +12,8 @@
 
 The web pages are those of the real play server (``colorgrid play``), started here on a free loopback port with
 its replays written to a temporary folder, and seen through Debian's chromium driven by playwright (no browser
-download: ``executable_path``), as the browser tests do. The server numbers its games' seeds from the clock; this
-script starts it with that counter fixed (``GAME_SEED``), so a rerun plays the same boards and draws the same
+download: ``executable_path``), as the browser tests do. The server is started with ``--first-seed`` (``GAME_SEED``):
+its games' seeds count from there instead of from the clock, so a rerun plays the same boards and draws the same
 pictures.
 """
 
@@ -50,21 +50,6 @@ CHROMIUM_ARGS = ["--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-
                  "--disable-component-update", "--disable-sync", "--disable-dev-shm-usage",
                  "--font-render-hinting=none"]
 
-# Run in the server's process before ``colorgrid play``: the game seeds start at GAME_SEED, not at the clock.
-LAUNCH = """
-import runpy, sys
-import server.play.sessions as sessions
-first = int(sys.argv.pop(1))
-start = sessions.Sessions.__init__
-def fixed_seeds(self, *args, **kwargs):
-    start(self, *args, **kwargs)
-    self._seed_counter = first - 1
-sessions.Sessions.__init__ = fixed_seeds
-sys.argv[0] = "colorgrid"
-runpy.run_module("colorgrid_apps", run_name="__main__", alter_sys=True)
-"""
-
-
 def draw_board() -> None:
     from PIL import Image
 
@@ -87,7 +72,7 @@ def start_server(tmp: Path) -> tuple[subprocess.Popen, str]:
     port = free_port()
     log = open(tmp / "server.log", "w")
     process = subprocess.Popen(
-        [sys.executable, "-c", LAUNCH, str(GAME_SEED), "play", "--port", str(port),
+        [sys.executable, "-m", "colorgrid_apps", "play", "--port", str(port), "--first-seed", str(GAME_SEED),
          "--replays-dir", str(tmp / "recordings"), "--log-level", "warning"],
         cwd=ROOT, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1"})
     url = f"http://127.0.0.1:{port}"

@@ -33,7 +33,8 @@ class Sessions:
 
     def __init__(self, live: Live, pools: Pools, clock: Clock, finisher: Finisher):
         self.live, self.pools, self.clock, self.finisher = live, pools, clock, finisher
-        self._seed_counter = int(time.time())
+        first = live.settings.first_seed or int(time.time())
+        self._seed_counter = first - 1  # the seed of the last game opened
         self._notices: set[asyncio.Task] = set()  # seat changes being told to the other people of a game
 
     async def open_game(self, config: EnvConfig, mode: Mode, followers: tuple[str, ...], preset: str,
