@@ -13,7 +13,7 @@ import pytest
 pytest.importorskip("scipy", reason="the sweep extra (make test installs it)")
 
 from colorgrid_apps.cli import main  # noqa: E402
-from train.sweep.claims import Verdict, evaluate  # noqa: E402
+from train.sweep.claims import Verdict, evaluate, format_claims  # noqa: E402
 from train.sweep.report import publish_report, write_report  # noqa: E402
 from train.sweep.results import committed_keys  # noqa: E402
 from train.sweep.spec import SweepError, load_sweep  # noqa: E402
@@ -122,6 +122,13 @@ def test_too_few_seeds_or_no_spread_is_inconclusive(tmp_path):
     o = decided(tmp_path, ">", [10.0], [0.0, 1.0, 2.0])
     assert o.verdict is Verdict.INCONCLUSIVE and math.isnan(o.p) and o.difference == pytest.approx(9.0)
     assert decided(tmp_path, ">", [1.0, 1.0], [1.0, 1.0]).verdict is Verdict.INCONCLUSIVE
+
+
+def test_a_side_with_no_finished_trial_reads_as_such_in_the_report(tmp_path):
+    o = decided(tmp_path, ">", [], [0.0, 1.0, 2.0])  # a sweep still running: one arm has no trial finished yet
+    shown = format_claims([o])
+    assert o.verdict is Verdict.INCONCLUSIVE and "nan" not in shown
+    assert "(n=0)" in shown and "| - |" in shown and "a: none finished; b: +0.00, +1.00, +2.00" in shown
 
 
 def test_pooled_sides_partial_sides_and_unfinished_trials(tmp_path):

@@ -181,11 +181,16 @@ def format_claims(outcomes: list[Outcome]) -> str:
             p += f"; within ±{c.margin:g}: " + ("-" if not math.isfinite(o.p_equivalence) else f"{o.p_equivalence:.3g}")
         lines.append("| " + " | ".join([
             f"{c.name} (a {c.direction.value} b{', ' + c.metric if c.metric else ''})", c.paper,
-            f"{c.side_name(c.a)}: {o.mean_a:+.2f} (n={len(o.a)})",
-            f"{shown_b}: {o.mean_b:+.2f}" + ("" if isinstance(o.b, float) else f" (n={len(o.b)})"),
+            f"{c.side_name(c.a)}: {_mean(o.mean_a)} (n={len(o.a)})",
+            f"{shown_b}: {_mean(o.mean_b)}" + ("" if isinstance(o.b, float) else f" (n={len(o.b)})"),
             diff, p, f"**{o.verdict.value}**"]) + " |")
     lines += ["", "Per-seed finals:", ""]
     for o in outcomes:
-        b = "" if isinstance(o.b, float) else f"; b: {', '.join(f'{v:+.2f}' for v in o.b)}"
+        b = "" if isinstance(o.b, float) else f"; b: {', '.join(f'{v:+.2f}' for v in o.b) or 'none finished'}"
         lines.append(f"- {o.claim.name}: a: {', '.join(f'{v:+.2f}' for v in o.a) or 'none finished'}{b}")
     return "\n".join(lines)
+
+
+def _mean(value: float) -> str:
+    """A side's mean as the table shows it: ``-`` for a side with no finished trial yet."""
+    return f"{value:+.2f}" if math.isfinite(value) else "-"
