@@ -17,39 +17,17 @@ import pytest
 
 ray = pytest.importorskip("ray", reason="the sweep extra (make test installs it)")
 
+from train.sweep.local import run_local  # noqa: E402
 from train.sweep.report import mean_interval, write_report  # noqa: E402
 from train.sweep.results import read_tables  # noqa: E402
 from train.sweep.runner import resume_sweep, run_sweep  # noqa: E402
 from train.sweep.spec import load_sweep  # noqa: E402
+from tests.sweep_files import sweep_file  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-TINY = """
-description = "a tiny sweep"
-preset = "default"
-set = ["total_steps={total}", "ppo.num_envs=2", "ppo.num_steps=32", "env.horizon=32", "eval_every=0",
-       "save_every={save_every}", "ppo.num_minibatches=2", "ppo.update_epochs=1", "leader.net.hidden=16",
-       "follower.net.hidden=16"]
-seeds = {seeds}
-metric = "{metric}"
-final_window = 2
-{top}
-{params}
-
-[resources]
-cpus_per_trial = 1
-{tables}
-"""
 MACHINE = {"sps", "rollout_sps", "update_sps", "wall_time_s", "torch_threads", "numba_threads"}
 """Columns that describe the machine, not what was learned (the thread counts come from Tune's reports, whose
 last few before a kill are lost)."""
-
-
-def sweep_file(tmp_path: Path, name: str, params: str, seeds="[0, 1]", total=512, save_every=2, top="",
-               tables="", metric="team_reward") -> Path:
-    path = tmp_path / f"{name}.toml"
-    path.write_text(TINY.format(params=params, seeds=seeds, total=total, save_every=save_every, top=top,
-                                tables=tables, metric=metric))
-    return path
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -97,6 +75,8 @@ def test_tiny_sweep_writes_tables_and_report(tmp_path):
     # a second run into the same folder is refused: the sweep is resumed, never overwritten
     with pytest.raises(ValueError, match="already holds a sweep; finish it with colorgrid sweep resume"):
         run_sweep(spec)
+    with pytest.raises(ValueError, match="holds a sweep run on Ray Tune; finish it with colorgrid sweep resume"):
+        run_local(spec, processes=1)  # nor continued without Ray: both would hold the same trials
 
 
 def test_kept_trials_are_not_run_again(tmp_path):

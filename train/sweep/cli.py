@@ -20,6 +20,11 @@ def add_sweep_commands(sub) -> None:
     sweep.add_argument("--out", help="run: the sweep's folder (default: the file's 'out', runs/sweeps/<name>)")
     sweep.add_argument("--address", help="run, resume: join the Ray cluster at this address (e.g. 10.0.0.5:6379, "
                                           "or 'auto'); default: start a local Ray instance")
+    sweep.add_argument("--local", type=int, metavar="N",
+                       help="run: without Ray, N trials at a time as plain processes on this machine; the same "
+                            "command again continues the trials from their checkpoints and skips finished ones")
+    sweep.add_argument("--stop-after", type=float, metavar="SECONDS",
+                       help="run --local: stop every trial with a checkpoint after this many seconds")
     sweep.add_argument("--num-cpus", type=int, help="run, resume: CPUs of the local Ray instance (default: all)")
     sweep.set_defaults(func=cmd_sweep)
 
@@ -49,6 +54,12 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         print(f"{count} finished trials kept in {where} (trials.csv, curves.csv, report.md, summary.csv"
               f"{', claims.csv' if (where / 'claims.csv').exists() else ''}); commit that folder")
         return 0
+    if args.local is not None or args.stop_after is not None:
+        if args.action != "run" or args.local is None:
+            raise ValueError("--local N is for sweep run, and --stop-after goes with --local")
+        from train.sweep.local import run_local
+
+        return run_local(load_sweep(args.path, args.out), args.local, args.stop_after)
     from train.sweep.runner import resume_sweep, run_sweep
 
     if args.action == "run":

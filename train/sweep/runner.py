@@ -168,6 +168,9 @@ def run_sweep(spec: SweepSpec, address: str | None = None, num_cpus: int | None 
     if (folder / SPEC_FILE).exists() and tune.Tuner.can_restore(str(folder)):
         raise SweepError(f"{folder} already holds a sweep; finish it with colorgrid sweep resume {spec.out}, or "
                          f"choose another --out")
+    if (folder / "local").exists():  # train.sweep.local.LOCAL_FILE (that module imports no Ray)
+        raise SweepError(f"{folder} holds a sweep run without Ray (--local); continue it with colorgrid sweep run "
+                         f"{spec.path} --local N, or choose another --out")
     spec.check_files()
     connect(address, num_cpus)
     check_resources(spec)

@@ -1,0 +1,192 @@
+"""Run a sweep's trials as plain processes on this machine, without Ray: ``colorgrid sweep run FILE --local N``.
+
+For a machine that has no Ray (a lent GPU machine, a laptop) or a sweep spread over machines by hand. The
+sweep's folder looks as a Ray sweep's does to everything that reads it (``collect``, ``publish``, ``report``):
+a folder per trial holding ``params.json`` and the training run (``run/``). A trial's folder is named from its
+configuration and seed (``trial_local_<hash>``), so the same command again finds it: a finished trial is
+skipped, a trial with a checkpoint continues from it (exactly as if never stopped: the trainer's checkpoints
+hold every random state), and a trial kept in the sweep file's ``results`` folder is not run. ``stop_after``
+seconds end every trial with a checkpoint of its last iteration; so do Ctrl+C and SIGTERM.
+
+A folder is run by one executor: a Ray sweep's folder refuses ``--local`` and a local sweep's refuses
+``sweep run`` without it (their trial folders would both hold the same trials).
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import os
+import signal
+import sys
+import time
+import zlib
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from multiprocessing import get_context
+from pathlib import Path
+
+from train.sweep.checks import SweepError
+from train.sweep.spec import SPEC_FILE, WORKDIR_FILE, SweepSpec, load_folder
+from train.sweep.trial import RUN_FOLDER
+
+LOCAL_FILE = "local"
+"""A file in a sweep's folder saying its trials run as plain processes (``--local``)."""
+RAY_STATE = "tuner.pkl"
+"""What Ray Tune leaves in a sweep's folder."""
+EVERY_S = 30.0
+"""Seconds between a running trial's progress lines."""
+
+
+def grid(spec: SweepSpec) -> list[dict]:
+    """Every trial's parameters as Ray Tune's grid gives them (``seed``, each listed value or option by name, and
+    the random parameters' draw as ``sample``), seed by seed: a sweep stopped partway has run every configuration's
+    first seeds."""
+    fixed = [p for p in spec.params if not p.random]
+    random = any(p.random for p in spec.params)
+    trials = []
+    for seed in spec.seeds:
+        for sample in spec.samples():
+            for combo in itertools.product(*(p.values for p in fixed)):
+                params = {"seed": seed, **dict(zip((p.name for p in fixed), combo))}
+                if random:
+                    params["sample"] = sample
+                trials.append(params)
+    return trials
+
+
+def local_name(spec: SweepSpec, params: dict) -> str:
+    """A trial's folder: the same for the same configuration and seed, whatever else the file holds."""
+    key = f"{spec.label(spec.values(params))}|{int(params['seed'])}"
+    return f"trial_local_{zlib.crc32(key.encode()):08x}"
+
+
+def run_local(spec: SweepSpec, processes: int, stop_after: float | None = None) -> int:
+    """Run (or continue) every trial of ``spec`` in ``spec.out`` with ``processes`` at a time, then write the
+    folder's tables; returns the exit status (0: every trial finished; 130: stopped before that, continue with the
+    same command)."""
+    from train.sweep.results import committed_keys, results_folder
+
+    if processes < 1:
+        raise SweepError(f"--local takes the number of trials to run at a time (>= 1), got {processes}")
+    if stop_after is not None and stop_after <= 0:
+        raise SweepError(f"--stop-after takes seconds (> 0), got {stop_after}")
+    folder = spec.out.resolve()
+    if (folder / RAY_STATE).exists():
+        raise SweepError(f"{folder} holds a sweep run on Ray Tune; finish it with colorgrid sweep resume {spec.out}, "
+                         f"or choose another --out for --local")
+    if (folder / SPEC_FILE).exists() and (folder / SPEC_FILE).read_text() != spec.text:
+        raise SweepError(f"{folder} holds a sweep of another file (its {SPEC_FILE} differs); choose another --out")
+    spec.check_files()
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / SPEC_FILE).write_text(spec.text)
+    (folder / WORKDIR_FILE).write_text(os.getcwd())
+    (folder / LOCAL_FILE).write_text("trials run as plain processes: colorgrid sweep run FILE --local N\n")
+    kept = committed_keys(spec, folder)
+    todo, skipped = [], 0
+    for params in grid(spec):
+        if (spec.label(spec.values(params)), int(params["seed"])) in kept:
+            skipped += 1
+        elif not finished(spec, folder / local_name(spec, params), params):
+            todo.append(params)
+    where = results_folder(spec, folder)
+    print(f"sweep {spec.name}: {spec.summary()} into {folder}, {processes} at a time without Ray"
+          + (f"; {skipped} kept in {where}" if skipped else "")
+          + f"; {spec.num_trials() - skipped - len(todo)} finished here before; {len(todo)} to run", flush=True)
+    deadline = None if stop_after is None else time.time() + stop_after
+    failed = []
+    context = get_context("spawn")
+    stop = context.Event()
+    with ProcessPoolExecutor(max_workers=processes, mp_context=context, initializer=share_stop,
+                             initargs=(stop,)) as pool:
+        futures = {pool.submit(run_one, str(folder), params, deadline, waited=i >= processes): params
+                   for i, params in enumerate(todo)}
+
+        def stop_all(*_) -> None:  # running trials end with a checkpoint, waiting ones do not start
+            stop.set()
+            for future in futures:
+                future.cancel()
+
+        previous = {sig: signal.signal(sig, stop_all) for sig in (signal.SIGINT, signal.SIGTERM)}
+        try:
+            for future in as_completed(futures):
+                if future.cancelled():
+                    continue
+                error = future.exception()
+                if error is not None:
+                    failed.append(f"[{spec.label(spec.values(futures[future]))}, seed={futures[future]['seed']}]: "
+                                  f"{str(error).splitlines()[0] if str(error) else type(error).__name__}")
+        finally:
+            for sig, handler in previous.items():
+                signal.signal(sig, handler)
+    from train.sweep.results import collect
+
+    collect(folder)
+    done = sum(finished(spec, folder / local_name(spec, p), p) for p in todo)
+    print(f"sweep {spec.name}: {done} of {len(todo)} trials ran to the end here"
+          + (f", {len(failed)} failed" if failed else "") + f"; tables in {folder}", flush=True)
+    if failed:
+        print(f"first failure: {failed[0]}", file=sys.stderr)
+        return 1
+    if done < len(todo):
+        print(f"stopped before its end; continue it with the same command", flush=True)
+        return 130
+    return 0
+
+
+_STOP = None
+"""The sweep's stop event in a trial's process (set by the parent on Ctrl+C or SIGTERM)."""
+
+
+def share_stop(event) -> None:
+    global _STOP
+    _STOP = event
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent asks every trial to stop through the event
+
+
+def finished(spec: SweepSpec, trial_dir: Path, params: dict) -> bool:
+    """Whether the trial's training log reaches its last step."""
+    from train.sweep.results import training_rows
+
+    if not (trial_dir / RUN_FOLDER / "metrics.jsonl").exists():
+        return False
+    config = spec.config(spec.values(params), int(params["seed"]))
+    rows = training_rows(trial_dir)
+    return bool(rows) and max(rows) >= config.num_iterations * config.batch_steps
+
+
+def run_one(folder: str, params: dict, deadline: float | None, waited: bool = False) -> None:
+    """One trial in this process: train from its checkpoint if it has one, stop with a checkpoint at ``deadline``
+    or on SIGINT / SIGTERM. A trial that ``waited`` for its turn does not start once the sweep is stopping."""
+    if waited and ((_STOP is not None and _STOP.is_set()) or (deadline is not None and time.time() >= deadline)):
+        return
+    from train.sweep.trial import limit_threads, trial_config
+    from train.trainer import Trainer
+
+    asked = []
+    signal.signal(signal.SIGTERM, lambda *_: asked.append(True))
+    spec = load_folder(Path(folder))
+    workdir = Path(folder) / WORKDIR_FILE
+    os.chdir(workdir.read_text().strip())  # paths in the sweep file read as where it was started
+    trial_dir = Path(folder) / local_name(spec, params)
+    trial_dir.mkdir(exist_ok=True)
+    (trial_dir / "params.json").write_text(json.dumps(params))
+    config = trial_config(spec, params)
+    limit_threads(config.threads)
+    trainer = Trainer(config, trial_dir / RUN_FOLDER, progress=False, tensorboard=False, keep_steps=False)
+    latest = trial_dir / RUN_FOLDER / "checkpoints" / "latest.pt"
+    if latest.exists():
+        trainer.restore(latest)
+    label = f"trial [{spec.label(spec.values(params))}, seed={params['seed']}]"
+    total = config.num_iterations * config.batch_steps
+    last_line = [0.0]
+
+    def report(row: dict, saved: Path | None) -> None:
+        now = time.time()
+        if now - last_line[0] >= EVERY_S or trainer.step >= total:
+            last_line[0] = now
+            value = row.get(spec.metric)
+            shown = f" {spec.metric} {value:+.2f}" if isinstance(value, (int, float)) else ""
+            print(f"{label} step {trainer.step:,}/{total:,}{shown}, {row.get('sps', 0):,.0f} steps/s", flush=True)
+
+    trainer.train(on_iteration=report,
+                  stop=lambda: bool(asked) or (_STOP is not None and _STOP.is_set()) or (deadline is not None and time.time() >= deadline))
