@@ -38,8 +38,8 @@ function row(item, highlight) {
   if (highlight) tr.className = "highlight";
   const cells = item.error
     ? [item.id, "-", "-", "-", "-", "-", "-", "-", `invalid: ${item.error}`]
-    : [item.id, item.source, item.setting ?? "", branchOf(item.branch_of), item.leader, item.follower, item.steps,
-       item.final.team_score, item.ended];
+    : [item.id, item.source, settingTitle(item.setting), branchOf(item.branch_of), item.leader, item.follower,
+       item.steps, item.final.team_score, item.ended];
   cells.forEach((value, i) => {
     const td = document.createElement("td");
     if (i === 0) td.appendChild(link(value, "open"));
@@ -51,6 +51,14 @@ function row(item, highlight) {
   files.innerHTML = `<a href="/api/replays/${id}">json</a> <a href="/api/replays/${id}/export?format=gif">gif</a> <a href="/api/replays/${id}/export?format=mp4">mp4</a>`;
   tr.appendChild(files);
   return tr;
+}
+
+function settingTitle(setting) {
+  // a group of replays that is no preset (the recipe ablation's followers, each named after its arm in the follower
+  // column) is titled by its option in the setting filter
+  if (!setting) return "";
+  const option = [...$("setting").options].find((o) => o.value === setting);
+  return option ? option.text : setting;
 }
 
 function link(replayId, className = "", step = null) {
