@@ -124,10 +124,18 @@ def cmd_import(args: argparse.Namespace) -> int:
 
 
 def cmd_release(args: argparse.Namespace) -> int:
-    from colorgrid_apps.release import build_release
+    from colorgrid_apps.release import RECIPE_SETTING, build_release, read_recipe_sweep, recipe_file
 
-    entries = build_release(Path(args.out), episodes=args.episodes, gifs=Path(args.gifs) if args.gifs else None)
-    print(f"wrote {len(entries)} replays and {args.out}/index.json")
+    recipe = read_recipe_sweep(Path(args.recipe)) if args.recipe else None  # a bad folder: refused before recording
+    for line in recipe.skipped if recipe else ():
+        print(line)
+    entries = build_release(Path(args.out), episodes=args.episodes, gifs=Path(args.gifs) if args.gifs else None,
+                            recipe=recipe)
+    for trial in recipe.finished if recipe else ():
+        print(f"recorded the arm '{trial.arm}' ({trial.folder.name}, step {trial.step:,}): "
+              f"{Path(args.out) / recipe_file(trial.arm)}")
+    arms = sum(entry.get("setting") == RECIPE_SETTING for entry in entries)
+    print(f"wrote {len(entries)} replays ({arms} of the recipe ablation's arms) and {args.out}/index.json")
     return 0
 
 
@@ -258,6 +266,11 @@ def add_replay_commands(sub) -> None:
     rel.add_argument("--out", default="replays")
     rel.add_argument("--episodes", type=int, default=2, help="episodes per (setting, follower)")
     rel.add_argument("--gifs", help="also export one GIF per setting into this folder (e.g. docs/images)")
+    rel.add_argument("--recipe", metavar="SWEEP_DIR",
+                     help="also record one replay per arm of the recipe ablation (docs/ASSISTANT_RECIPE.md) from "
+                          "this sweep folder (e.g. runs/sweeps/assistant_recipe): each arm's seed-0 follower, trained "
+                          "to its last step, beside the A* leader; an arm not finished is skipped. Without it the "
+                          "recipe replays already released stay")
     rel.set_defaults(func=cmd_release)
 
     exp = sub.add_parser("export", help="export replays to GIF or MP4 without a display")

@@ -10,7 +10,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from colorgrid.files import atomic_path
+from colorgrid.files import JSONFileError, atomic_path, read_json_object
 from colorgrid.replay.format import Replay
 
 INDEX_NAME = "index.json"
@@ -29,3 +29,15 @@ def write_index(folder: Path, entries: list[dict], generated_by: str) -> Path:
     with atomic_path(path) as tmp:
         Path(tmp).write_text(json.dumps({"generated_by": generated_by, "replays": entries}, indent=2) + "\n")
     return path
+
+
+def read_index(folder: Path) -> list[dict]:
+    """The entries of ``folder/index.json``, none when the folder has no index (a release keeps some of them)."""
+    path = Path(folder) / INDEX_NAME
+    if not path.exists():
+        return []
+    entries = read_json_object(path, "a replay index (generated_by and replays)").get("replays")
+    if not isinstance(entries, list) or not all(isinstance(e, dict) and isinstance(e.get("file"), str)
+                                                for e in entries):
+        raise JSONFileError(path, "its replays must be a list of entries, each naming its file")
+    return entries
