@@ -64,7 +64,7 @@ def run_local(spec: SweepSpec, processes: int, stop_after: float | None = None) 
     """Run (or continue) every trial of ``spec`` in ``spec.out`` with ``processes`` at a time, then write the
     folder's tables; returns the exit status (0: every trial finished; 130: stopped before that, continue with the
     same command)."""
-    from train.sweep.results import committed_keys, results_folder
+    from train.sweep.results import collect, committed_keys, results_folder
 
     if processes < 1:
         raise SweepError(f"--local takes the number of trials to run at a time (>= 1), got {processes}")
@@ -118,17 +118,16 @@ def run_local(spec: SweepSpec, processes: int, stop_after: float | None = None) 
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
-    from train.sweep.results import collect
-
     collect(folder)
     done = sum(finished(spec, folder / local_name(spec, p), p) for p in todo)
     print(f"sweep {spec.name}: {done} of {len(todo)} trials ran to the end here"
           + (f", {len(failed)} failed" if failed else "") + f"; tables in {folder}", flush=True)
     if failed:
-        print(f"first failure: {failed[0]}", file=sys.stderr)
+        print(f"first failure: {failed[0]} (the same command again continues a failed trial from its last "
+              f"checkpoint)", file=sys.stderr)
         return 1
     if done < len(todo):
-        print(f"stopped before its end; continue it with the same command", flush=True)
+        print("stopped before its end; continue it with the same command", flush=True)
         return 130
     return 0
 
