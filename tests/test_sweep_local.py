@@ -146,3 +146,22 @@ def test_bad_local_options_get_one_line(tmp_path, args, words):
     out, _ = run.communicate(timeout=120)
     assert run.returncode == 2
     assert len(out.strip().splitlines()) == 1 and words in out, out
+
+
+def test_publish_keeps_the_standing_of_unfinished_trials(tmp_path):
+    from train.sweep.report import publish_report
+
+    results = tmp_path / "kept"
+    path = tiny(tmp_path, total=64 * 40, save_every=5, top=f'results = "{results}"')
+    folder = tmp_path / "out"
+    assert run_local(load_sweep(path, out=folder), processes=1, stop_after=0.5) == 130
+    _, count, _ = publish_report(folder)
+    assert count == 0
+    standing = pd.read_csv(results / "unfinished.csv")
+    assert set(standing["configuration"]) == {"ppo.lr=0.0001"} and standing["step"].max() < 64 * 40
+    assert list(standing["step"]) == list(range(64, standing["step"].max() + 1, 64))
+    assert {"team_reward", "penalty_coef", "seed", "ppo.lr"} <= set(standing.columns)
+    assert pd.read_csv(results / "trials.csv").empty
+    assert run_local(load_sweep(path, out=folder), processes=2) == 0
+    _, count, _ = publish_report(folder)
+    assert count == 2 and not (results / "unfinished.csv").exists()

@@ -51,8 +51,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         from train.sweep.report import publish_report
 
         where, count, _ = publish_report(args.path)
-        print(f"{count} finished trials kept in {where} (trials.csv, curves.csv, report.md, summary.csv"
-              f"{', claims.csv' if (where / 'claims.csv').exists() else ''}); commit that folder")
+        files = ["trials.csv", "curves.csv"] + [f for f in ("report.md", "summary.csv", "claims.csv", "unfinished.csv")
+                                                if (where / f).exists()]
+        print(f"{count} finished trials kept in {where} ({', '.join(files)}); commit that folder")
         return 0
     if args.local is not None or args.stop_after is not None:
         if args.action != "run" or args.local is None:

@@ -70,6 +70,9 @@ def training_rows(trial_dir: Path) -> dict[int, dict]:
 
 CURVE_COLUMNS = ("wall_time_s", "sps", "penalty_coef", "team_reward")
 """Columns the kept curves hold besides the identity, the step, the metric and the summarised columns."""
+UNFINISHED_FILE = "unfinished.csv"
+"""The curves so far of the trials still running, kept beside the finished ones' (a long sweep's standing; no
+report or claim reads them)."""
 KEY = ("configuration", "seed")
 """What identifies a trial across machines: its configuration's label and its seed."""
 
@@ -131,7 +134,9 @@ def merge_committed(spec: SweepSpec, folder: Path, trials: pd.DataFrame,
 
 def publish(folder: str | Path) -> tuple[Path, int]:
     """Keep the finished trials of the sweep in ``folder`` in its ``results`` folder (``trials.csv`` and the
-    main columns of ``curves.csv``), beside those kept before; returns the folder and the trials kept."""
+    main columns of ``curves.csv``), beside those kept before, and the curves so far of the unfinished ones
+    (``unfinished.csv``: the metric, team reward and timing by step; removed once every trial has finished);
+    returns the folder and the trials kept."""
     folder = Path(folder)
     spec = load_folder(folder)
     where = results_folder(spec, folder)
@@ -145,7 +150,14 @@ def publish(folder: str | Path) -> tuple[Path, int]:
             or c.removeprefix("eval/").endswith(SUMMARY_SUFFIXES)]
     where.mkdir(parents=True, exist_ok=True)
     write_csv(done, where / "trials.csv")
-    write_csv(curves[curves["trial"].isin(set(done["trial"]))][keep], where / "curves.csv")
+    finished = curves["trial"].isin(set(done["trial"]))
+    write_csv(curves[finished][keep], where / "curves.csv")
+    if finished.all():
+        (where / UNFINISHED_FILE).unlink(missing_ok=True)
+    else:
+        write_csv(curves[~finished][[c for c in keep if c in CURVE_COLUMNS or c in (*ID_COLUMNS, *spec.param_names,
+                                                                                   "step", spec.metric)]],
+                  where / UNFINISHED_FILE)
     return where, len(done)
 
 
