@@ -22,7 +22,7 @@ from train.sweep.report import mean_interval, write_report  # noqa: E402
 from train.sweep.results import read_tables  # noqa: E402
 from train.sweep.runner import resume_sweep, run_sweep  # noqa: E402
 from train.sweep.spec import load_sweep  # noqa: E402
-from tests.sweep_files import sweep_file  # noqa: E402
+from tests.sweep_files import sweep_file, wait_for_step  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = {"sps", "rollout_sps", "update_sps", "wall_time_s", "torch_threads", "numba_threads"}
@@ -183,14 +183,7 @@ def test_interrupted_sweep_finishes_with_sweep_resume(tmp_path):
     run = subprocess.Popen([sys.executable, "-m", "colorgrid_apps", "sweep", "run", str(path), "--out", str(folder),
                             "--num-cpus", "1"], cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        deadline = time.monotonic() + 300  # a bound on the wait (a loaded machine starts Ray slowly), not a speed
-        while time.monotonic() < deadline:  # Ctrl+C three iterations after a trial's first checkpoint (at 5)
-            logs = [p.read_text() for p in folder.glob("trial_*/run/metrics.jsonl")]
-            if any(f'"step": {64 * 8},' in log for log in logs):
-                break
-            time.sleep(0.05)
-        else:
-            pytest.fail("no trial got past its first checkpoint")
+        wait_for_step(folder, 64 * 8)  # Ctrl+C three iterations after a trial's first checkpoint (at 5)
         run.send_signal(signal.SIGINT)
         out, _ = run.communicate(timeout=120)
     finally:

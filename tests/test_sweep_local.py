@@ -7,7 +7,6 @@ import json
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pandas as pd
@@ -16,7 +15,7 @@ import pytest
 from train.sweep.local import grid, local_name, run_local
 from train.sweep.results import read_tables
 from train.sweep.spec import SweepError, load_sweep
-from tests.sweep_files import sweep_file
+from tests.sweep_files import sweep_file, wait_for_step
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = {"sps", "rollout_sps", "update_sps", "wall_time_s"}
@@ -56,14 +55,7 @@ def test_stopped_local_sweep_continues_to_the_metrics_of_one_never_stopped(tmp_p
     folder = tmp_path / "stopped"
     run = colorgrid("sweep", "run", str(path), "--out", str(folder), "--local", "2")
     try:
-        deadline = time.monotonic() + 300  # a bound on the wait (a loaded machine starts Ray slowly), not a speed
-        while time.monotonic() < deadline:  # SIGTERM three iterations after a trial's first checkpoint (at 5)
-            logs = [p.read_text() for p in folder.glob("trial_*/run/metrics.jsonl")]
-            if any(f'"step": {64 * 8},' in log for log in logs):
-                break
-            time.sleep(0.05)
-        else:
-            pytest.fail("no trial got past its first checkpoint")
+        wait_for_step(folder, 64 * 8)  # SIGTERM three iterations after a trial's first checkpoint (at 5)
         run.send_signal(signal.SIGTERM)
         out, _ = run.communicate(timeout=120)
     finally:
