@@ -146,8 +146,8 @@ def publish(folder: str | Path) -> tuple[Path, int]:
     if trials.empty:
         return where, 0
     done = trials[trials["finished"].astype(bool)]
-    keep = [c for c in curves.columns if c in (*ID_COLUMNS, *spec.param_names, "step", spec.metric, *CURVE_COLUMNS)
-            or c.removeprefix("eval/").endswith(SUMMARY_SUFFIXES)]
+    main = (*ID_COLUMNS, *spec.param_names, "step", spec.metric, *CURVE_COLUMNS)
+    keep = [c for c in curves.columns if c in main or c.removeprefix("eval/").endswith(SUMMARY_SUFFIXES)]
     where.mkdir(parents=True, exist_ok=True)
     write_csv(done, where / "trials.csv")
     finished = curves["trial"].isin(set(done["trial"]))
@@ -155,9 +155,7 @@ def publish(folder: str | Path) -> tuple[Path, int]:
     if finished.all():
         (where / UNFINISHED_FILE).unlink(missing_ok=True)
     else:
-        write_csv(curves[~finished][[c for c in keep if c in CURVE_COLUMNS or c in (*ID_COLUMNS, *spec.param_names,
-                                                                                   "step", spec.metric)]],
-                  where / UNFINISHED_FILE)
+        write_csv(curves[~finished][[c for c in keep if c in main]], where / UNFINISHED_FILE)
     return where, len(done)
 
 

@@ -19,6 +19,7 @@ from pathlib import Path
 import ray
 from ray import tune
 
+from train.sweep.local import LOCAL_FILE
 from train.sweep.spec import SPEC_FILE, WORKDIR_FILE, SweepError, SweepSpec, load_folder
 from train.sweep.trial import run_trial, trial_folder
 
@@ -168,7 +169,7 @@ def run_sweep(spec: SweepSpec, address: str | None = None, num_cpus: int | None 
     if (folder / SPEC_FILE).exists() and tune.Tuner.can_restore(str(folder)):
         raise SweepError(f"{folder} already holds a sweep; finish it with colorgrid sweep resume {spec.out}, or "
                          f"choose another --out")
-    if (folder / "local").exists():  # train.sweep.local.LOCAL_FILE (that module imports no Ray)
+    if (folder / LOCAL_FILE).exists():
         raise SweepError(f"{folder} holds a sweep run without Ray (--local); continue it with colorgrid sweep run "
                          f"{spec.path} --local N, or choose another --out")
     spec.check_files()
