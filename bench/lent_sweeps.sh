@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Advance sweeps on a machine without Ray (a lent GPU machine's CPU cores, say) for SECONDS, then pack each
-# sweep's folder (training logs and each trial's latest checkpoint) into $OUT/<name>.<k>.tgz (six trials each) to carry back. Each
+# sweep's folder (training logs and each trial's latest checkpoint) into $OUT/<name>.<k>.tgz (four trials each, PER_ARCHIVE to change) to carry back. Each
 # FILE:N runs N of the file's trials at a time (train.sweep.local, as `colorgrid sweep run FILE --local N`).
 # Back here: tar xzf <name>.<k>.tgz -C runs/sweeps, then continue with `colorgrid sweep run FILE --local N`, or
 # keep the finished trials with `colorgrid sweep publish runs/sweeps/<name>`. The project must be importable
@@ -21,11 +21,12 @@ sys.exit(run_local(load_sweep(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
     > "$out/$name.log" 2>&1 &
 done
 wait
-for name in "${names[@]}"; do  # six trials an archive (a lent machine sends back files of 16 MiB at most)
+per=${PER_ARCHIVE:-4}  # trials an archive: about 3 MB each, and a lent machine sends back files of 16 MiB at most
+for name in "${names[@]}"; do
   trials=($(cd runs/sweeps && ls -d "$name"/trial_*))
-  for ((k = 0; k < ${#trials[@]}; k += 6)); do
-    archive="$out/$name.$((k / 6 + 1)).tgz"
-    tar czf "$archive" --exclude=train.csv -C runs/sweeps "$name/sweep.toml" "$name/local" "${trials[@]:k:6}" \
+  for ((k = 0; k < ${#trials[@]}; k += per)); do
+    archive="$out/$name.$((k / per + 1)).tgz"
+    tar czf "$archive" --exclude=train.csv -C runs/sweeps "$name/sweep.toml" "$name/local" "${trials[@]:k:per}" \
       && echo "$(basename "$archive"): $(du -h "$archive" | cut -f1)" | tee -a "$out/lent_sweeps.log"
   done
   tail -n 3 "$out/$name.log" | tee -a "$out/lent_sweeps.log"

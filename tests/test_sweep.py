@@ -79,9 +79,10 @@ def test_tiny_sweep_writes_tables_and_report(tmp_path):
         run_local(spec, processes=1)  # nor continued without Ray: both would hold the same trials
 
 
-def test_kept_trials_are_not_run_again(tmp_path):
-    """A sweep publishes its finished trials into its results folder; the same sweep with more seeds, started in a
-    fresh folder (a new machine), trains only the trials not kept, and its tables hold both."""
+def test_kept_trials_are_not_run_again(tmp_path, capsys):
+    """A sweep publishes its finished trials into its results folder; the same sweep with more seeds (one of them
+    for one configuration only, ``[[more_seeds]]``), started in a fresh folder (a new machine), trains only the
+    trials not kept, and its tables hold both."""
     from train.sweep.report import publish_report
 
     results = tmp_path / "kept"
@@ -90,14 +91,23 @@ def test_kept_trials_are_not_run_again(tmp_path):
     _, count, _ = publish_report(tmp_path / "one")
     assert count == 2 and len(pd.read_csv(results / "trials.csv")) == 2
     more = sweep_file(tmp_path, "kept", '[params]\n"ppo.lr" = [1e-4, 1e-3]', seeds="[0, 1]",
-                      top=f'results = "{results}"')
+                      top=f'results = "{results}"',
+                      tables='\n[[more_seeds]]\nseeds = [2]\nwhere = { "ppo.lr" = 1e-3 }\n')
+    capsys.readouterr()
     assert run_sweep(load_sweep(more, out=tmp_path / "two")) == 0
+    out = capsys.readouterr().out
+    assert "5 trials (2 configurations x 2 seeds, and 1 more where [[more_seeds]] adds seeds)" in out, out
+    assert "2 of 5 trials are kept in" in out, out
+    assert "5 of 5 trials ran to the end; tables in" in out, out  # the grid's (1e-4, seed 2) is no trial of it
+    assert "seed=2" not in out.replace("ppo.lr=0.001, seed=2", ""), out  # nor printed as one
     trained = sorted(json.loads((log.parent.parent / "params.json").read_text())["seed"]
                      for log in (tmp_path / "two").glob("trial_*/run/metrics.jsonl"))
-    assert trained == [1, 1]  # seed 0 of each configuration is kept: not trained again
+    assert trained == [1, 1, 2]  # seed 0 of each configuration is kept: not trained again; seed 2 for 1e-3 only
     trials, curves = read_tables(tmp_path / "two")
-    assert sorted(zip(trials["ppo.lr"], trials["seed"])) == [(1e-4, 0), (1e-4, 1), (1e-3, 0), (1e-3, 1)]
-    assert trials["finished"].all() and curves.groupby("trial").size().tolist() == [8, 8, 8, 8]
+    assert len(trials) == 5
+    assert sorted(zip(trials["ppo.lr"], trials["seed"])) == [(1e-4, 0), (1e-4, 1), (1e-3, 0), (1e-3, 1), (1e-3, 2)]
+    assert not ((trials["ppo.lr"] == 1e-4) & (trials["seed"] == 2)).any()
+    assert trials["finished"].all() and curves.groupby("trial").size().tolist() == [8, 8, 8, 8, 8]
     kept = pd.read_csv(results / "trials.csv").set_index("trial")
     for _, row in trials[trials["seed"] == 0].iterrows():
         assert row["final_team_reward"] == pytest.approx(kept.loc[row["trial"], "final_team_reward"])

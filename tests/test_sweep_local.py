@@ -21,9 +21,12 @@ ROOT = Path(__file__).resolve().parents[1]
 MACHINE = {"sps", "rollout_sps", "update_sps", "wall_time_s"}
 
 
-def tiny(tmp_path: Path, seeds="[0]", total=512, save_every=2, top="") -> Path:
+def tiny(tmp_path: Path, seeds="[0]", total=512, save_every=2, top="", tables="") -> Path:
     return sweep_file(tmp_path, "tiny", '[params]\n"ppo.lr" = [1e-4, 1e-3]', seeds=seeds, total=total,
-                      save_every=save_every, top=top)
+                      save_every=save_every, top=top, tables=tables)
+
+
+MORE_SEEDS = '\n[[more_seeds]]\nseeds = [{seeds}]\nwhere = {{ "ppo.lr" = {where} }}\n'
 
 
 def learned(curves: pd.DataFrame) -> pd.DataFrame:
@@ -45,6 +48,50 @@ def test_grid_lists_every_trial_seed_by_seed(tmp_path):
     assert len(names) == 4
     more = load_sweep(tiny(tmp_path, seeds="[3, 4, 5]"))  # more seeds: the same folders for the same trials
     assert names < {local_name(more, p) for p in grid(more)}
+
+
+def test_grid_lists_more_seeds_last_and_for_their_configurations_only(tmp_path):
+    spec = load_sweep(tiny(tmp_path, seeds="[3, 4]", tables=MORE_SEEDS.format(seeds="7, 5", where="1e-3")))
+    assert grid(spec) == [{"seed": 3, "ppo.lr": 1e-4}, {"seed": 3, "ppo.lr": 1e-3},
+                          {"seed": 4, "ppo.lr": 1e-4}, {"seed": 4, "ppo.lr": 1e-3},
+                          {"seed": 7, "ppo.lr": 1e-3}, {"seed": 5, "ppo.lr": 1e-3}]
+    assert len(grid(spec)) == spec.num_trials() == 6
+    both = load_sweep(tiny(tmp_path, seeds="[3]", tables=MORE_SEEDS.format(seeds="4", where="[1e-4, 0.001]")))
+    assert grid(both) == [{"seed": 3, "ppo.lr": 1e-4}, {"seed": 3, "ppo.lr": 1e-3},
+                          {"seed": 4, "ppo.lr": 1e-4}, {"seed": 4, "ppo.lr": 1e-3}]
+
+
+def test_a_file_that_adds_seeds_continues_its_folder(tmp_path):
+    """A file that gains a ``[[more_seeds]]`` table continues the sweep's folder and trains only the new trials;
+    one that drops it again leaves those trials out of the tables; a file whose trials differ is refused."""
+    folder = tmp_path / "out"
+    assert run_local(load_sweep(tiny(tmp_path), out=folder), processes=2) == 0
+    assert len(read_tables(folder)[0]) == 2
+    more = tiny(tmp_path, tables=MORE_SEEDS.format(seeds="1", where="1e-3"))
+    run = colorgrid("sweep", "run", str(more), "--out", str(folder), "--local", "2")
+    out, _ = run.communicate(timeout=300)
+    assert run.returncode == 0, out
+    assert "3 trials (2 configurations x 1 seeds, and 1 more where [[more_seeds]] adds seeds)" in out, out
+    assert "2 finished here before; 1 to run" in out and "1 of 1 trials ran to the end here" in out, out
+    trained = sorted((json.loads((log.parent.parent / "params.json").read_text())["seed"], log.stat().st_mtime)
+                     for log in folder.glob("trial_*/run/metrics.jsonl"))
+    assert [seed for seed, _ in trained] == [0, 0, 1]
+    assert trained[2][1] > max(t for _, t in trained[:2])  # the new trial was trained after the first two
+    trials, curves = read_tables(folder)
+    assert sorted(zip(trials["ppo.lr"], trials["seed"])) == [(1e-4, 0), (1e-3, 0), (1e-3, 1)]
+    assert trials["finished"].all() and curves.groupby("trial").size().tolist() == [8, 8, 8]
+    assert (folder / "sweep.toml").read_text() == more.read_text()  # the folder keeps the file it now runs
+
+    assert run_local(load_sweep(tiny(tmp_path), out=folder), processes=1) == 0  # back to the first file
+    trials, _ = read_tables(folder)
+    assert sorted(zip(trials["ppo.lr"], trials["seed"])) == [(1e-4, 0), (1e-3, 0)]
+
+    other = sweep_file(tmp_path, "other", '[params]\n"ppo.lr" = [1e-4, 3e-3]', seeds="[0]")
+    with pytest.raises(SweepError, match="holds a sweep of another file"):
+        run_local(load_sweep(other, out=folder), processes=1)
+    longer = tiny(tmp_path, total=1024, tables=MORE_SEEDS.format(seeds="1", where="1e-3"))
+    with pytest.raises(SweepError, match="holds a sweep of another file"):
+        run_local(load_sweep(longer, out=folder), processes=1)
 
 
 def test_stopped_local_sweep_continues_to_the_metrics_of_one_never_stopped(tmp_path):

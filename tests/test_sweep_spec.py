@@ -108,6 +108,27 @@ MISTAKES = {
     "asha over runs of unequal length": (GOOD + '\n[params.budget]\nkeys = ["total_steps"]\ngrid = [4096, 8192]\n'
                                          '[scheduler]\nkind = "asha"\n', "a sweep whose trials all train as long"),
     "an empty paper where": (GOOD + '\n[[paper]]\nwhere = {}\nvalue = 1.0\n', "paper[0].where={} is invalid"),
+    "more seeds already in seeds": (GOOD + '\n[[more_seeds]]\nseeds = [2, 1]\nwhere = { aux = 0.2 }\n',
+                                    "more_seeds[0].seeds=[2, 1] is invalid: seeds not already in 'seeds' [0, 1] "
+                                    "(1 is)"),
+    "more seeds for an unknown parameter": (GOOD + '\n[[more_seeds]]\nseeds = [2]\nwhere = { kappa = 0.2 }\n',
+                                            "more_seeds[0].where='kappa' is invalid: one of the listed parameters "
+                                            "['aux', 'annealing']"),
+    "more seeds for a random parameter": (GOOD + '\n[[more_seeds]]\nseeds = [2]\nwhere = { "ppo.lr" = 1e-4 }\n',
+                                          "more_seeds[0].where='ppo.lr' is invalid: one of the listed parameters"),
+    "more seeds for an unlisted value": (GOOD + '\n[[more_seeds]]\nseeds = [2]\nwhere = { aux = 0.5 }\n',
+                                         "more_seeds[0].where.aux=0.5 is invalid: one of [0.0, 0.2]"),
+    "more seeds for an unlisted option in a list": (
+        GOOD + '\n[[more_seeds]]\nseeds = [2]\nwhere = { annealing = ["none", "late"] }\n',
+        "more_seeds[0].where.annealing='late' is invalid: one of ['none', 'early']"),
+    "more seeds with an empty where": (GOOD + '\n[[more_seeds]]\nseeds = [2]\nwhere = {}\n',
+                                       "more_seeds[0].where={} is invalid: a non-empty table"),
+    "more seeds not distinct": (GOOD + '\n[[more_seeds]]\nseeds = [2, 2]\nwhere = { aux = 0.2 }\n',
+                                "more_seeds[0].seeds=[2, 2] is invalid: a list of distinct whole numbers >= 0"),
+    "more seeds empty": (GOOD + '\n[[more_seeds]]\nseeds = []\nwhere = { aux = 0.2 }\n',
+                         "more_seeds[0].seeds=[] is invalid: a list of distinct whole numbers >= 0"),
+    "more seeds as one table": (GOOD + '\n[more_seeds]\nseeds = [2]\nwhere = { aux = 0.2 }\n',
+                                "is invalid: a list of tables: [[more_seeds]]"),
     "a statistic of no learner": ('metric = "folower/aux_loss"\n' + GOOD.replace('metric = "team_reward"', ""),
                                   "'NAME/key' with NAME one of ['leader', 'follower', 'leader', 'follower']"),
 }
@@ -123,6 +144,50 @@ def test_each_mistake_is_one_line_and_exit_code_2(tmp_path, capsys, name):
     assert main(["sweep", "check", str(path)]) == 2
     err = capsys.readouterr().err
     assert err.startswith("colorgrid sweep check: error: ") and err.count("\n") == 1 and str(path) in err
+
+
+def test_more_seeds_go_to_the_configurations_they_name(tmp_path):
+    """``[[more_seeds]]`` adds its seeds to the matching configurations only, after ``seeds``; a list in ``where``
+    matches any of its values, and a value matches as the parameter lists it (``aux = 0`` is the grid's 0.0)."""
+    text = ("num_samples = 3\n" + GOOD
+            + '\n[[more_seeds]]\nseeds = [5, 2]\nwhere = { aux = 0, annealing = ["none", "early"] }\n'
+            + 'note = "aux 0 left undecided"\n'
+            + '\n[[more_seeds]]\nseeds = [2, 3]\nwhere = { annealing = "early" }\n')
+    spec = load_sweep(write(tmp_path, text))
+    assert spec.seeds == (0, 1) and spec.all_seeds == (0, 1, 5, 2, 3)
+    assert spec.more_seeds[0].where == {"aux": 0.0, "annealing": ["none", "early"]}
+    assert spec.more_seeds[0].note == "aux 0 left undecided"
+    assert spec.seeds_for({"aux": 0.0, "annealing": "none"}) == (0, 1, 5, 2)
+    assert spec.seeds_for({"aux": 0.0, "annealing": "early"}) == (0, 1, 5, 2, 3)  # both tables, 2 once
+    assert spec.seeds_for({"aux": 0.2, "annealing": "early"}) == (0, 1, 2, 3)
+    assert spec.seeds_for({"aux": 0.2, "annealing": "none"}) == (0, 1)
+    # 4 configurations x 3 draws x 2 seeds, and per draw 2 + 3 + 2 + 0 more seeds
+    assert spec.num_trials() == 3 * (4 * 2 + 2 + 3 + 2) == 45
+    assert spec.summary() == "45 trials (12 configurations x 2 seeds, and 21 more where [[more_seeds]] adds seeds)"
+    draw = spec.samples()[0]
+    assert spec.wants({"seed": 5, "aux": 0.0, "annealing": "none", "ppo.lr": None, "sample": draw})
+    assert not spec.wants({"seed": 5, "aux": 0.2, "annealing": "early", "ppo.lr": None, "sample": draw})
+    assert not spec.wants({"seed": 4, "aux": 0.0, "annealing": "early", "ppo.lr": None, "sample": draw})
+    plain = load_sweep(write(tmp_path, GOOD, "plain.toml"))
+    assert plain.all_seeds == (0, 1) and plain.summary() == "8 trials (4 configurations x 2 seeds)"
+
+
+def test_a_file_that_adds_seeds_trains_the_same_trials(tmp_path):
+    """A sweep's folder may continue under a file that adds seeds (``same_trials``), not under one whose trials
+    differ; with random parameters, whose draws are seeded by the file's text, any change makes other trials."""
+    fixed = GOOD.replace('[params."ppo.lr"]\nloguniform = [1e-5, 1e-3]', "")
+    more = '\n[[more_seeds]]\nseeds = [2]\nwhere = { aux = 0.2 }\n'
+    first = load_sweep(write(tmp_path, fixed, "a.toml"))
+    assert first.same_trials(load_sweep(write(tmp_path, fixed + more, "b.toml")))
+    assert first.same_trials(load_sweep(write(tmp_path, fixed.replace("seeds = [0, 1]", "seeds = [0, 1, 2]"),
+                                              "c.toml")))
+    assert not first.same_trials(load_sweep(write(tmp_path, fixed.replace("grid = [0.0, 0.2]", "grid = [0.0, 0.3]"),
+                                                  "d.toml")))
+    assert not first.same_trials(load_sweep(write(tmp_path, fixed.replace("total_steps=4096", "total_steps=8192"),
+                                                  "e.toml")))
+    drawn = load_sweep(write(tmp_path, GOOD, "f.toml"))
+    assert drawn.same_trials(load_sweep(write(tmp_path, GOOD, "g.toml")))
+    assert not drawn.same_trials(load_sweep(write(tmp_path, GOOD + more, "h.toml")))
 
 
 def test_paper_figures_match_their_configuration_by_value(tmp_path):

@@ -119,6 +119,12 @@ def _side(params: tuple, where: str, value, constant_ok: bool) -> dict | float:
     return side
 
 
+def configurations(params: tuple, where: str, value) -> dict:
+    """A table ``{parameter = value or [values]}`` naming configurations (a claim's side, a ``[[more_seeds]]``
+    table's ``where``), each value as the parameter lists it."""
+    return _side(params, where, value, constant_ok=False)
+
+
 def _overlap(params: tuple, a: dict, b: dict) -> bool:
     """Whether some configuration would be on both sides."""
     for param in params:

@@ -95,6 +95,28 @@ class PaperFigure(Table):
 
 
 @dataclass(frozen=True)
+class MoreSeeds(Table):
+    """``[[more_seeds]]``: seeds beyond ``seeds`` for some configurations only (those of claims that came out
+    inconclusive or in direction only, say), so that a sweep grows where it has not decided instead of
+    everywhere."""
+
+    seeds: tuple[int, ...]
+    where: dict
+    """The configurations: ``{parameter name: value or option label, or a list of them}``."""
+    note: str = ""
+    """Why these configurations get more seeds, for people."""
+
+    def __post_init__(self):
+        if (not isinstance(self.seeds, tuple) or not self.seeds or not all(is_int(s) and s >= 0 for s in self.seeds)
+                or len(set(self.seeds)) != len(self.seeds)):
+            refuse(self, "seeds", "a list of distinct whole numbers >= 0, e.g. [3, 4]")
+        if not isinstance(self.where, dict) or not self.where:
+            refuse(self, "where", "a non-empty table of {parameter name = value or [values]}")
+        if not isinstance(self.note, str):
+            refuse(self, "note", "a string")
+
+
+@dataclass(frozen=True)
 class ParamTable(Table):
     """One ``[params.NAME]`` table: exactly one kind of values, and the training keys they set."""
 
@@ -155,6 +177,8 @@ class SweepFile(Table):
     """``KEY=VALUE`` overrides of the base config, as ``colorgrid train --set`` takes them (not ``seed``)."""
     seeds: tuple[int, ...] = (0,)
     """Every configuration is trained once per seed."""
+    more_seeds: tuple[MoreSeeds, ...] = ()
+    """``[[more_seeds]]``: further seeds for the configurations each table names."""
     params: dict = field(default_factory=dict)
     """``[params.NAME]`` tables (or ``NAME = [values]``): what varies."""
     num_samples: int = 1
@@ -195,6 +219,8 @@ class SweepFile(Table):
         for name in ("resources", "scheduler"):
             if not isinstance(getattr(self, name), Table):
                 refuse(self, name, f"a table ([{name}])")
+        if not isinstance(self.more_seeds, tuple):
+            refuse(self, "more_seeds", "a list of tables: [[more_seeds]] seeds = [...], where = {...}")
         if not isinstance(self.paper, tuple):
             refuse(self, "paper", "a list of tables: [[paper]] where = {...}, value = ...")
         if self.results is not None and (not isinstance(self.results, str) or not self.results.strip()):

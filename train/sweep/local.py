@@ -40,17 +40,18 @@ EVERY_S = 30.0
 def grid(spec: SweepSpec) -> list[dict]:
     """Every trial's parameters as Ray Tune's grid gives them (``seed``, each listed value or option by name, and
     the random parameters' draw as ``sample``), seed by seed: a sweep stopped partway has run every configuration's
-    first seeds."""
+    first seeds, and the ``[[more_seeds]]`` trials come last."""
     fixed = [p for p in spec.params if not p.random]
     random = any(p.random for p in spec.params)
     trials = []
-    for seed in spec.seeds:
+    for seed in spec.all_seeds:
         for sample in spec.samples():
             for combo in itertools.product(*(p.values for p in fixed)):
                 params = {"seed": seed, **dict(zip((p.name for p in fixed), combo))}
                 if random:
                     params["sample"] = sample
-                trials.append(params)
+                if spec.wants(params):
+                    trials.append(params)
     return trials
 
 
@@ -74,8 +75,9 @@ def run_local(spec: SweepSpec, processes: int, stop_after: float | None = None) 
     if (folder / RAY_STATE).exists():
         raise SweepError(f"{folder} holds a sweep run on Ray Tune; finish it with colorgrid sweep resume {spec.out}, "
                          f"or choose another --out for --local")
-    if (folder / SPEC_FILE).exists() and (folder / SPEC_FILE).read_text() != spec.text:
-        raise SweepError(f"{folder} holds a sweep of another file (its {SPEC_FILE} differs); choose another --out")
+    if (folder / SPEC_FILE).exists() and not same_sweep(spec, folder):
+        raise SweepError(f"{folder} holds a sweep of another file (its {SPEC_FILE} trains other trials); choose "
+                         f"another --out")
     spec.check_files()
     folder.mkdir(parents=True, exist_ok=True)
     (folder / SPEC_FILE).write_text(spec.text)
@@ -130,6 +132,18 @@ def run_local(spec: SweepSpec, processes: int, stop_after: float | None = None) 
         print("stopped before its end; continue it with the same command", flush=True)
         return 130
     return 0
+
+
+def same_sweep(spec: SweepSpec, folder: Path) -> bool:
+    """Whether the sweep in ``folder`` trains its trials as ``spec`` does (a file that adds seeds, claims or words
+    to it continues it)."""
+    text = (folder / SPEC_FILE).read_text()
+    if text == spec.text:
+        return True
+    try:
+        return load_folder(folder).same_trials(spec)
+    except SweepError:
+        return False
 
 
 _STOP = None

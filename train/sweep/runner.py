@@ -111,8 +111,9 @@ def check_resources(spec: SweepSpec) -> None:
 
 def param_space(spec: SweepSpec) -> dict:
     """Every seed, listed value and option is a grid axis; the random parameters' draws are one more axis
-    (``sample``), drawn once, so that the seeds of a configuration share its draw."""
-    space = {"seed": tune.grid_search(list(spec.seeds))}
+    (``sample``), drawn once, so that the seeds of a configuration share its draw. The seeds are ``all_seeds``:
+    a trial of a ``[[more_seeds]]`` seed its configuration does not take ends at once (``run_trial``)."""
+    space = {"seed": tune.grid_search(list(spec.all_seeds))}
     for param in spec.params:
         if not param.random:
             space[param.name] = tune.grid_search(list(param.values))
@@ -211,7 +212,7 @@ def finish(tuner, spec: SweepSpec, folder: Path) -> int:
 
     grid = tuner.fit()
     trials, _ = collect(folder)
-    ended = ended_trials(folder)
+    ended = ended_trials(folder, spec)
     done = int(trials["finished"].sum()) if len(trials) else 0
     early = ended - done - grid.num_errors  # ended on disk without reaching the end: the scheduler stopped them
     print(f"sweep {folder.name}: {done} of {spec.num_trials()} trials ran to the end"
@@ -227,12 +228,13 @@ def finish(tuner, spec: SweepSpec, folder: Path) -> int:
     return 0
 
 
-def ended_trials(folder: Path) -> int:
-    """Trials that the experiment state saved on disk counts as ended (finished, stopped by the scheduler or
-    failed). After Ctrl+C Tune saves the state before it stops the running trials, so those count as not
+def ended_trials(folder: Path, spec: SweepSpec) -> int:
+    """Trials of the sweep that the experiment state saved on disk counts as ended (finished, stopped by the
+    scheduler or failed); not Tune's trials of a ``[[more_seeds]]`` seed their configuration does not take, which
+    end at once. After Ctrl+C Tune saves the state before it stops the running trials, so those count as not
     ended there, and ``Tuner.restore`` continues them."""
     analysis = tune.ExperimentAnalysis(str(folder))
-    return sum(t.status in ("TERMINATED", "ERROR") for t in analysis.trials)
+    return sum(t.status in ("TERMINATED", "ERROR") and spec.wants(t.config) for t in analysis.trials)
 
 
 def first_line(error: BaseException) -> str:
@@ -261,6 +263,8 @@ class ProgressLines(tune.Callback):
                 f"[{trial_label(self.spec, trial.config)}] step {int(step):,}")
 
     def on_trial_result(self, iteration, trials, trial, result, **info):
+        if result.get("skipped"):
+            return
         now = time.monotonic()
         if now - self.shown.get(trial.trial_id, -1e9) >= self.every:
             self.shown[trial.trial_id] = now
@@ -269,6 +273,8 @@ class ProgressLines(tune.Callback):
 
     def on_trial_complete(self, iteration, trials, trial, **info):
         result = trial.last_result or {}
+        if result.get("skipped"):  # a [[more_seeds]] seed of another configuration: not a trial of the sweep
+            return
         print(self._line(trial, result, "kept (not run again)" if result.get("kept") else "ended"), flush=True)
 
     def on_trial_error(self, iteration, trials, trial, **info):

@@ -21,8 +21,9 @@ from pathlib import Path
 from colorgrid.configkit import ConfigError, from_dict, read_toml, resolve_data
 from train.config import TrainConfig, eval_stream, load_preset, parse_override, resolve
 from train.sweep.checks import SUMMARY_SUFFIXES, SweepError, bad, same_value
-from train.sweep.claim_spec import parse_claims
-from train.sweep.file import KINDS, RANDOM_KINDS, PaperFigure, ParamTable, Resources, Scheduler, SweepFile, written
+from train.sweep.claim_spec import configurations, matches_value, parse_claims
+from train.sweep.file import (KINDS, RANDOM_KINDS, MoreSeeds, PaperFigure, ParamTable, Resources, Scheduler, SweepFile,
+                              written)
 
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 MAX_COMBINATIONS = 10_000
@@ -85,6 +86,8 @@ class SweepSpec:
     paper: tuple[PaperFigure, ...] = ()
     claims: tuple = ()
     """The paper's claims to decide (``train.sweep.claims.Claim``), each with its verdict in the report."""
+    more_seeds: tuple[MoreSeeds, ...] = ()
+    """Further seeds for some configurations (``[[more_seeds]]``, ``where`` as the parameters list their values)."""
     results: Path | None = None
     """A folder of finished trials' results kept with the project (``sweep publish`` writes it): ``sweep run``
     skips the trials whose results it holds, and ``sweep report`` reads them with the sweep's own."""
@@ -140,12 +143,40 @@ class SweepSpec:
     def grid_size(self) -> int:
         return math.prod(len(p.values) for p in self.params if not p.random)
 
+    @property
+    def all_seeds(self) -> tuple[int, ...]:
+        """``seeds``, then each ``[[more_seeds]]`` seed: every seed some configuration trains with."""
+        return tuple(dict.fromkeys((*self.seeds, *(s for more in self.more_seeds for s in more.seeds))))
+
+    def seeds_for(self, values: dict) -> tuple[int, ...]:
+        """The seeds of the configuration with parameter ``values``: ``seeds``, and those of every
+        ``[[more_seeds]]`` table whose ``where`` it matches."""
+        extra = (s for more in self.more_seeds
+                 if all(matches_value(wanted, values.get(name)) for name, wanted in more.where.items())
+                 for s in more.seeds)
+        return tuple(dict.fromkeys((*self.seeds, *extra)))
+
+    def wants(self, params: dict) -> bool:
+        """Whether the sweep trains this trial (a seed of ``all_seeds`` only some configurations take)."""
+        return int(params["seed"]) in self.seeds_for(self.values(params))
+
     def num_trials(self) -> int:
-        return self.grid_size() * self.num_samples * len(self.seeds)
+        fixed = [p for p in self.params if not p.random]
+        return self.num_samples * sum(len(self.seeds_for(dict(zip((p.name for p in fixed), combo))))
+                                      for combo in itertools.product(*(p.values for p in fixed)))
 
     def summary(self) -> str:
+        extra = self.num_trials() - self.grid_size() * self.num_samples * len(self.seeds)
         return (f"{self.num_trials()} trials ({self.grid_size() * self.num_samples} configurations x "
-                f"{len(self.seeds)} seeds)")
+                f"{len(self.seeds)} seeds" + (f", and {extra} more where [[more_seeds]] adds seeds" if extra else "")
+                + ")")
+
+    def same_trials(self, other: "SweepSpec") -> bool:
+        """Whether ``other`` trains each trial the two share as this one does (the same base config,
+        parameters and random draws; seeds, claims and words may differ): a sweep's folder may take the other
+        file. The draws are seeded by the file's text, so with random parameters any change to the file makes
+        other trials."""
+        return self.base == other.base and self.params == other.params and self.samples() == other.samples()
 
     def samples(self) -> list[dict]:
         """``num_samples`` draws of the random parameters (``{name: value}`` each; one empty draw if none), made
@@ -221,7 +252,8 @@ def parse_sweep(data: dict, path: Path, text: str = "", out: str | Path | None =
         results=Path(file.results) if file.results else None)
     check_configs(spec)
     check_metric(spec)
-    spec = dataclasses.replace(spec, paper=tuple(paper_figure(spec, i, row) for i, row in enumerate(file.paper)))
+    spec = dataclasses.replace(spec, paper=tuple(paper_figure(spec, i, row) for i, row in enumerate(file.paper)),
+                               more_seeds=tuple(more_seeds(spec, i, row) for i, row in enumerate(file.more_seeds)))
     return dataclasses.replace(spec, claims=parse_claims(spec.params, spec.metric, summarised_columns(spec),
                                                          list(written(file.claim)) if isinstance(file.claim, tuple)
                                                          else file.claim))
@@ -364,3 +396,15 @@ def paper_figure(spec: SweepSpec, i: int, figure: PaperFigure) -> PaperFigure:
             raise bad(f"{where}.where.{name}", v, f"one of {list(param.values)}")
         match[name] = listed[0]
     return dataclasses.replace(figure, where=match, value=float(figure.value))
+
+
+def more_seeds(spec: SweepSpec, i: int, more: MoreSeeds) -> MoreSeeds:
+    """``[[more_seeds]]`` table ``i`` with its configurations checked against the sweep's listed parameters and its
+    seeds against ``seeds``."""
+    where = f"more_seeds[{i}]"
+    again = [s for s in more.seeds if s in spec.seeds]
+    if again:
+        raise bad(f"{where}.seeds", written(more.seeds), f"seeds not already in 'seeds' {list(spec.seeds)} "
+                                                         f"({again[0]} is)")
+    listed = configurations(spec.params, f"{where}.where", {k: written(v) for k, v in more.where.items()})
+    return dataclasses.replace(more, where=listed)

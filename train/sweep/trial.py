@@ -45,6 +45,9 @@ def run_trial(params: dict, spec: SweepSpec, workdir: str, kept: frozenset = fro
     if Path(workdir).is_dir():  # paths in the sweep file (checkpoints, populations) read as where it was started
         os.chdir(workdir)
     config = trial_config(spec, params)
+    if not spec.wants(params):  # Tune's grid crosses every seed with every configuration; [[more_seeds]] does not
+        tune.report({spec.metric: math.nan, "step": 0, "total_steps": 0, "skipped": 1.0})
+        return
     if (spec.label(spec.values(params)), int(params["seed"])) in kept:
         total = config.num_iterations * config.batch_steps
         tune.report({spec.metric: math.nan, "step": total, "total_steps": total, "kept": 1.0})
