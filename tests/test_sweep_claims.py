@@ -197,16 +197,19 @@ def sweep_folder(tmp_path: Path, claims: str, results: Path) -> Path:
 
 def test_report_decides_claims_and_publish_keeps_finished_trials(tmp_path):
     results = tmp_path / "kept"
-    folder = sweep_folder(tmp_path, claim("optimism pays", A, B, ">", 'paper = "the paper says so"'), results)
+    more = '\n[[more_seeds]]\nseeds = [3]\nwhere = { rewards = "+4/-1", aux = 0.0 }\n'
+    folder = sweep_folder(tmp_path, claim("optimism pays", A, B, ">", 'paper = "the paper says so"') + more, results)
     for seed, (hi, lo) in enumerate([(10, 1), (11, 2), (12, 3)]):
         fake_trial(folder, f"trial_a{seed}", "+4/-1", 0.0, seed, [hi - 1.0, hi + 1.0])
         fake_trial(folder, f"trial_b{seed}", "+1/-1", 0.0, seed, [lo + 1.0, lo - 1.0])
     fake_trial(folder, "trial_c0", "+2/-1", 0.2, 0, [5.0])  # unfinished: half of its steps
     fake_trial(folder, "trial_a3", "+4/-1", 0.0, 3, [100.0])  # a seed still running beside finished ones
+    fake_trial(folder, "trial_b3", "+1/-1", 0.0, 3, [50.0])  # a seed the file does not give: not in the tables
     text, _ = write_report(folder)
     summary = pd.read_csv(folder / "summary.csv").set_index("configuration")
     assert summary.loc["rewards=+4/-1, aux=0.0", "final_team_reward_mean"] == pytest.approx(11.0)  # finished only
     assert tuple(summary.loc["rewards=+4/-1, aux=0.0", ["seeds", "finished"]]) == (4, 3)
+    assert tuple(summary.loc["rewards=+1/-1, aux=0.0", ["seeds", "finished"]]) == (3, 3)  # not trial_b3
     assert summary.loc["rewards=+2/-1, aux=0.2", "final_team_reward_mean"] == pytest.approx(5.0)  # none finished
     assert "| optimism pays (a > b, team_reward) | the paper says so | rewards=+4/-1, aux=0.0: +11.00 (n=3) | " \
            "rewards=+1/-1, aux=0.0: +2.00 (n=3) | +9.00 [" in text
