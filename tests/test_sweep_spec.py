@@ -287,3 +287,14 @@ def test_each_recipe_arm_takes_exactly_one_ingredient_away(name):
     assert judged == {"eval_astar/follower_net_pickups", "eval_population_people_held_out/follower_net_pickups"}
     config = spec.config({"arm": "ippo-leader partner"}, 0)  # ... and every arm judged beside the same partners
     assert config.eval_partners == ("astar", "population:people#held_out") and spec.metric.startswith("eval_astar/")
+
+
+def test_the_unannealed_preset_is_the_ablations_no_annealing_arm():
+    """The simpler recipe ships as a preset that trains exactly the ablation's 'no annealing' trial (its
+    checkpoint, checkpoints/follower_unannealed.pt, is that trial's seed 0)."""
+    from train.config import load_preset
+
+    spec = load_sweep(ROOT / "sweeps" / "assistant_recipe.toml")
+    preset = from_dict(merge(load_preset("follower_astar_unannealed"), parse_override("seed=0")))
+    assert preset == spec.config({"arm": "no annealing"}, 0)
+    assert preset != spec.config({"arm": "recipe"}, 0)

@@ -467,7 +467,9 @@ def test_every_preset_runs_with_a_tiny_budget(tmp_path, preset, shipped_leader):
     config = from_dict(data)
     Trainer(config, tmp_path, progress=False, tensorboard=False).train()
     rows = [json.loads(x) for x in (tmp_path / "metrics.jsonl").read_text().splitlines()]
-    assert [r["stream"] for r in rows] == ["train", "eval"]
+    from train.config import eval_stream
+
+    assert [r["stream"] for r in rows] == ["train", "eval", *(eval_stream(p) for p in config.eval_partners)]
     assert all(math.isfinite(v) for k, v in rows[0].items() if k.endswith("/loss"))
     assert len(list((tmp_path / "replays").rglob("*.replay.json"))) == 1
     assert (tmp_path / "checkpoints" / "latest.pt").is_file()
@@ -703,6 +705,16 @@ def test_the_shipped_follower_reproduces_its_card_and_assists_the_astar_leader()
     net = report["agents"]["follower"]["net_pickups"]
     assert net["mean"] - net["ci95"] > 0, net
     assert report["agents"]["follower"]["belief"]["accuracy"] > 0.5
+
+
+def test_the_unannealed_follower_reproduces_its_card_and_assists_the_astar_leader():
+    """The simpler recipe's checkpoint (no annealing): its card's command, and the same bar."""
+    from colorgrid.evaluate import evaluate
+
+    report = evaluate(EnvConfig(), "astar", str(CARDS / "follower_unannealed.pt"), episodes=100, seed=0)
+    assert_reproduces(report, card_report("follower_unannealed", "astar", "checkpoints/follower_unannealed.pt"))
+    net = report["agents"]["follower"]["net_pickups"]
+    assert net["mean"] - net["ci95"] > 0, net
 
 
 def test_the_shipped_leader_reproduces_its_card_and_collects_goal_blocks():
