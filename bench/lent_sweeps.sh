@@ -8,6 +8,8 @@
 # Usage: bash bench/lent_sweeps.sh SECONDS sweeps/paper_table1_eighth.toml:12 sweeps/assistant_recipe.toml:4
 set -u
 seconds=$1; shift
+per=${PER_ARCHIVE:-4}  # trials an archive: about 3 MB each, and a lent machine sends back files of 16 MiB at most
+[[ $per =~ ^[1-9][0-9]*$ ]] || { echo "PER_ARCHIVE must be a whole number >= 1, got '$per'" >&2; exit 2; }
 out=${OUT:-.}
 export PYTHONUNBUFFERED=1
 { date -u; echo "cores: $(nproc)"; lscpu | grep -m1 'Model name'; } 2>&1 | tee "$out/lent_sweeps.log"
@@ -21,7 +23,6 @@ sys.exit(run_local(load_sweep(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
     > "$out/$name.log" 2>&1 &
 done
 wait
-per=${PER_ARCHIVE:-4}  # trials an archive: about 3 MB each, and a lent machine sends back files of 16 MiB at most
 for name in "${names[@]}"; do
   trials=($(cd runs/sweeps && ls -d "$name"/trial_*))
   for ((k = 0; k < ${#trials[@]}; k += per)); do

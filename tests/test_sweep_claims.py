@@ -249,3 +249,22 @@ def test_kept_results_fill_in_for_trials_a_new_machine_has_not_run(tmp_path):
     # the sweep file alone reports what is kept
     file_text, _ = write_report(first / "sweep.toml")
     assert "3 of 18 trials have reported; 3 ran to the end" in file_text
+
+
+def test_kept_trials_follow_the_seeds_the_file_gives(tmp_path):
+    """Kept results of a seed the sweep file no longer gives a configuration (seeds moved to a ``[[more_seeds]]``
+    table for one side only) are left out of the kept keys, the tables and the claims."""
+    results = tmp_path / "kept"
+    first = sweep_folder(tmp_path, claim("c", A, B, ">"), results)
+    for seed in range(3):
+        fake_trial(first, f"trial_a{seed}", "+4/-1", 0.0, seed, [9.0 + seed, 11.0 + seed])
+        fake_trial(first, f"trial_b{seed}", "+1/-1", 0.0, seed, [1.0 + seed, 1.0 + seed])
+    publish_report(first)
+    every = {(f"rewards={r}, aux=0.0", s) for r in ("+4/-1", "+1/-1") for s in range(3)}
+    assert committed_keys(load_sweep(first / "sweep.toml"), first) == every
+    text = (first / "sweep.toml").read_text().replace("seeds = [0, 1, 2]", "seeds = [0, 1]")
+    (first / "sweep.toml").write_text(text + '\n[[more_seeds]]\nseeds = [2]\nwhere = { rewards = "+4/-1" }\n')
+    spec = load_sweep(first / "sweep.toml")
+    assert committed_keys(spec, first) == every - {("rewards=+1/-1, aux=0.0", 2)}
+    report, _ = write_report(first)
+    assert "rewards=+1/-1, aux=0.0: +1.50 (n=2)" in report and "rewards=+4/-1, aux=0.0: +11.00 (n=3)" in report

@@ -127,6 +127,8 @@ MISTAKES = {
                                 "more_seeds[0].seeds=[2, 2] is invalid: a list of distinct whole numbers >= 0"),
     "more seeds empty": (GOOD + '\n[[more_seeds]]\nseeds = []\nwhere = { aux = 0.2 }\n',
                          "more_seeds[0].seeds=[] is invalid: a list of distinct whole numbers >= 0"),
+    "more seeds for an empty list": (GOOD + '\n[[more_seeds]]\nseeds = [2]\nwhere = { aux = [] }\n',
+                                     "more_seeds[0].where.aux=[] is invalid: a value or a non-empty list of values"),
     "more seeds as one table": (GOOD + '\n[more_seeds]\nseeds = [2]\nwhere = { aux = 0.2 }\n',
                                 "is invalid: a list of tables: [[more_seeds]]"),
     "a statistic of no learner": ('metric = "folower/aux_loss"\n' + GOOD.replace('metric = "team_reward"', ""),
@@ -185,6 +187,10 @@ def test_a_file_that_adds_seeds_trains_the_same_trials(tmp_path):
                                                   "d.toml")))
     assert not first.same_trials(load_sweep(write(tmp_path, fixed.replace("total_steps=4096", "total_steps=8192"),
                                                   "e.toml")))
+    threads = fixed + "\n[resources]\ncpus_per_trial = 2\n"  # a trial's threads (and device) come from [resources]
+    assert not first.same_trials(load_sweep(write(tmp_path, threads, "t.toml")))
+    concurrent = fixed + "\n[resources]\nmax_concurrent = 3\n"  # how many run at once: the same trials
+    assert first.same_trials(load_sweep(write(tmp_path, concurrent, "u.toml")))
     drawn = load_sweep(write(tmp_path, GOOD, "f.toml"))
     assert drawn.same_trials(load_sweep(write(tmp_path, GOOD, "g.toml")))
     assert not drawn.same_trials(load_sweep(write(tmp_path, GOOD + more, "h.toml")))

@@ -109,6 +109,8 @@ def _side(params: tuple, where: str, value, constant_ok: bool) -> dict | float:
         param = next((p for p in params if p.name == name and not p.random), None)
         if param is None:
             raise bad(where, name, f"one of the listed parameters {[p.name for p in params if not p.random]}")
+        if isinstance(wanted, list) and not wanted:
+            raise bad(f"{where}.{name}", wanted, f"a value or a non-empty list of values, of {list(param.values)}")
         chosen = []
         for v in wanted if isinstance(wanted, list) else [wanted]:
             listed = [p for p in param.values if same_value(p, v)]

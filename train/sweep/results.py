@@ -97,7 +97,19 @@ def committed(spec: SweepSpec, folder: Path | None = None) -> tuple[pd.DataFrame
     for table in (trials, curves):
         if "configuration" in table:
             table["configuration"] = table["configuration"].astype(str)
+    # only the trials the file gives: a seed it no longer gives a configuration (seeds, [[more_seeds]]) is not kept
+    wanted = [(str(c), int(s)) in trial_keys(spec) for c, s in zip(trials["configuration"], trials["seed"])]
+    trials = trials[wanted] if len(trials) else trials
+    if not curves.empty and "trial" in curves:
+        curves = curves[curves["trial"].isin(set(trials["trial"]))]
     return trials, curves
+
+
+def trial_keys(spec: SweepSpec) -> set[tuple[str, int]]:
+    """(configuration, seed) of every trial the sweep file gives (the random parameters' draws included)."""
+    from train.sweep.local import grid
+
+    return {(spec.label(spec.values(params)), int(params["seed"])) for params in grid(spec)}
 
 
 def committed_keys(spec: SweepSpec, folder: Path | None = None) -> set[tuple[str, int]]:

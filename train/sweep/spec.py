@@ -167,16 +167,19 @@ class SweepSpec:
 
     def summary(self) -> str:
         extra = self.num_trials() - self.grid_size() * self.num_samples * len(self.seeds)
-        return (f"{self.num_trials()} trials ({self.grid_size() * self.num_samples} configurations x "
-                f"{len(self.seeds)} seeds" + (f", and {extra} more where [[more_seeds]] adds seeds" if extra else "")
-                + ")")
+        configurations, seeds = self.grid_size() * self.num_samples, len(self.seeds)
+        return (f"{self.num_trials()} trial{'s' * (self.num_trials() != 1)} ({configurations} "
+                f"configuration{'s' * (configurations != 1)} x {seeds} seed{'s' * (seeds != 1)}"
+                + (f", and {extra} more where [[more_seeds]] adds seeds" if extra else "") + ")")
 
     def same_trials(self, other: "SweepSpec") -> bool:
         """Whether ``other`` trains each trial the two share as this one does (the same base config,
         parameters and random draws; seeds, claims and words may differ): a sweep's folder may take the other
         file. The draws are seeded by the file's text, so with random parameters any change to the file makes
         other trials."""
-        return self.base == other.base and self.params == other.params and self.samples() == other.samples()
+        mine, theirs = self.resources, other.resources  # threads and device (train.sweep.trial.trial_config)
+        return (self.base == other.base and self.params == other.params and self.samples() == other.samples()
+                and (mine.cpus_per_trial, mine.gpus_per_trial) == (theirs.cpus_per_trial, theirs.gpus_per_trial))
 
     def samples(self) -> list[dict]:
         """``num_samples`` draws of the random parameters (``{name: value}`` each; one empty draw if none), made
