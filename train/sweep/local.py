@@ -14,7 +14,6 @@ A folder is run by one executor: a Ray sweep's folder refuses ``--local`` and a 
 
 from __future__ import annotations
 
-import itertools
 import json
 import os
 import signal
@@ -26,7 +25,7 @@ from multiprocessing import get_context
 from pathlib import Path
 
 from train.sweep.checks import SweepError
-from train.sweep.spec import SPEC_FILE, WORKDIR_FILE, SweepSpec, load_folder
+from train.sweep.spec import SPEC_FILE, WORKDIR_FILE, SweepSpec, grid, load_folder
 from train.sweep.trial import RUN_FOLDER
 
 LOCAL_FILE = "local"
@@ -35,24 +34,6 @@ RAY_STATE = "tuner.pkl"
 """What Ray Tune leaves in a sweep's folder."""
 EVERY_S = 30.0
 """Seconds between a running trial's progress lines."""
-
-
-def grid(spec: SweepSpec) -> list[dict]:
-    """Every trial's parameters as Ray Tune's grid gives them (``seed``, each listed value or option by name, and
-    the random parameters' draw as ``sample``), seed by seed: a sweep stopped partway has run every configuration's
-    first seeds, and the ``[[more_seeds]]`` trials come last."""
-    fixed = [p for p in spec.params if not p.random]
-    random = any(p.random for p in spec.params)
-    trials = []
-    for seed in spec.all_seeds:
-        for sample in spec.samples():
-            for combo in itertools.product(*(p.values for p in fixed)):
-                params = {"seed": seed, **dict(zip((p.name for p in fixed), combo))}
-                if random:
-                    params["sample"] = sample
-                if spec.wants(params):
-                    trials.append(params)
-    return trials
 
 
 def local_name(spec: SweepSpec, params: dict) -> str:

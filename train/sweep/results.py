@@ -28,7 +28,7 @@ from pathlib import Path
 import pandas as pd
 
 from train.sweep.checks import SUMMARY_SUFFIXES
-from train.sweep.spec import WORKDIR_FILE, SweepError, SweepSpec, load_folder
+from train.sweep.spec import WORKDIR_FILE, SweepError, SweepSpec, grid, load_folder
 from train.sweep.trial import RUN_FOLDER
 
 ID_COLUMNS = ("trial", "configuration", "seed")
@@ -107,8 +107,6 @@ def committed(spec: SweepSpec, folder: Path | None = None) -> tuple[pd.DataFrame
 
 def trial_keys(spec: SweepSpec) -> set[tuple[str, int]]:
     """(configuration, seed) of every trial the sweep file gives (the random parameters' draws included)."""
-    from train.sweep.local import grid
-
     return {(spec.label(spec.values(params)), int(params["seed"])) for params in grid(spec)}
 
 

@@ -204,6 +204,24 @@ class SweepSpec:
         return draws
 
 
+def grid(spec: SweepSpec) -> list[dict]:
+    """Every trial's parameters as Ray Tune's grid gives them (``seed``, each listed value or option by name, and
+    the random parameters' draw as ``sample``), seed by seed: a sweep stopped partway has run every configuration's
+    first seeds, and the ``[[more_seeds]]`` trials come last."""
+    fixed = [p for p in spec.params if not p.random]
+    random = any(p.random for p in spec.params)
+    trials = []
+    for seed in spec.all_seeds:
+        for sample in spec.samples():
+            for combo in itertools.product(*(p.values for p in fixed)):
+                params = {"seed": seed, **dict(zip((p.name for p in fixed), combo))}
+                if random:
+                    params["sample"] = sample
+                if spec.wants(params):
+                    trials.append(params)
+    return trials
+
+
 def load_folder(folder: str | Path) -> SweepSpec:
     """The sweep in ``folder`` (made by ``sweep run``), from the file kept there; named after the folder."""
     folder = Path(folder)
