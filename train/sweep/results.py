@@ -98,7 +98,8 @@ def committed(spec: SweepSpec, folder: Path | None = None) -> tuple[pd.DataFrame
         if "configuration" in table:
             table["configuration"] = table["configuration"].astype(str)
     # only the trials the file gives: a seed it no longer gives a configuration (seeds, [[more_seeds]]) is not kept
-    wanted = [(str(c), int(s)) in trial_keys(spec) for c, s in zip(trials["configuration"], trials["seed"])]
+    keys = trial_keys(spec)
+    wanted = [(str(c), int(s)) in keys for c, s in zip(trials["configuration"], trials["seed"])]
     trials = trials[wanted] if len(trials) else trials
     if not curves.empty and "trial" in curves:
         curves = curves[curves["trial"].isin(set(trials["trial"]))]
