@@ -13,7 +13,8 @@ import pytest
 pytest.importorskip("scipy", reason="the sweep extra (make test installs it)")
 
 from colorgrid_apps.cli import main  # noqa: E402
-from train.sweep.claims import Verdict, evaluate, format_claims  # noqa: E402
+from train.sweep.claims import Verdict, evaluate, format_claims, level  # noqa: E402
+from train.sweep.claims import table as claims_table  # noqa: E402
 from train.sweep.report import publish_report, write_report  # noqa: E402
 from train.sweep.results import committed_keys  # noqa: E402
 from train.sweep.spec import SweepError, load_sweep  # noqa: E402
@@ -116,6 +117,31 @@ def test_no_difference_verdicts_need_the_equivalence_test(tmp_path, a, b, margin
         assert o.p_equivalence < 0.05 < o.p  # no difference found, and equivalence shown
     if verdict is Verdict.IN_DIRECTION:
         assert o.p_equivalence >= 0.05 and abs(o.difference) <= margin
+
+
+def test_a_claim_tested_again_on_added_seeds_is_held_to_alpha_over_its_looks(tmp_path):
+    """Seeds a ``[[more_seeds]]`` table adds to a claim's side make a second test of the claim: its verdict is at
+    0.05 / 2 (Bonferroni), and the report and claims.csv say so; a claim whose sides got no seeds keeps 0.05."""
+    a, b = [1.0, 3.0, 5.0, 7.0, 9.0], [0.0, 1.0, 2.0]  # Welch's p = 0.046: between 0.025 and 0.05
+    once = decided(tmp_path, ">", a, b)
+    assert once.looks == 1 and 0.025 < once.p < 0.05 and once.verdict is Verdict.REPRODUCED
+    more = '\n[[more_seeds]]\nseeds = [3, 4]\nwhere = { rewards = "+4/-1", aux = 0.0 }\n'
+    spec = spec_with(tmp_path, claim("again", A, B, ">") + claim("untouched", '{ rewards = "+2/-1", aux = 0.0 }',
+                                                                  B, ">") + more)
+    table = trials_table({("+4/-1", 0.0): a, ("+1/-1", 0.0): b, ("+2/-1", 0.0): [10.0, 11.0, 12.0]})
+    again, untouched = evaluate(spec, table)
+    assert (again.looks, again.p) == (2, pytest.approx(once.p)) and again.verdict is Verdict.IN_DIRECTION
+    assert untouched.looks == 1
+    assert f"{again.p:.3g} (level 0.025: 2 looks)" in format_claims([again, untouched])
+    rows = claims_table([again, untouched])
+    assert list(rows["looks"]) == [2, 1] and list(rows["level"]) == [0.025, 0.05]
+    assert list(rows["verdict"]) == ["in direction only", "reproduced"]
+    # a second table reaching the claim through its other side is a third look; one reaching neither side is none
+    third = more + '\n[[more_seeds]]\nseeds = [5]\nwhere = { rewards = ["+1/-1"] }\n'
+    third += '\n[[more_seeds]]\nseeds = [6]\nwhere = { aux = 0.2 }\n'
+    spec = spec_with(tmp_path, claim("again", A, B, ">") + third)
+    assert [o.looks for o in evaluate(spec, table)] == [3]
+    assert level(3) == pytest.approx(0.05 / 3)
 
 
 def test_too_few_seeds_or_no_spread_is_inconclusive(tmp_path):

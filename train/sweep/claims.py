@@ -19,10 +19,18 @@ means, or the one-sample t-test against a constant; for ``~``, two one-sided tes
 
 A side with fewer than two finished seeds, or two sides without spread, gives no p-value and is
 inconclusive.
+
+A claim tested more than once is held to a stricter level. Seeds a ``[[more_seeds]]`` table adds to a
+configuration of a claim's side are there because the first seeds had not decided it, so the claim is tested
+once on ``seeds`` and again with each such table (``count_looks``), and at 0.05 each time it would come out
+reproduced wrongly more often than 5% of the time. Every 0.05 above is then 0.05 divided by the looks
+(Bonferroni's correction, ``level``): it holds whatever the number of seeds each look adds, where Pocock's
+boundaries (0.0294 a look for two) assume equal steps.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 import warnings
 from dataclasses import dataclass
@@ -34,7 +42,7 @@ import pandas as pd
 from train.sweep.claim_spec import Claim, Direction, matches_value
 
 ALPHA = 0.05
-"""The significance level of every verdict."""
+"""The significance level of a verdict on a claim tested once (``level``)."""
 
 
 class Verdict(str, Enum):
@@ -67,6 +75,8 @@ class Outcome:
     p: float
     p_equivalence: float
     verdict: Verdict
+    looks: int = 1
+    """How many times the claim is tested (``count_looks``); its verdict is at ``level(looks)``."""
 
     @property
     def mean_a(self) -> float:
@@ -79,27 +89,49 @@ class Outcome:
         return float(np.mean(self.b)) if self.b else math.nan
 
 
+def count_looks(spec, claim: Claim) -> int:
+    """How many times ``claim`` is tested: once on the sweep's ``seeds``, and once more for each ``[[more_seeds]]``
+    table that gives seeds to a configuration on either of its sides (the module docstring says why)."""
+    sides = [side for side in (claim.a, claim.b) if isinstance(side, dict)]
+    fixed = [p for p in spec.params if not p.random]
+    configurations = [dict(zip((p.name for p in fixed), combo))
+                      for combo in itertools.product(*(p.values for p in fixed))]
+
+    def on(where: dict, values: dict) -> bool:
+        return all(matches_value(wanted, values.get(name)) for name, wanted in where.items())
+
+    return 1 + sum(any(on(more.where, c) and any(on(side, c) for side in sides) for c in configurations)
+                   for more in spec.more_seeds)
+
+
+def level(looks: int = 1) -> float:
+    """The significance level of each test of a claim tested ``looks`` times: ``ALPHA / looks`` (Bonferroni)."""
+    return ALPHA / looks
+
+
 def verdict(direction: Direction, difference: float, p: float, p_equivalence: float = math.nan,
-            margin: float = 0.0) -> Verdict:
-    """The one rule (module docstring): the verdict from the difference of means (a - b) and the p-values."""
+            margin: float = 0.0, alpha: float = ALPHA) -> Verdict:
+    """The one rule (module docstring): the verdict from the difference of means (a - b) and the p-values, at
+    significance level ``alpha`` (``level``)."""
     if not math.isfinite(difference):
         return Verdict.INCONCLUSIVE
     if direction is Direction.SAME:
-        if math.isfinite(p_equivalence) and p_equivalence < ALPHA:
+        if math.isfinite(p_equivalence) and p_equivalence < alpha:
             return Verdict.REPRODUCED
         if abs(difference) <= margin:
             return Verdict.IN_DIRECTION
-        return Verdict.NOT_REPRODUCED if math.isfinite(p) and p < ALPHA else Verdict.INCONCLUSIVE
+        return Verdict.NOT_REPRODUCED if math.isfinite(p) and p < alpha else Verdict.INCONCLUSIVE
     agrees = difference > 0 if direction is Direction.GREATER else difference < 0
     if not math.isfinite(p):
         return Verdict.INCONCLUSIVE
     if agrees:
-        return Verdict.REPRODUCED if p < ALPHA else Verdict.IN_DIRECTION
-    return Verdict.NOT_REPRODUCED if p < ALPHA else Verdict.INCONCLUSIVE
+        return Verdict.REPRODUCED if p < alpha else Verdict.IN_DIRECTION
+    return Verdict.NOT_REPRODUCED if p < alpha else Verdict.INCONCLUSIVE
 
 
-def decide(claim: Claim, a: list[float], b: list[float] | float) -> Outcome:
-    """Test ``a`` against ``b`` (values, or a constant) as the claim says, and give the verdict."""
+def decide(claim: Claim, a: list[float], b: list[float] | float, looks: int = 1) -> Outcome:
+    """Test ``a`` against ``b`` (values, or a constant) as the claim says, and give the verdict at the level of a
+    claim tested ``looks`` times."""
     from scipy import stats
 
     nan = math.nan
@@ -133,9 +165,9 @@ def decide(claim: Claim, a: list[float], b: list[float] | float) -> Outcome:
                 p_eq = float(max(above, below))
     if not enough:
         return Outcome(claim, list(a), b if constant else list(b), difference, nan, nan, nan, nan,
-                       Verdict.INCONCLUSIVE)
+                       Verdict.INCONCLUSIVE, looks)
     return Outcome(claim, list(a), b if constant else list(b), difference, float(low), float(high), p, p_eq,
-                   verdict(claim.direction, difference, p, p_eq, claim.margin))
+                   verdict(claim.direction, difference, p, p_eq, claim.margin, level(looks)), looks)
 
 
 def evaluate(spec, trials: pd.DataFrame) -> list[Outcome]:
@@ -145,7 +177,7 @@ def evaluate(spec, trials: pd.DataFrame) -> list[Outcome]:
         column = f"final_{claim.metric}"
         a = side_values(trials, claim.a, column)
         b = claim.b if isinstance(claim.b, float) else side_values(trials, claim.b, column)
-        outcomes.append(decide(claim, a, b))
+        outcomes.append(decide(claim, a, b, count_looks(spec, claim)))
     return outcomes
 
 
@@ -161,7 +193,7 @@ def table(outcomes: list[Outcome]) -> pd.DataFrame:
             "a_values": " ".join(f"{v:.3f}" for v in o.a),
             "b_values": "" if isinstance(o.b, float) else " ".join(f"{v:.3f}" for v in o.b),
             "difference": o.difference, "ci95_low": o.low, "ci95_high": o.high, "p": o.p,
-            "p_equivalence": o.p_equivalence, "verdict": o.verdict.value})
+            "p_equivalence": o.p_equivalence, "looks": o.looks, "level": level(o.looks), "verdict": o.verdict.value})
     return pd.DataFrame(rows)
 
 
@@ -179,6 +211,8 @@ def format_claims(outcomes: list[Outcome]) -> str:
         p = "-" if not math.isfinite(o.p) else f"{o.p:.3g}"
         if c.direction is Direction.SAME:
             p += f"; within ±{c.margin:g}: " + ("-" if not math.isfinite(o.p_equivalence) else f"{o.p_equivalence:.3g}")
+        if o.looks > 1:
+            p += f" (level {level(o.looks):.3g}: {o.looks} looks)"
         lines.append("| " + " | ".join([
             f"{c.name} (a {c.direction.value} b{', ' + c.metric if c.metric else ''})", c.paper,
             f"{c.side_name(c.a)}: {_mean(o.mean_a)} (n={len(o.a)})",

@@ -175,7 +175,8 @@ def render(spec: SweepSpec, trials: pd.DataFrame, curves: pd.DataFrame, out: Pat
         f"one-sided tests within the margin. Verdicts by one rule (train/sweep/claims.py, docs/SWEEPS.md): "
         f"reproduced (the paper's direction, p < {claim_rules.ALPHA}), in direction only (the paper's direction, "
         f"p >= {claim_rules.ALPHA}), not reproduced (the opposite, p < {claim_rules.ALPHA}), inconclusive "
-        f"otherwise.", "",
+        f"otherwise; a claim tested again on seeds [[more_seeds]] added is held to {claim_rules.ALPHA} divided by "
+        f"its looks (its p says so).", "",
         claim_rules.format_claims(outcomes), ""]
     text = "\n".join([
         f"# Sweep {spec.name}", "",
