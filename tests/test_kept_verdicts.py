@@ -1,0 +1,87 @@
+"""The verdicts the project publishes are the report's: each kept sweep's ``claims.csv`` is what ``colorgrid sweep
+report`` decides now from the kept ``trials.csv`` under the sweep file as shipped, and every table row of the
+docs that names a claim quotes that verdict. A change to the rule, to a sweep file's claims or seeds, or to a
+kept table that is not carried into the kept claims and the docs fails here."""
+
+import math
+import re
+from pathlib import Path
+
+import pandas as pd
+import pytest
+
+pytest.importorskip("scipy", reason="the sweep extra (make test installs it)")
+
+from train.sweep.claims import Verdict, evaluate  # noqa: E402
+from train.sweep.claims import table as claims_table  # noqa: E402
+from train.sweep.results import committed, results_folder  # noqa: E402
+from train.sweep.spec import load_sweep  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+DOCS = ("docs/REPRODUCTION.md", "docs/ASSISTANT_RECIPE.md", "README.md")
+
+
+def kept_sweeps() -> dict[str, Path]:
+    """``{results folder name: sweep file}`` for every shipped sweep file whose kept results include claims."""
+    found = {}
+    for path in sorted((ROOT / "sweeps").glob("*.toml")):
+        text = path.read_text()
+        match = re.search(r'^results\s*=\s*"([^"]+)"', text, re.MULTILINE)
+        if match and (ROOT / match.group(1) / "claims.csv").is_file():
+            found[Path(match.group(1)).name] = path
+    return found
+
+
+def test_the_kept_sweeps_are_found():
+    assert {"table1_small", "table1_eighth", "exploration_small", "assistant_recipe"} <= set(kept_sweeps())
+
+
+@pytest.mark.parametrize("path", kept_sweeps().values(), ids=lambda p: p.stem)
+def test_kept_claims_are_what_the_report_decides_from_the_kept_trials(path, monkeypatch):
+    monkeypatch.chdir(ROOT)
+    spec = load_sweep(path)
+    trials, _ = committed(spec)
+    kept = pd.read_csv(results_folder(spec) / "claims.csv")
+    now = claims_table(evaluate(spec, trials))
+    assert list(now["claim"]) == list(kept["claim"]), "the file's claims are not the kept ones: run sweep report"
+    assert list(now["verdict"]) == list(kept["verdict"])
+    assert list(now["looks"]) == list(kept["looks"]) and list(now["n_a"]) == list(kept["n_a"])
+    for column in ("difference", "p", "p_equivalence"):  # kept to the CSV's precision
+        for a, b in zip(now[column], kept[column]):
+            assert (math.isnan(a) and math.isnan(b)) or a == pytest.approx(b, rel=1e-9, abs=1e-12), column
+
+
+def quoted_rows() -> list[tuple[str, int, str, str, str]]:
+    """Every docs table row whose first cell names a kept claim: ``(doc, line, sweep, claim, verdict cell)``. The
+    sweep is the last one the doc links (``reproduction/<sweep>/``) at or above the row."""
+    names = {}
+    for sweep in kept_sweeps():
+        for claim in pd.read_csv(ROOT / "docs" / "reproduction" / sweep / "claims.csv")["claim"]:
+            names.setdefault(claim, set()).add(sweep)
+    rows = []
+    for doc in DOCS:
+        sweep = None
+        for number, line in enumerate((ROOT / doc).read_text().splitlines(), 1):
+            linked = re.findall(r"reproduction/([a-z0-9_]+)/", line)
+            sweep = linked[-1] if linked else sweep
+            if not line.startswith("| "):
+                continue
+            first = line.split("|")[1].strip()
+            claim = next((n for n in names if first == n or first.startswith(n + " (")), None)
+            if claim is not None:
+                rows.append((doc, number, sweep, claim, line.rstrip().rstrip("|").split("|")[-1].strip().strip("*")))
+    return rows
+
+
+def test_every_docs_table_row_quotes_the_reports_verdict():
+    rows = quoted_rows()
+    assert {doc for doc, *_ in rows} >= {"docs/REPRODUCTION.md", "docs/ASSISTANT_RECIPE.md"}
+    verdicts = {}
+    for sweep in kept_sweeps():
+        kept = pd.read_csv(ROOT / "docs" / "reproduction" / sweep / "claims.csv")
+        verdicts.update({(sweep, c): v for c, v in zip(kept["claim"], kept["verdict"])})
+    for doc, number, sweep, claim, cell in rows:
+        assert (sweep, claim) in verdicts, f"{doc}:{number}: {claim!r} quoted below a link to {sweep}, not its claim"
+        assert cell in {v.value for v in Verdict}, f"{doc}:{number}: the last cell {cell!r} is not a verdict"
+        report = verdicts[sweep, claim]
+        assert cell == report, f"{doc}:{number}: {claim!r} says {cell!r}, the report {report!r}"
