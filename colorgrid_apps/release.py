@@ -101,7 +101,7 @@ def read_recipe_sweep(folder: Path) -> RecipeSweep:
     require("sweep", what, only=("pandas",))
     from train.checkpoint import load_checkpoint
     from train.cli import resumed_config
-    from train.sweep.results import committed_keys, results_folder, training_rows
+    from train.sweep.results import committed_keys, results_folder, trained_to
     from train.sweep.spec import load_folder
 
     spec = load_folder(folder)  # a SweepError (a ValueError) when it is not a sweep's folder
@@ -124,8 +124,7 @@ def read_recipe_sweep(folder: Path) -> RecipeSweep:
             skipped.append(f"skipped the arm '{arm}': its seed-{RECIPE_SEED} trial has not started in {folder}")
             continue
         config = resumed_config(run, [])
-        total, rows = config.num_iterations * config.batch_steps, training_rows(trial)
-        last = max(rows, default=0)
+        total, last = config.end_step, trained_to(trial)
         step = load_checkpoint(trial / TRIAL_CHECKPOINT)["step"] if last >= total else last
         if step < total:
             skipped.append(f"skipped the arm '{arm}': its seed-{RECIPE_SEED} trial ({trial.name}) has not finished "

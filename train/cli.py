@@ -141,7 +141,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     finally:
         signal.signal(signal.SIGINT, previous)
     if interrupted.is_set() and trainer.iteration < config.num_iterations:
-        print(f"stopped at step {trainer.step} of {config.num_iterations * config.batch_steps}; continue with: "
+        print(f"stopped at step {trainer.step} of {config.end_step}; continue with: "
               f"colorgrid train --resume {run_dir}")
         return 130
     shown = {k: round(v, 3) for k, v in last.items() if isinstance(v, float) and ("eval/" in k or k == "sps")}

@@ -386,6 +386,11 @@ class TrainConfig:
     def num_iterations(self) -> int:
         return -(-self.total_steps // self.batch_steps)
 
+    @property
+    def end_step(self) -> int:
+        """The step a run ends at: ``total_steps`` rounded up to a whole PPO iteration."""
+        return self.num_iterations * self.batch_steps
+
     def to_dict(self) -> dict:
         return configkit.to_dict(self)
 

@@ -127,7 +127,7 @@ class Trainer:
         bar = None
         if self.progress:
             from tqdm import tqdm
-            bar = tqdm(total=cfg.num_iterations * cfg.batch_steps, initial=self.step, unit="step", smoothing=0.1)
+            bar = tqdm(total=cfg.end_step, initial=self.step, unit="step", smoothing=0.1)
         last = {}
         self._tick = time.perf_counter()
         ended = False

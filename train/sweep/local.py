@@ -139,13 +139,9 @@ def share_stop(event) -> None:
 
 def finished(spec: SweepSpec, trial_dir: Path, params: dict) -> bool:
     """Whether the trial's training log reaches its last step."""
-    from train.sweep.results import training_rows
+    from train.sweep.results import trained_to
 
-    if not (trial_dir / RUN_FOLDER / "metrics.jsonl").exists():
-        return False
-    config = spec.config(spec.values(params), int(params["seed"]))
-    rows = training_rows(trial_dir)
-    return bool(rows) and max(rows) >= config.num_iterations * config.batch_steps
+    return trained_to(trial_dir) >= spec.config(spec.values(params), int(params["seed"])).end_step
 
 
 def run_one(folder: str, params: dict, deadline: float | None, waited: bool = False) -> None:
@@ -171,7 +167,7 @@ def run_one(folder: str, params: dict, deadline: float | None, waited: bool = Fa
     if latest.exists():
         trainer.restore(latest)
     label = f"trial [{spec.label(spec.values(params))}, seed={params['seed']}]"
-    total = config.num_iterations * config.batch_steps
+    total = config.end_step
     last_line = [0.0]
 
     def report(row: dict, saved: Path | None) -> None:

@@ -68,6 +68,14 @@ def training_rows(trial_dir: Path) -> dict[int, dict]:
     return by_step
 
 
+def trained_to(trial_dir: Path) -> int:
+    """The last step a trial's training log reaches (0 before its first iteration): it has finished when that is
+    its configuration's ``end_step``."""
+    if not (trial_dir / RUN_FOLDER / "metrics.jsonl").is_file():
+        return 0
+    return max(training_rows(trial_dir), default=0)
+
+
 CURVE_COLUMNS = ("wall_time_s", "sps", "penalty_coef", "team_reward")
 """Columns the kept curves hold besides the identity, the step, the metric and the summarised columns."""
 UNFINISHED_FILE = "unfinished.csv"
@@ -195,7 +203,7 @@ def collect(folder: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
         ident = {"trial": trial_dir.name, "configuration": spec.label(values), **values}
         rows = [{**ident, "step": step, **numeric(row)} for step, row in sorted(by_step.items())]
         curves.extend(rows)
-        trials.append({**summarize_trial(spec, ident, rows, config.num_iterations * config.batch_steps),
+        trials.append({**summarize_trial(spec, ident, rows, config.end_step),
                        "node": by_step[max(by_step)].get("node_id", "")})
     trials_df, curves_df = merge_committed(spec, folder, pd.DataFrame(trials), pd.DataFrame(curves))
     write_table(curves_df, folder / "curves")

@@ -349,7 +349,7 @@ def check_configs(spec: SweepSpec) -> None:
         except ConfigError as err:
             where = ", ".join(f"{k}={v!r}" for k, v in values.items())
             raise SweepError(f"params ({where}): {err}") from None
-        totals.add(config.num_iterations * config.batch_steps)
+        totals.add(config.end_step)
     if spec.scheduler.kind == "asha":
         if len(totals) > 1:
             raise bad("scheduler.kind", "asha", f"a sweep whose trials all train as long (total_steps varies: "

@@ -49,7 +49,7 @@ def run_trial(params: dict, spec: SweepSpec, workdir: str, kept: frozenset = fro
         tune.report({spec.metric: math.nan, "step": 0, "total_steps": 0, "skipped": 1.0})
         return
     if (spec.label(spec.values(params)), int(params["seed"])) in kept:
-        total = config.num_iterations * config.batch_steps
+        total = config.end_step
         tune.report({spec.metric: math.nan, "step": total, "total_steps": total, "kept": 1.0})
         return
     limit_threads(config.threads)
@@ -69,7 +69,7 @@ def run_trial(params: dict, spec: SweepSpec, workdir: str, kept: frozenset = fro
     def report(row: dict, saved: Path | None) -> None:
         metrics = {k: float(v) for k, v in row.items() if isinstance(v, (int, float))}
         metrics.setdefault(spec.metric, math.nan)  # Tune needs the metric in every report; NaN: none this time
-        metrics.update(step=trainer.step, total_steps=config.num_iterations * config.batch_steps, node_id=node,
+        metrics.update(step=trainer.step, total_steps=config.end_step, node_id=node,
                        **threads)
         if saved is None:
             tune.report(metrics)
