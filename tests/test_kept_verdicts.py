@@ -1,7 +1,8 @@
 """The verdicts the project publishes are the report's: each kept sweep's ``claims.csv`` is what ``colorgrid sweep
-report`` decides now from the kept ``trials.csv`` under the sweep file as shipped, and every table row of the
-docs that names a claim quotes that verdict. A change to the rule, to a sweep file's claims or seeds, or to a
-kept table that is not carried into the kept claims and the docs fails here."""
+report`` decides now from the kept ``trials.csv`` under the sweep file as shipped, and every docs table row whose
+first cell is a claim's name (the claims tables the docs quote from the reports) gives that verdict. A change to
+the rule, to a sweep file's claims or seeds, or to a kept table that is not carried into the kept claims and those
+rows fails here. Rows that paraphrase a claim (the summary tables) and verdicts quoted in prose are not read."""
 
 import math
 import re

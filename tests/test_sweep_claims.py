@@ -136,11 +136,15 @@ def test_a_claim_tested_again_on_added_seeds_is_held_to_alpha_over_its_looks(tmp
     rows = claims_table([again, untouched])
     assert list(rows["looks"]) == [2, 1] and list(rows["level"]) == [0.025, 0.05]
     assert list(rows["verdict"]) == ["in direction only", "reproduced"]
-    # a second table reaching the claim through its other side is a third look; one reaching neither side is none
+    # other seeds through its other side are a third look; the same seeds through it are the same round; seeds
+    # reaching neither side are none
     third = more + '\n[[more_seeds]]\nseeds = [5]\nwhere = { rewards = ["+1/-1"] }\n'
+    third += '\n[[more_seeds]]\nseeds = [4, 3]\nwhere = { rewards = "+1/-1" }\n'
     third += '\n[[more_seeds]]\nseeds = [6]\nwhere = { aux = 0.2 }\n'
     spec = spec_with(tmp_path, claim("again", A, B, ">") + third)
     assert [o.looks for o in evaluate(spec, table)] == [3]
+    unfinished = evaluate(spec, trials_table({("+4/-1", 0.0): a}))  # side b has no finished trial: no p, no level
+    assert "looks" not in format_claims(unfinished)
     assert level(3) == pytest.approx(0.05 / 3)
 
 

@@ -22,10 +22,11 @@ inconclusive.
 
 A claim tested more than once is held to a stricter level. Seeds a ``[[more_seeds]]`` table adds to a
 configuration of a claim's side are there because the first seeds had not decided it, so the claim is tested
-once on ``seeds`` and again with each such table (``count_looks``), and at 0.05 each time it would come out
-reproduced wrongly more often than 5% of the time. Every 0.05 above is then 0.05 divided by the looks
+once on ``seeds`` and again with each such round of seeds (``count_looks``), and at 0.05 each time it would come
+out reproduced wrongly more often than 5% of the time. Every 0.05 above is then 0.05 divided by the looks
 (Bonferroni's correction, ``level``): it holds whatever the number of seeds each look adds, where Pocock's
-boundaries (0.0294 a look for two) assume equal steps.
+boundaries (0.0294 a look for two) assume equal steps. Seeds every configuration gets whatever the first ones
+said go in ``seeds`` and cost no look. The interval stays at 95% whatever the level.
 """
 
 from __future__ import annotations
@@ -90,8 +91,10 @@ class Outcome:
 
 
 def count_looks(spec, claim: Claim) -> int:
-    """How many times ``claim`` is tested: once on the sweep's ``seeds``, and once more for each ``[[more_seeds]]``
-    table that gives seeds to a configuration on either of its sides (the module docstring says why)."""
+    """How many times ``claim`` is tested: once on the sweep's ``seeds``, and once more for each set of seeds that
+    ``[[more_seeds]]`` tables give a configuration on either of its sides (tables with the same seeds, one for each
+    side, are one round; the module docstring says why). The looks are those the file plans: a table whose trials
+    have not run yet counts already, so the level does not change as they finish."""
     sides = [side for side in (claim.a, claim.b) if isinstance(side, dict)]
     fixed = [p for p in spec.params if not p.random]
     configurations = [dict(zip((p.name for p in fixed), combo))
@@ -100,8 +103,9 @@ def count_looks(spec, claim: Claim) -> int:
     def on(where: dict, values: dict) -> bool:
         return all(matches_value(wanted, values.get(name)) for name, wanted in where.items())
 
-    return 1 + sum(any(on(more.where, c) and any(on(side, c) for side in sides) for c in configurations)
-                   for more in spec.more_seeds)
+    rounds = {tuple(sorted(more.seeds)) for more in spec.more_seeds
+              if any(on(more.where, c) and any(on(side, c) for side in sides) for c in configurations)}
+    return 1 + len(rounds)
 
 
 def level(looks: int = 1) -> float:
@@ -211,7 +215,7 @@ def format_claims(outcomes: list[Outcome]) -> str:
         p = "-" if not math.isfinite(o.p) else f"{o.p:.3g}"
         if c.direction is Direction.SAME:
             p += f"; within ±{c.margin:g}: " + ("-" if not math.isfinite(o.p_equivalence) else f"{o.p_equivalence:.3g}")
-        if o.looks > 1:
+        if o.looks > 1 and math.isfinite(o.p):
             p += f" (level {level(o.looks):.3g}: {o.looks} looks)"
         lines.append("| " + " | ".join([
             f"{c.name} (a {c.direction.value} b{', ' + c.metric if c.metric else ''})", c.paper,

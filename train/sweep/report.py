@@ -176,7 +176,7 @@ def render(spec: SweepSpec, trials: pd.DataFrame, curves: pd.DataFrame, out: Pat
         f"reproduced (the paper's direction, p < {claim_rules.ALPHA}), in direction only (the paper's direction, "
         f"p >= {claim_rules.ALPHA}), not reproduced (the opposite, p < {claim_rules.ALPHA}), inconclusive "
         f"otherwise; a claim tested again on seeds [[more_seeds]] added is held to {claim_rules.ALPHA} divided by "
-        f"its looks (its p says so).", "",
+        f"its looks (its p says so; the interval stays at 95%).", "",
         claim_rules.format_claims(outcomes), ""]
     text = "\n".join([
         f"# Sweep {spec.name}", "",
