@@ -2,7 +2,8 @@
 report`` decides now from the kept ``trials.csv`` under the sweep file as shipped, and every docs table row whose
 first cell is a claim's name (the claims tables the docs quote from the reports) gives that verdict. A change to
 the rule, to a sweep file's claims or seeds, or to a kept table that is not carried into the kept claims and those
-rows fails here. Rows that paraphrase a claim (the summary tables) and verdicts quoted in prose are not read."""
+rows fails here, and so does a kept claim that no docs table quotes. Rows that paraphrase a claim (the summary
+tables) and verdicts quoted in prose are not read."""
 
 import math
 import re
@@ -86,3 +87,10 @@ def test_every_docs_table_row_quotes_the_reports_verdict():
         assert cell in {v.value for v in Verdict}, f"{doc}:{number}: the last cell {cell!r} is not a verdict"
         report = verdicts[sweep, claim]
         assert cell == report, f"{doc}:{number}: {claim!r} says {cell!r}, the report {report!r}"
+
+
+def test_every_kept_claim_is_quoted_in_a_docs_table():
+    quoted = {(sweep, claim) for _, _, sweep, claim, _ in quoted_rows()}
+    for sweep in kept_sweeps():
+        for claim in pd.read_csv(ROOT / "docs" / "reproduction" / sweep / "claims.csv")["claim"]:
+            assert (sweep, claim) in quoted, f"{sweep}: the claim {claim!r} has no row in a claims table of {DOCS}"
