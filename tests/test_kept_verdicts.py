@@ -34,6 +34,11 @@ def kept_sweeps() -> dict[str, Path]:
     return found
 
 
+def kept_claims(sweep: str) -> pd.DataFrame:
+    """The kept ``claims.csv`` of the results folder ``docs/reproduction/<sweep>``."""
+    return pd.read_csv(ROOT / "docs" / "reproduction" / sweep / "claims.csv")
+
+
 def test_the_kept_sweeps_are_found():
     assert {"table1_small", "table1_eighth", "exploration_small", "assistant_recipe"} <= set(kept_sweeps())
 
@@ -58,7 +63,7 @@ def quoted_rows() -> list[tuple[str, int, str, str, str]]:
     sweep is the last one the doc links (``reproduction/<sweep>/``) at or above the row."""
     names = {}
     for sweep in kept_sweeps():
-        for claim in pd.read_csv(ROOT / "docs" / "reproduction" / sweep / "claims.csv")["claim"]:
+        for claim in kept_claims(sweep)["claim"]:
             names.setdefault(claim, set()).add(sweep)
     rows = []
     for doc in DOCS:
@@ -80,7 +85,7 @@ def test_every_docs_table_row_quotes_the_reports_verdict():
     assert {doc for doc, *_ in rows} >= {"docs/REPRODUCTION.md", "docs/ASSISTANT_RECIPE.md"}
     verdicts = {}
     for sweep in kept_sweeps():
-        kept = pd.read_csv(ROOT / "docs" / "reproduction" / sweep / "claims.csv")
+        kept = kept_claims(sweep)
         verdicts.update({(sweep, c): v for c, v in zip(kept["claim"], kept["verdict"])})
     for doc, number, sweep, claim, cell in rows:
         assert (sweep, claim) in verdicts, f"{doc}:{number}: {claim!r} quoted below a link to {sweep}, not its claim"
@@ -92,5 +97,5 @@ def test_every_docs_table_row_quotes_the_reports_verdict():
 def test_every_kept_claim_is_quoted_in_a_docs_table():
     quoted = {(sweep, claim) for _, _, sweep, claim, _ in quoted_rows()}
     for sweep in kept_sweeps():
-        for claim in pd.read_csv(ROOT / "docs" / "reproduction" / sweep / "claims.csv")["claim"]:
+        for claim in kept_claims(sweep)["claim"]:
             assert (sweep, claim) in quoted, f"{sweep}: the claim {claim!r} has no row in a claims table of {DOCS}"

@@ -142,3 +142,9 @@ def _overlap(params: tuple, a: dict, b: dict) -> bool:
 def matches_value(wanted, value) -> bool:
     options = wanted if isinstance(wanted, (list, tuple)) else [wanted]
     return any(same_value(w, value) for w in options)
+
+
+def matches(where: dict, values) -> bool:
+    """Whether the configuration with parameter ``values`` (a mapping by name) is one that ``where`` names (a
+    claim's side, a ``[[more_seeds]]`` table's ``where``): each named parameter has one of the named values."""
+    return all(matches_value(wanted, values.get(name)) for name, wanted in where.items())

@@ -31,7 +31,6 @@ said go in ``seeds`` and cost no look. The interval stays at 95% whatever the le
 
 from __future__ import annotations
 
-import itertools
 import math
 import warnings
 from dataclasses import dataclass
@@ -40,7 +39,7 @@ from enum import Enum
 import numpy as np
 import pandas as pd
 
-from train.sweep.claim_spec import Claim, Direction, matches_value
+from train.sweep.claim_spec import Claim, Direction, matches
 
 ALPHA = 0.05
 """The significance level of a verdict on a claim tested once (``level``)."""
@@ -58,7 +57,7 @@ def side_values(trials: pd.DataFrame, side: dict, column: str) -> list[float]:
     if trials.empty or column not in trials.columns:
         return []
     rows = trials[trials["finished"].astype(bool)]
-    keep = [all(matches_value(wanted, row[name]) for name, wanted in side.items()) for _, row in rows.iterrows()]
+    keep = [matches(side, row) for _, row in rows.iterrows()]
     chosen = rows[keep].sort_values(["seed"] + (["configuration"] if "configuration" in rows else []))
     return [float(v) for v in chosen[column] if math.isfinite(v)]
 
@@ -96,15 +95,8 @@ def count_looks(spec, claim: Claim) -> int:
     side, are one round; the module docstring says why). The looks are those the file plans: a table whose trials
     have not run yet counts already, so the level does not change as they finish."""
     sides = [side for side in (claim.a, claim.b) if isinstance(side, dict)]
-    fixed = [p for p in spec.params if not p.random]
-    configurations = [dict(zip((p.name for p in fixed), combo))
-                      for combo in itertools.product(*(p.values for p in fixed))]
-
-    def on(where: dict, values: dict) -> bool:
-        return all(matches_value(wanted, values.get(name)) for name, wanted in where.items())
-
     rounds = {tuple(sorted(more.seeds)) for more in spec.more_seeds
-              if any(on(more.where, c) and any(on(side, c) for side in sides) for c in configurations)}
+              if any(matches(more.where, c) and any(matches(side, c) for side in sides) for c in spec.configurations())}
     return 1 + len(rounds)
 
 

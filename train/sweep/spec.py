@@ -21,7 +21,7 @@ from pathlib import Path
 from colorgrid.configkit import ConfigError, from_dict, read_toml, resolve_data
 from train.config import TrainConfig, eval_stream, load_preset, parse_override, resolve
 from train.sweep.checks import SUMMARY_SUFFIXES, SweepError, bad, same_value
-from train.sweep.claim_spec import configurations, matches_value, parse_claims
+from train.sweep.claim_spec import configurations, matches, parse_claims
 from train.sweep.file import (KINDS, RANDOM_KINDS, MoreSeeds, PaperFigure, ParamTable, Resources, Scheduler, SweepFile,
                               written)
 
@@ -121,9 +121,8 @@ class SweepSpec:
         does not exist, read from the current folder as a trial reads it, over every configuration of the sweep."""
         from colorgrid.policies.registry import file_of
 
-        fixed = [p for p in self.params if not p.random]
-        configs = [self.config({**dict(zip((p.name for p in fixed), combo)), **sample}, self.seeds[0])
-                   for combo in itertools.product(*(p.values for p in fixed)) for sample in self.samples()]
+        configs = [self.config({**values, **sample}, self.seeds[0])
+                   for values in self.configurations() for sample in self.samples()]
         missing = {}
         for config in configs:
             for role, agent in zip(config.env.roles, config.agents):
@@ -140,6 +139,12 @@ class SweepSpec:
                              f"{Path.cwd()}): {', '.join(missing)}; make them first (the file's description may "
                              f"say how) or name others")
 
+    def configurations(self) -> list[dict]:
+        """Every configuration of the grid: ``{parameter: value}`` for each combination of the listed values (the
+        random parameters left out), in the order Ray Tune's grid gives them."""
+        fixed = [p for p in self.params if not p.random]
+        return [dict(zip((p.name for p in fixed), combo)) for combo in itertools.product(*(p.values for p in fixed))]
+
     def grid_size(self) -> int:
         return math.prod(len(p.values) for p in self.params if not p.random)
 
@@ -151,9 +156,7 @@ class SweepSpec:
     def seeds_for(self, values: dict) -> tuple[int, ...]:
         """The seeds of the configuration with parameter ``values``: ``seeds``, and those of every
         ``[[more_seeds]]`` table whose ``where`` it matches."""
-        extra = (s for more in self.more_seeds
-                 if all(matches_value(wanted, values.get(name)) for name, wanted in more.where.items())
-                 for s in more.seeds)
+        extra = (s for more in self.more_seeds if matches(more.where, values) for s in more.seeds)
         return tuple(dict.fromkeys((*self.seeds, *extra)))
 
     def wants(self, params: dict) -> bool:
@@ -161,9 +164,7 @@ class SweepSpec:
         return int(params["seed"]) in self.seeds_for(self.values(params))
 
     def num_trials(self) -> int:
-        fixed = [p for p in self.params if not p.random]
-        return self.num_samples * sum(len(self.seeds_for(dict(zip((p.name for p in fixed), combo))))
-                                      for combo in itertools.product(*(p.values for p in fixed)))
+        return self.num_samples * sum(len(self.seeds_for(values)) for values in self.configurations())
 
     def summary(self) -> str:
         extra = self.num_trials() - self.grid_size() * self.num_samples * len(self.seeds)
@@ -208,13 +209,12 @@ def grid(spec: SweepSpec) -> list[dict]:
     """Every trial's parameters as Ray Tune's grid gives them (``seed``, each listed value or option by name, and
     the random parameters' draw as ``sample``), seed by seed: a sweep stopped partway has run every configuration's
     first seeds, and the ``[[more_seeds]]`` trials come last."""
-    fixed = [p for p in spec.params if not p.random]
     random = any(p.random for p in spec.params)
     trials = []
     for seed in spec.all_seeds:
         for sample in spec.samples():
-            for combo in itertools.product(*(p.values for p in fixed)):
-                params = {"seed": seed, **dict(zip((p.name for p in fixed), combo))}
+            for values in spec.configurations():
+                params = {"seed": seed, **values}
                 if random:
                     params["sample"] = sample
                 if spec.wants(params):
