@@ -159,6 +159,8 @@ def test_more_seeds_go_to_the_configurations_they_name(tmp_path):
     assert spec.seeds == (0, 1) and spec.all_seeds == (0, 1, 5, 2, 3)
     assert spec.more_seeds[0].where == {"aux": 0.0, "annealing": ["none", "early"]}
     assert spec.more_seeds[0].note == "aux 0 left undecided"
+    assert spec.configurations() == [{"aux": 0.0, "annealing": "none"}, {"aux": 0.0, "annealing": "early"},
+                                     {"aux": 0.2, "annealing": "none"}, {"aux": 0.2, "annealing": "early"}]
     assert spec.seeds_for({"aux": 0.0, "annealing": "none"}) == (0, 1, 5, 2)
     assert spec.seeds_for({"aux": 0.0, "annealing": "early"}) == (0, 1, 5, 2, 3)  # both tables, 2 once
     assert spec.seeds_for({"aux": 0.2, "annealing": "early"}) == (0, 1, 2, 3)
@@ -200,14 +202,14 @@ def test_paper_figures_match_their_configuration_by_value(tmp_path):
     """``where = {aux = 0}`` is the grid's 0.0, and a figure is shown beside that configuration only."""
     import pandas as pd
 
-    from train.sweep.report import matches
+    from train.sweep.claim_spec import matches
 
     path = write(tmp_path, GOOD + '\n[[paper]]\nwhere = { aux = 0, annealing = "early" }\nvalue = 32.8\n')
     figure = load_sweep(path).paper[0]
     assert figure.where == {"aux": 0.0, "annealing": "early"}
-    assert matches(figure, pd.Series({"aux": 0.0, "annealing": "early"}))
-    assert not matches(figure, pd.Series({"aux": 0.2, "annealing": "early"}))
-    assert not matches(figure, pd.Series({"aux": 0.0, "annealing": "none"}))
+    assert matches(figure.where, pd.Series({"aux": 0.0, "annealing": "early"}))
+    assert not matches(figure.where, pd.Series({"aux": 0.2, "annealing": "early"}))
+    assert not matches(figure.where, pd.Series({"aux": 0.0, "annealing": "none"}))
 
 
 def test_missing_file_and_folders_that_are_not_sweeps(tmp_path, capsys):

@@ -17,8 +17,10 @@ import numpy as np
 import pandas as pd
 
 from train.sweep import claims as claim_rules
+from train.sweep.claim_spec import matches
 from train.sweep.results import collect, committed, publish, results_folder
-from train.sweep.spec import SweepError, SweepSpec, load_folder, load_sweep, same_value
+from train.sweep.spec import SweepError, SweepSpec, load_folder, load_sweep
+
 
 def t_quantile(df: int) -> float:
     """Student's t 97.5% quantile for ``df`` degrees of freedom (a two-sided 95% interval)."""
@@ -37,14 +39,9 @@ def mean_interval(values) -> tuple[float, float, int]:
     return float(values.mean()), float(half), n
 
 
-def matches(figure, row) -> bool:
-    """Whether a configuration's row (of the summary or the curves) is the one the paper's ``figure`` is for."""
-    return all(same_value(row.get(name), value) for name, value in figure.where.items())
-
-
 def paper_value(spec: SweepSpec, row: pd.Series) -> str:
     for figure in spec.paper:
-        if matches(figure, row):
+        if matches(figure.where, row):
             return f"{figure.value:+.1f}" + (f" ({figure.note})" if figure.note else "")
     return ""
 
@@ -117,7 +114,7 @@ def plot_curves(spec: SweepSpec, curves: pd.DataFrame, column: str, out: Path) -
         colors[label] = (line.get_color(), group.iloc[0])
     if column == spec.metric:  # the paper's figures are of the metric: each in its configuration's color
         for figure in spec.paper:
-            color = next((c for c, row in colors.values() if matches(figure, row)), "gray")
+            color = next((c for c, row in colors.values() if matches(figure.where, row)), "gray")
             ax.axhline(figure.value, color=color, linestyle=":", linewidth=1.2)
     ax.set_xlabel("env steps")
     ax.set_ylabel(f"{column} (running mean of {smooth} reports)")
