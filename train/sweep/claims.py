@@ -95,8 +95,8 @@ def count_looks(spec, claim: Claim) -> int:
     side, are one round; the module docstring says why). The looks are those the file plans: a table whose trials
     have not run yet counts already, so the level does not change as they finish."""
     sides = [side for side in (claim.a, claim.b) if isinstance(side, dict)]
-    rounds = {tuple(sorted(more.seeds)) for more in spec.more_seeds
-              if any(matches(more.where, c) and any(matches(side, c) for side in sides) for c in spec.configurations())}
+    compared = [c for c in spec.configurations() if any(matches(side, c) for side in sides)]
+    rounds = {tuple(sorted(more.seeds)) for more in spec.more_seeds if any(matches(more.where, c) for c in compared)}
     return 1 + len(rounds)
 
 
