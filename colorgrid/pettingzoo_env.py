@@ -149,16 +149,31 @@ class ColorGridParallelEnv(ParallelEnv):
 
 
 def parallel_env(config: EnvConfig | None = None, render_mode: str | None = None, flatten: bool = False,
-                 **overrides) -> ColorGridParallelEnv:
+                 max_cycles: int | None = None, **overrides) -> ColorGridParallelEnv:
     """A ``ParallelEnv``; ``overrides`` are EnvConfig fields applied on top of ``config``. ``flatten=True``: each
     observation one float32 vector (the planes, then the goal one-hot), for libraries whose default networks
-    take no ``Dict`` (RLlib)."""
+    take no ``Dict`` (RLlib's stops with ``No default encoder config for obs space=Dict``). ``max_cycles``:
+    PettingZoo's name for the ``horizon`` (steps per episode), as its environments and ``max_cycles_test`` take
+    it; giving both is refused unless they agree."""
     config = config if config is not None else EnvConfig()
+    overrides = horizon_from_max_cycles(max_cycles, overrides)
     if overrides:
         config = config.replace(**overrides)
     return ColorGridParallelEnv(config, render_mode=render_mode, flatten=flatten)
 
 
-def env(config: EnvConfig | None = None, render_mode: str | None = None, flatten: bool = False, **overrides):
-    """The AEC version, through PettingZoo's ``parallel_to_aec`` conversion."""
-    return parallel_to_aec(parallel_env(config, render_mode=render_mode, flatten=flatten, **overrides))
+def env(config: EnvConfig | None = None, render_mode: str | None = None, flatten: bool = False,
+        max_cycles: int | None = None, **overrides):
+    """The AEC version, through PettingZoo's ``parallel_to_aec`` conversion; arguments as ``parallel_env``'s."""
+    return parallel_to_aec(parallel_env(config, render_mode=render_mode, flatten=flatten, max_cycles=max_cycles,
+                                        **overrides))
+
+
+def horizon_from_max_cycles(max_cycles: int | None, overrides: dict) -> dict:
+    """``overrides`` with PettingZoo's ``max_cycles`` given as EnvConfig's ``horizon`` (the one setting, two names)."""
+    if max_cycles is None:
+        return overrides
+    if "horizon" in overrides and overrides["horizon"] != max_cycles:
+        raise ValueError(f"max_cycles={max_cycles!r} and horizon={overrides['horizon']!r} disagree: they are one "
+                         f"setting (PettingZoo's name and ColorGrid's for the steps per episode); give one of them")
+    return {**overrides, "horizon": max_cycles}

@@ -1,11 +1,14 @@
 """Determinism, batch-equals-single, the PettingZoo views and rendering."""
 
 import re
+from functools import partial
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from pettingzoo.test import parallel_api_test, render_test
+from pettingzoo.test import max_cycles_test, parallel_api_test, render_test
 
+import colorgrid
 from colorgrid import BatchEnv, EnvConfig, env, parallel_env, render_ansi, render_rgb
 from colorgrid.render import PALETTE
 
@@ -81,6 +84,29 @@ def test_pettingzoo_parallel_api():
 def test_pettingzoo_render_modes_through_the_aec_conversion(capsys):
     render_test(env)
     assert "goal" in capsys.readouterr().out  # human mode prints the text view
+
+
+def test_pettingzoos_max_cycles_test_ends_episodes_at_max_cycles():
+    """PettingZoo's own test: ``env(max_cycles=4)`` and ``parallel_env(max_cycles=4)`` end their episodes there."""
+    max_cycles_test(colorgrid)
+    teams = {"num_leaders": 2, "num_followers": 3}
+    max_cycles_test(SimpleNamespace(env=partial(env, **teams), parallel_env=partial(parallel_env, **teams)))
+
+
+def test_max_cycles_is_the_horizon_and_a_horizon_that_disagrees_is_refused_in_one_line():
+    for make in (parallel_env, env):
+        assert make(max_cycles=7).unwrapped.config.horizon == 7
+        assert make(max_cycles=7, horizon=7).unwrapped.config.horizon == 7
+        assert make(EnvConfig(horizon=9), max_cycles=5).unwrapped.config.horizon == 5
+        with pytest.raises(ValueError) as refused:
+            make(max_cycles=7, horizon=8)
+        assert str(refused.value) == ("max_cycles=7 and horizon=8 disagree: they are one setting (PettingZoo's name "
+                                      "and ColorGrid's for the steps per episode); give one of them")
+    e = parallel_env(max_cycles=3)
+    e.reset(seed=0)
+    for _ in range(3):
+        *_, truncs, _ = e.step({a: 0 for a in e.agents})
+    assert all(truncs.values()) and e.agents == []
 
 
 def test_parallel_env_overrides_and_episode_end():
