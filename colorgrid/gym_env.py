@@ -216,7 +216,9 @@ class SeatEnv(gymnasium.Env):
     def step(self, action):
         """One step; the step that ends the episode also reports the seat's episode totals (``episode_*``)."""
         obs, reward, term, trunc, info = self.vector.step(np.array([action]))
-        out = {k: v[0].item() for k, v in info.items() if k != "final_info"}
+        # the vector env's masks ("_final_info", "_episode_*") are its own: Gymnasium reserves "_"-prefixed keys
+        # for vector envs, which add them when they batch a single env's infos
+        out = {k: v[0].item() for k, v in info.items() if k != "final_info" and not k.startswith("_")}
         out.update({k: v[0].item() for k, v in info.get("final_info", {}).items() if not k.startswith("_")})
         return _first(obs), float(reward[0]), bool(term[0]), bool(trunc[0]), out
 
