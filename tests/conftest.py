@@ -1,7 +1,12 @@
-"""Fixtures: a real play server (uvicorn, started by the ``colorgrid play`` command) on a free loopback port."""
+"""Fixtures: a real play server (uvicorn, started by the ``colorgrid play`` command) on a free loopback port.
+
+Suite-wide rules set here: playwright's ``expect`` waits up to ``EXPECT_TIMEOUT_MS`` (a loaded 2-core CI machine,
+not a fast desk), and a skipped test fails the run unless ``ALLOWED_SKIPS`` names it (a missing dependency of the
+project is a broken install, not a reason to pass)."""
 
 import json
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -11,11 +16,42 @@ import urllib.request
 from pathlib import Path
 
 import pytest
+from playwright.sync_api import expect
 
 ROOT = Path(__file__).resolve().parents[1]
+EXPECT_TIMEOUT_MS = 30_000
+"""How long an ``expect(...)`` waits for its condition, for every test: what a page shows within a second on a desk
+may take many on a CI machine running a sweep beside the suite."""
+expect.set_options(timeout=EXPECT_TIMEOUT_MS)
+ALLOWED_SKIPS: dict[str, str] = {}
+"""Tests that may skip (node id -> why): none today. Any other skip is reported as a failure."""
+
+
+def fail_a_skip(report) -> None:
+    """Report a skip (a test's, or a module's at collection: ``importorskip``) as a failure, unless it is allowed."""
+    if report.skipped and not hasattr(report, "wasxfail") and report.nodeid not in ALLOWED_SKIPS:
+        reason = (report.longrepr[2] if isinstance(report.longrepr, tuple) else str(report.longrepr))
+        reason = reason.removeprefix("Skipped: ")
+        report.outcome = "failed"
+        report.longrepr = (f"skipped ({reason}); a skip fails the run: install what it needs (make test installs "
+                           "every extra), or list the test in ALLOWED_SKIPS (tests/conftest.py) with its reason")
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_makereport(item, call):
+    outcome = yield
+    fail_a_skip(outcome.get_result())
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_make_collect_report(collector):
+    outcome = yield
+    fail_a_skip(outcome.get_result())
 
 
 def free_port() -> int:
+    """A port free a moment ago, for servers that take a port number only (HAProxy, Ray): another process may take
+    it before they bind it. The play server is started on port 0 instead and says which port it got."""
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
@@ -36,26 +72,28 @@ class RunningServer:
 
 def start_server(tmp: Path, *flags: str, command: tuple[str, ...] = ("play",), env: dict | None = None,
                  own_group: bool = False, python: str = sys.executable, cwd: Path = ROOT) -> RunningServer:
-    """``colorgrid play`` (or ``command``) on a free port, once ready; ``own_group`` starts it in a process group
-    of its own, as a terminal runs a command (Ctrl+C signals the whole group). ``python`` and ``cwd``: another
-    installation (a virtualenv) run from another folder."""
-    port = free_port()
+    """``colorgrid play`` (or ``command``) on port 0 (a free one, bound by the server, which prints its address),
+    once ready; ``own_group`` starts it in a process group of its own, as a terminal runs a command (Ctrl+C signals
+    the whole group). ``python`` and ``cwd``: another installation (a virtualenv) run from another folder."""
     replays_dir = tmp / "recordings"
     log_path = tmp / "server.log"
     log = open(log_path, "w")
     process = subprocess.Popen(
-        [python, "-m", "colorgrid_apps", *command, "--port", str(port), "--replays-dir", str(replays_dir),
+        [python, "-m", "colorgrid_apps", *command, "--port", "0", "--replays-dir", str(replays_dir),
          "--log-level", "warning", *flags],
         cwd=cwd, stdout=log, stderr=subprocess.STDOUT, env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})},
         start_new_session=own_group,
     )
-    server = RunningServer(port, replays_dir, process, log_path)
+    server = None
     deadline = time.monotonic() + 180  # a fresh checkout compiles the env step and loads torch first
     while time.monotonic() < deadline:
         if process.poll() is not None:
             raise RuntimeError(f"server exited: {log_path.read_text()}")
+        if server is None:  # the address it printed once its port was bound
+            announced = re.search(r"http://127\.0\.0\.1:(\d+)/", log_path.read_text())
+            server = RunningServer(int(announced.group(1)), replays_dir, process, log_path) if announced else None
         try:
-            if server.get("/api/health")[0]["ready"]:
+            if server is not None and server.get("/api/health")[0]["ready"]:
                 return server
         except OSError:
             pass
@@ -101,7 +139,7 @@ def postgres():
     """A PostgreSQL cluster of the tests' own (``tests/pg.py``), started on first use and removed at the end."""
     from tests.pg import PostgresCluster
 
-    cluster = PostgresCluster.start(free_port())
+    cluster = PostgresCluster.start()
     yield cluster
     cluster.stop()
 

@@ -30,7 +30,8 @@ def test_sb3_ppo_learns_a_follower_that_takes_fewer_wrong_blocks_than_a_random_o
 
 @pytest.fixture
 def ray_instance():
-    ray = pytest.importorskip("ray")  # the examples extra installs it; make test installs that extra
+    import ray  # the examples extra (make test installs it)
+
     started = not ray.is_initialized()
     if started:
         ray.init(num_cpus=2, include_dashboard=False, logging_level="WARNING", log_to_driver=False)

@@ -12,12 +12,10 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-pytest.importorskip("scipy", reason="the sweep extra (make test installs it)")
-
-from train.sweep.claims import Verdict, evaluate  # noqa: E402
-from train.sweep.claims import table as claims_table  # noqa: E402
-from train.sweep.results import committed, results_folder  # noqa: E402
-from train.sweep.spec import load_sweep  # noqa: E402
+from train.sweep.claims import Verdict, evaluate
+from train.sweep.claims import table as claims_table
+from train.sweep.results import committed, results_folder
+from train.sweep.spec import load_sweep
 
 ROOT = Path(__file__).resolve().parents[1]
 DOCS = ("docs/REPRODUCTION.md", "docs/ASSISTANT_RECIPE.md", "README.md")

@@ -17,16 +17,13 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+import grpc
 import pytest
+from ray.core.generated import gcs_pb2, gcs_service_pb2, gcs_service_pb2_grpc
 
-pytest.importorskip("ray", reason="the sweep extra (make test installs it)")
-
-import grpc  # noqa: E402
-from ray.core.generated import gcs_pb2, gcs_service_pb2, gcs_service_pb2_grpc  # noqa: E402
-
-from tests.conftest import ROOT, free_port  # noqa: E402
-from tests.test_sweep_cluster import SWEEP  # noqa: E402
-from train.sweep.results import read_tables  # noqa: E402
+from tests.conftest import ROOT, free_port
+from tests.test_sweep_cluster import SWEEP
+from train.sweep.results import read_tables
 
 RAY = Path(sys.executable).with_name("ray")
 

@@ -14,15 +14,14 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+import ray
 
-ray = pytest.importorskip("ray", reason="the sweep extra (make test installs it)")
-
-from train.sweep.local import run_local  # noqa: E402
-from train.sweep.report import mean_interval, write_report  # noqa: E402
-from train.sweep.results import read_tables  # noqa: E402
-from train.sweep.runner import resume_sweep, run_sweep  # noqa: E402
-from train.sweep.spec import load_sweep  # noqa: E402
-from tests.sweep_files import sweep_file, wait_for_step  # noqa: E402
+from train.sweep.local import run_local
+from train.sweep.report import mean_interval, write_report
+from train.sweep.results import read_tables
+from train.sweep.runner import resume_sweep, run_sweep
+from train.sweep.spec import load_sweep
+from tests.sweep_files import sweep_file, wait_for_step
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = {"sps", "rollout_sps", "update_sps", "wall_time_s", "torch_threads", "numba_threads"}

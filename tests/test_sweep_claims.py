@@ -10,14 +10,12 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-pytest.importorskip("scipy", reason="the sweep extra (make test installs it)")
-
-from colorgrid_apps.cli import main  # noqa: E402
-from train.sweep.claims import Verdict, evaluate, format_claims, level  # noqa: E402
-from train.sweep.claims import table as claims_table  # noqa: E402
-from train.sweep.report import publish_report, write_report  # noqa: E402
-from train.sweep.results import committed_keys  # noqa: E402
-from train.sweep.spec import SweepError, load_sweep  # noqa: E402
+from colorgrid_apps.cli import main
+from train.sweep.claims import Verdict, evaluate, format_claims, level
+from train.sweep.claims import table as claims_table
+from train.sweep.report import publish_report, write_report
+from train.sweep.results import committed_keys
+from train.sweep.spec import SweepError, load_sweep
 
 BASE = """
 description = "claims"

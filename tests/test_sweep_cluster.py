@@ -4,14 +4,12 @@ nodes, and the sweep's tables say which node ran each."""
 from pathlib import Path
 
 import pytest
+import ray
+from ray.cluster_utils import Cluster
 
-ray = pytest.importorskip("ray", reason="the sweep extra (make test installs it)")
-
-from ray.cluster_utils import Cluster  # noqa: E402
-
-from train.sweep.results import read_tables  # noqa: E402
-from train.sweep.runner import run_sweep  # noqa: E402
-from train.sweep.spec import load_sweep  # noqa: E402
+from train.sweep.results import read_tables
+from train.sweep.runner import run_sweep
+from train.sweep.spec import load_sweep
 
 SWEEP = """
 description = "two trials, one per node"

@@ -169,7 +169,6 @@ def test_a_folder_is_run_by_one_executor(tmp_path):
         run_local(load_sweep(path, out=folder), processes=1)
     (folder / "sweep.toml").unlink()
     assert run_local(load_sweep(path, out=folder), processes=2) == 0
-    pytest.importorskip("ray", reason="the sweep extra (make test installs it)")
     from train.sweep.runner import run_sweep
 
     with pytest.raises(SweepError, match=r"holds a sweep run without Ray \(--local\); continue it with"):

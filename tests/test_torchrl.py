@@ -6,15 +6,12 @@ groups (``RewardSum`` over every group's reward, a policy per group, TorchRL's `
 from __future__ import annotations
 
 import pytest
+import torch
+from torchrl.envs import GymWrapper, PettingZooWrapper
+from torchrl.envs.utils import MarlGroupMapType, check_env_specs
 
-torch = pytest.importorskip("torch", reason="the train extra (make test installs it)")
-pytest.importorskip("torchrl", reason="the examples extra (make test installs it)")
-
-from torchrl.envs import GymWrapper, PettingZooWrapper  # noqa: E402
-from torchrl.envs.utils import MarlGroupMapType, check_env_specs  # noqa: E402
-
-import colorgrid  # noqa: E402
-from tests.documented import documented_code  # noqa: E402
+import colorgrid
+from tests.documented import documented_code
 
 INFO_KEYS = {"block_reward", "team_reward", "goal_pickup", "wrong_pickup", "distance_shaping", "potential_shaping",
              "goal_color", "goal_switched", "seed"}

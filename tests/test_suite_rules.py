@@ -1,0 +1,42 @@
+"""The suite's own rules (``tests/conftest.py``): a skip fails the run, and no test waits on the clock."""
+
+import re
+import subprocess
+import sys
+
+from tests.conftest import ALLOWED_SKIPS, ROOT
+
+
+def test_a_skipped_test_or_module_fails_the_run(tmp_path):
+    (tmp_path / "test_missing.py").write_text(
+        "import pytest\n"
+        "pytest.importorskip('colorgrid_no_such_dependency')\n"
+        "def test_never_collected():\n"
+        "    pass\n")
+    (tmp_path / "test_skips.py").write_text(
+        "import pytest\n"
+        "def test_passes():\n"
+        "    assert True\n"
+        "def test_skips():\n"
+        "    pytest.skip('not today')\n")
+    def run(name: str) -> subprocess.CompletedProcess:
+        return subprocess.run([sys.executable, "-m", "pytest", "-p", "tests.conftest", "-p", "no:cacheprovider",
+                               "--rootdir", str(tmp_path), "-c", "/dev/null", "-q", str(tmp_path / name)],
+                              capture_output=True, text=True, cwd=ROOT, timeout=300)
+
+    missing = run("test_missing.py")  # an error at collection, as an import that fails
+    assert missing.returncode == 2 and "1 error" in missing.stdout, missing.stdout + missing.stderr
+    assert "could not import 'colorgrid_no_such_dependency'" in missing.stdout
+    skipped = run("test_skips.py")
+    assert skipped.returncode == 1 and re.search(r"\b1 failed, 1 passed\b", skipped.stdout), skipped.stdout
+    assert "skipped (not today); a skip fails the run" in skipped.stdout
+    assert ALLOWED_SKIPS == {}, "no test is meant to skip today; list one with the reason it may"
+
+
+def test_no_test_waits_a_fixed_time_or_asserts_one():
+    """A wait stands for an event (``expect``, ``wait_for_function``, a message), never for a duration; and what a
+    test asserts is counts and events, not how long something took."""
+    banned = re.compile(r"wait_for_" + r"timeout|elapsed <")
+    found = [f"{path.name}:{n}: {line.strip()}" for path in sorted((ROOT / "tests").glob("*.py"))
+             for n, line in enumerate(path.read_text().splitlines(), 1) if banned.search(line)]
+    assert found == []
