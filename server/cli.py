@@ -96,8 +96,7 @@ def serve_or_launch(args: argparse.Namespace, settings: ServerSettings, folder: 
         from server.cluster.plan import Membership
 
         member = Membership.of(args.cluster, settings.port)
-    announce(f"http://{settings.host}:{settings.port}")
-    serve(settings, log_level=args.log_level, plugin=plugin, member=member)
+    serve(settings, log_level=args.log_level, plugin=plugin, member=member, announce=announce)
     return 0
 
 

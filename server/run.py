@@ -72,9 +72,11 @@ class PlayServer(uvicorn.Server):
         await super().shutdown(sockets)
 
 
-def serve(settings: ServerSettings, log_level: str = "info", plugin=None, member=None) -> None:
+def serve(settings: ServerSettings, log_level: str = "info", plugin=None, member=None, announce=None) -> None:
     """Run the play server until interrupted (serving ``plugin``, the application served (a study), when given; as
-    one backend of a cluster behind HAProxy with ``member``, a ``server.cluster.plan.Membership``)."""
+    one backend of a cluster behind HAProxy with ``member``, a ``server.cluster.plan.Membership``).
+    ``announce(url)``, when given, is called with the address it listens on once the port is bound (``--port 0``
+    picks a free one: the address names the port it got)."""
     app = create_app(settings, plugin)
     log_config = uvicorn.config.LOGGING_CONFIG
     if member is not None:
@@ -88,8 +90,13 @@ def serve(settings: ServerSettings, log_level: str = "info", plugin=None, member
     config = uvicorn.Config(app, host=settings.host, port=settings.port, log_level=log_level, ws_max_size=65536,
                             ws_per_message_deflate=False, http=protocol, timeout_graceful_shutdown=10,
                             log_config=log_config)
+    sockets = None
+    if settings.port == 0:  # bound here, so that the address announced is the one a free port gave
+        sockets = [config.bind_socket()]
+    if announce is not None:
+        announce(f"http://{settings.host}:{sockets[0].getsockname()[1] if sockets else settings.port}")
     try:
-        PlayServer(config, app).run()
+        PlayServer(config, app).run(sockets=sockets)
     except KeyboardInterrupt:  # Ctrl+C: uvicorn has already shut down (games saved); no traceback for that
         pass
 

@@ -1,11 +1,12 @@
-"""A PostgreSQL cluster of the tests' own: ``initdb`` in a temporary folder, a free loopback port, trust auth.
+"""A PostgreSQL cluster of the tests' own: ``initdb`` in a temporary folder, reached through a Unix socket there (no
+TCP port to race other processes for), trust auth.
 
 ``PostgresCluster.start()`` finds ``initdb`` and ``pg_ctl`` on PATH, else in Debian's
 ``/usr/lib/postgresql/<version>/bin`` (``make services`` installs them), and fails in one sentence
 when neither has them. ``initdb`` refuses to run as root: as root, the cluster's folder belongs to
 the ``postgres`` system user and both commands run as that user (``runuser``). The tests connect
-as the role ``colorgrid`` over TCP on 127.0.0.1; ``new_database()`` gives each test a database of
-its own.
+as the role ``colorgrid`` through the socket in the cluster's folder; ``new_database()`` gives each
+test a database of its own.
 """
 
 from __future__ import annotations
@@ -45,23 +46,24 @@ class PostgresCluster:
     """A running cluster; ``url(database)`` connects as ``ROLE``."""
 
     folder: Path
-    port: int
     bin: Path
     as_user: list[str]
+    port: int = 5432
+    """Names the socket file in ``folder`` (``.s.PGSQL.5432``); no TCP port is opened."""
     names: itertools.count = field(default_factory=itertools.count)
 
     @classmethod
-    def start(cls, port: int) -> PostgresCluster:
+    def start(cls) -> PostgresCluster:
         bin_dir = binaries()
         folder = Path(tempfile.mkdtemp(prefix="colorgrid-pg-"))
         as_user = []
         if os.geteuid() == 0:  # initdb refuses root: the cluster is the postgres user's
             shutil.chown(folder, SYSTEM_USER, SYSTEM_USER)
             as_user = ["runuser", "-u", SYSTEM_USER, "--"]
-        cluster = cls(folder, port, bin_dir, as_user)
+        cluster = cls(folder, bin_dir, as_user)
         cluster.run("initdb", "-D", str(folder / "data"), "-U", SUPERUSER, "-A", "trust", "-E", "UTF8",
                     "--no-locale", "--no-sync")
-        options = (f"-p {port} -c listen_addresses=127.0.0.1 -k {folder} -c max_connections=300 -c fsync=off "
+        options = (f"-p {cluster.port} -c listen_addresses='' -k {folder} -c max_connections=300 -c fsync=off "
                    "-c synchronous_commit=off -c full_page_writes=off")
         try:
             cluster.run("pg_ctl", "-D", str(folder / "data"), "-l", str(folder / "server.log"), "-o", options,
@@ -84,12 +86,12 @@ class PostgresCluster:
         """Run one statement as the superuser (outside a transaction: CREATE DATABASE needs that)."""
         import psycopg
 
-        with psycopg.connect(host="127.0.0.1", port=self.port, user=SUPERUSER, dbname="postgres",
+        with psycopg.connect(host=str(self.folder), port=self.port, user=SUPERUSER, dbname="postgres",
                              autocommit=True) as conn:
             conn.execute(statement)
 
     def url(self, database: str) -> str:
-        return f"postgresql+psycopg://{ROLE}@127.0.0.1:{self.port}/{database}"
+        return f"postgresql+psycopg://{ROLE}@/{database}?host={self.folder}&port={self.port}"
 
     def new_database(self) -> str:
         """A new, empty database owned by ``ROLE``; its URL."""
