@@ -4,18 +4,20 @@ from __future__ import annotations
 
 import time
 from collections import OrderedDict, deque
+from collections.abc import Callable
 
 
 class TokenBucket:
-    """``rate`` events per second sustained, bursts of ``burst``."""
+    """``rate`` events per second sustained, bursts of ``burst``; ``clock`` gives the time in seconds (a test's
+    own clock)."""
 
-    def __init__(self, rate: float, burst: float):
-        self.rate, self.burst = rate, burst
+    def __init__(self, rate: float, burst: float, clock: Callable[[], float] = time.monotonic):
+        self.rate, self.burst, self.clock = rate, burst, clock
         self.tokens = burst
-        self.refill_at = time.monotonic()
+        self.refill_at = clock()
 
     def allow(self) -> bool:
-        now = time.monotonic()
+        now = self.clock()
         self.tokens = min(self.burst, self.tokens + (now - self.refill_at) * self.rate)
         self.refill_at = now
         if self.tokens >= 1:
@@ -36,13 +38,13 @@ class FloodRule:
     hundreds a second within a fraction of a second.
     """
 
-    def __init__(self, limit: int, window_s: float = 5.0):
-        self.limit, self.window_s = limit, window_s
+    def __init__(self, limit: int, window_s: float = 5.0, clock: Callable[[], float] = time.monotonic):
+        self.limit, self.window_s, self.clock = limit, window_s, clock
         self.refused: deque[float] = deque()
 
     def refuse(self) -> bool:
         """Count one refused message; True when that makes a flood."""
-        now = time.monotonic()
+        now = self.clock()
         self.refused.append(now)
         while self.refused and now - self.refused[0] > self.window_s:
             self.refused.popleft()

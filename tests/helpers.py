@@ -1,5 +1,7 @@
 """Shared test helpers."""
 
+import time
+
 import numpy as np
 
 from colorgrid import BatchEnv, EnvConfig
@@ -62,3 +64,16 @@ class Inbox:
 def dies_at_start(conn) -> None:
     """An inference process that cannot start (as with a broken install): it exits before answering."""
     raise SystemExit(3)
+
+
+WAIT_S = 60.0
+"""How long ``wait_until`` waits at most: a bound for a loaded CI machine, not a duration any test expects."""
+
+
+def wait_until(condition, what: str, timeout_s: float = WAIT_S, every_s: float = 0.1):
+    """Ask ``condition()`` again until it holds; its value. Fails, naming ``what``, after ``timeout_s``."""
+    deadline = time.monotonic() + timeout_s
+    while not (value := condition()):
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(every_s)
+    return value

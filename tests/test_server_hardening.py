@@ -25,7 +25,9 @@ from websockets.sync.client import connect
 
 from bench.fuzz_server import hostile, hostile_frames
 from colorgrid.replay import load, verify
+from server.limits import FloodRule, TokenBucket
 from tests.conftest import ROOT, start_server, stop_server
+from tests.helpers import wait_until
 
 MOVES = ["ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight"]
 RELEASED = ROOT / "replays" / "default" / "astar+bayes_seed2026.replay.json"
@@ -142,25 +144,29 @@ def test_non_finite_numbers_and_deep_nesting_get_errors_and_the_game_is_saved(sr
 
 
 def test_max_sessions_holds_exactly_under_concurrency_and_every_refusal_is_answered(srv):
-    async def ask(horizon):
-        async with aconnect(srv.ws_url, open_timeout=30) as ws:
-            await ws.send(json.dumps({"type": "new_game", "mode": "turn", "horizon": horizon}))
-            while True:
-                msg = json.loads(await asyncio.wait_for(ws.recv(), 60))
-                if msg["type"] in ("welcome", "full", "error"):
-                    reply = msg["type"]
-                    break
-            await asyncio.sleep(1.0)  # keep the game while the others ask
-            return reply
+    horizons = [7, 8, 9, 10, 11] * 12
 
     async def race():
-        return await asyncio.gather(*(ask(h) for h in [7, 8, 9, 10, 11] * 12))
+        replies, everyone_answered = [], asyncio.Event()
+
+        async def ask(horizon):
+            async with aconnect(srv.ws_url, open_timeout=60) as ws:
+                await ws.send(json.dumps({"type": "new_game", "mode": "turn", "horizon": horizon}))
+                while True:
+                    msg = json.loads(await asyncio.wait_for(ws.recv(), 60))
+                    if msg["type"] in ("welcome", "full", "error"):
+                        replies.append(msg["type"])
+                        break
+                if len(replies) == len(horizons):
+                    everyone_answered.set()
+                await asyncio.wait_for(everyone_answered.wait(), 120)  # a game is kept until every socket has its answer
+
+        await asyncio.gather(*(ask(h) for h in horizons))
+        return replies
 
     replies = asyncio.run(race())
     assert replies.count("welcome") == 10 and replies.count("full") == 50, replies
-    end = time.monotonic() + 30
-    while srv.get("/api/health")[0]["games"] and time.monotonic() < end:
-        time.sleep(0.2)
+    wait_until(lambda: srv.get("/api/health")[0]["games"] == 0, "the games of the closed sockets to end")
 
 
 def test_origin_and_host_are_checked(srv):
@@ -212,7 +218,7 @@ def test_rejoin_takes_the_game_over_and_the_old_socket_can_no_longer_move_it(srv
         old.send(json.dumps({"type": "key", "key": "ArrowUp", "seq": 99}))
         assert recv(old, "error")["code"] == "rejected"
         old.close()  # the old socket's close does not touch the game
-        time.sleep(0.5)
+        wait_until(lambda: srv.get("/api/health")[0]["connections"] == 1, "the server to see the old socket closed")
         play_turns(new, 4, start_seq=2)
         over = recv(new, "game_over")
     assert over["reason"] == "complete" and over["steps"] == 6
@@ -231,7 +237,7 @@ def test_idle_sockets_are_closed_and_connections_are_capped(tmp_path):
         assert closed.value.rcvd.code == 1001 and "idle" in closed.value.rcvd.reason
         for ws in sockets:
             ws.close()
-        time.sleep(0.5)
+        wait_until(lambda: server.get("/api/health")[0]["connections"] == 0, "the server to see the sockets closed")
         with connect(server.ws_url, open_timeout=20) as ws:  # room again
             ws.send(json.dumps({"type": "ping"}))
             assert recv(ws, "pong")
@@ -242,17 +248,18 @@ def test_idle_sockets_are_closed_and_connections_are_capped(tmp_path):
 def test_half_sent_http_requests_are_closed(srv):
     conns = []
     for _ in range(5):
-        s = socket.create_connection(("127.0.0.1", srv.port), timeout=10)
+        s = socket.create_connection(("127.0.0.1", srv.port), timeout=60)
         s.sendall(b"GET /api/health HTTP/1.1\r\nHost: 127.0.0.1\r\nX-Slow: ")
         conns.append(s)
-    time.sleep(2.0)  # past --header-timeout-s 1
-    for s in conns:
-        assert s.recv(100) == b""  # closed by the server
+    for s in conns:  # the headers never end: each read waits until the server closes the connection
+        assert s.recv(100) == b""  # closed by the server (--header-timeout-s 1), not answered
         s.close()
     assert srv.get("/api/health")[1] == 200
 
 
-def test_a_flood_at_twice_the_allowed_rate_closes_the_socket(srv):
+def test_a_flood_closes_the_socket(srv):
+    """Pings as fast as a client can send them, against --max-messages-per-s 10: closed for flooding, and not
+    before the server has refused more than 5 x 10 of them after the 2 x 10 it lets through at once."""
     closes = []
 
     def read(ws):  # a client that reads, so that the close frame reaches it
@@ -262,17 +269,37 @@ def test_a_flood_at_twice_the_allowed_rate_closes_the_socket(srv):
         except ConnectionClosed as err:
             closes.append(err.rcvd)
 
+    sent = 0
     with connect(srv.ws_url, open_timeout=20) as ws:
         reader = background(lambda: read(ws))
-        start = time.monotonic()
         with pytest.raises(ConnectionClosed):
-            while time.monotonic() - start < 15:  # 25 messages/s against --max-messages-per-s 10
+            for sent in range(1, 1_000_001):  # ended by the server's close, long before the last
                 ws.send(json.dumps({"type": "ping"}))
-                time.sleep(0.04)
-        elapsed = time.monotonic() - start
-        reader.join(10)
+        reader.join(60)
+    assert not reader.is_alive()
     assert closes and closes[0] is not None and closes[0].code == 1008 and closes[0].reason == "message flood"
-    assert 2 < elapsed < 8, elapsed  # refusals pass 5 x 10 within 5 s after about 3.5 s
+    assert sent > 20 + 50, sent
+
+
+def test_the_flood_rule_on_a_fixed_clock():
+    """The socket's limits as ``server.connection`` sets them for 10 messages/s (bursts of 20, a flood past 50
+    refused within 5 s), read on a clock the test moves: 25 messages a second are a flood within 5 s, 15 a second
+    never are, and a burst is one at exactly its 20 + 51st message."""
+    now = [0.0]
+
+    def first_flood(interval_s: float, messages: int) -> int | None:
+        now[0] = 0.0
+        bucket, flood = TokenBucket(10, burst=20, clock=lambda: now[0]), FloodRule(50, 5.0, clock=lambda: now[0])
+        for k in range(messages):
+            now[0] = k * interval_s
+            if not bucket.allow() and flood.refuse():
+                return k + 1
+        return None
+
+    faster = first_flood(1 / 25, 10_000)
+    assert faster is not None and faster / 25 <= 5.0, faster
+    assert first_flood(1 / 15, 15 * 600) is None  # ten minutes at 15 a second: refused in part, never a flood
+    assert first_flood(0.0, 1000) == 71
 
 
 # ------------------------------------------------------------------ replay files
@@ -414,10 +441,7 @@ def test_kill_9_loses_no_finished_game_leaves_no_partial_file_and_no_worker(tmp_
     server.process.wait(timeout=20)
     for ws in live:
         ws.close()
-    end = time.monotonic() + 20
-    while any(map(running, children)) and time.monotonic() < end:
-        time.sleep(0.2)
-    assert not [pid for pid in children if running(pid)], "the server's worker processes end when it is killed"
+    wait_until(lambda: not any(map(running, children)), "the server's worker processes to end when it is killed")
     saved = sorted(p.name for p in server.replays_dir.glob("*.replay.json"))
     assert saved == sorted(f"{i}.replay.json" for i in finished)
     for replay_id in finished:
