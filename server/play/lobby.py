@@ -19,8 +19,9 @@ log = logging.getLogger("colorgrid.server")
 class Lobby:
     """The rooms of this process (``Live.rooms``): opened, joined, left, started, closed."""
 
-    def __init__(self, live: Live, offer: Offer, sessions: Sessions):
-        self.live, self.offer, self.sessions = live, offer, sessions
+    def __init__(self, live: Live, offer: Offer, sessions: Sessions, countdown=asyncio.sleep):
+        """``countdown(seconds)`` waits out a room's countdown before its game is made (a test may hold it)."""
+        self.live, self.offer, self.sessions, self.countdown = live, offer, sessions, countdown
 
     async def create_room(self, team: Team, follower: str | None, preset: str | None, mode: Mode,
                           horizon: int | None, show_belief: bool, client: Client,
@@ -109,7 +110,7 @@ class Lobby:
                 await send_to(member.client, room.closed_message(reason, message))
 
     async def _start(self, room: Room) -> None:
-        await asyncio.sleep(room.starting_in_s)
+        await self.countdown(room.starting_in_s)
         if self.live.rooms.get(room.code) is not room or not room.all_ready:
             return
         del self.live.rooms[room.code]  # its session passes to the game (no await between: nothing overtakes it)
