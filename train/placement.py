@@ -14,6 +14,12 @@ A ``Placement`` serves one trainer's learners for the whole run:
 Every placement gives the same results bit for bit: the learners share nothing (own model, optimizer,
 buffers, random generator), and each one's work runs at one torch thread count whatever runs beside it
 (``tests/test_train.py`` checks; docs/TRAINING.md).
+
+A pack of trials (``train.pack``) has one ``packed`` placement over all its trials' learners, keyed
+``(trial, learner key)``: each group of learners whose networks stack acts as one ``StackedActing``, and
+the learners update each at one thread spread over the threads (a CPU) or, grouped by network, as one
+batched program (``train.packed_update``; a GPU). On a CPU a trial in a pack computes what it computes
+alone, bit for bit, when its learners act stacked alone too (``tests/test_pack.py``).
 """
 
 from __future__ import annotations
@@ -21,17 +27,22 @@ from __future__ import annotations
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
-from typing import Callable, Iterator, TypeVar
+from typing import Callable, Hashable, Iterator, TypeVar
 
 import numpy as np
 import torch
 
 from train.learner import Learner
+from train.packed_update import PackedUpdate, can_pack_update
 from train.stacked import StackedActing, can_stack
 from train.update_process import AVAILABLE as UPDATE_PROCESSES, Unavailable, UpdateProcess
 
 R = TypeVar("R")
-Acted = dict[int, tuple[np.ndarray, np.ndarray]]
+PACK_UPDATES = {"auto": "each on a CPU, vmap on a GPU",
+                "vmap": "learners of one feed-forward network as one program (train.packed_update)",
+                "each": "every learner's own update, the learners spread over the torch threads"}
+"""How a pack's learners update (``Placement(pack_update=...)``)."""
+Acted = dict[Hashable, tuple[np.ndarray, np.ndarray]]
 """Each learner's sampled actions ``[rows]`` and goal probabilities ``[rows, C]``, by learner key."""
 
 
@@ -59,8 +70,15 @@ class Placement:
     """Where ``learners`` (by key) act and update: see the module docstring. ``update_processes``: a learner may
     update in a process of its own (``TrainConfig.update_processes``)."""
 
-    def __init__(self, learners: dict[int, Learner], device: torch.device, update_processes: bool):
+    def __init__(self, learners: dict[Hashable, Learner], device: torch.device, update_processes: bool,
+                 packed: bool = False, pack_update: str = "auto"):
+        if pack_update not in PACK_UPDATES:
+            raise ValueError(f"pack_update={pack_update!r}: one of {list(PACK_UPDATES)}")
         self.learners, self.device, self.update_processes = learners, device, update_processes
+        self.packed = packed  # a pack's learners (``train.pack``): acting and updating by groups of one shape
+        self.pack_update = pack_update
+        self._stacked_groups: list | None = None  # packed: (learner keys, their StackedActing or None), made once
+        self._update_groups: list | None = None  # packed: (learner keys, their PackedUpdate or None), made once
         self._pool: ThreadPoolExecutor | None = None  # the update's threads, kept between updates
         self._processes: dict[int, UpdateProcess] = {}  # by learner key: where that learner updates
         self._processes_work = UPDATE_PROCESSES  # false once one could not start here (``Unavailable``)
@@ -75,6 +93,10 @@ class Placement:
         on the threads of ``threads_each``, with this thread at the per-learner torch thread count
         while inside (the rollout's other torch ops too: they are far too small to gain from more).
         """
+        if self.packed:
+            with self._acting_packed() as act:
+                yield act
+            return
         threads, stacked = torch.get_num_threads(), self._stacked_acting()
         if stacked is not None:
             torch.set_num_threads(1)
@@ -117,16 +139,20 @@ class Placement:
         return max(1, threads // len(self.learners))
 
     # -------------------------------------------------------------- update
-    def update(self, inputs: dict[str, dict]) -> dict[int, dict]:
+    def update(self, inputs: dict[Hashable, dict]) -> dict[Hashable, dict]:
         """Every learner's PPO update on the rollout just collected, bootstrapped from the values of ``inputs``
-        (its network inputs now, by learner name), side by side where it can (``threads_each``).
+        (its network inputs now, by learner key), side by side where it can (``threads_each``); packed, as
+        ``_update_packed`` says.
 
         Each one's whole update, its bootstrap value included, runs at one thread count, so the
         result is bit for bit the learners updated one after the other with that many threads,
         on any CPU. (It is not bit for bit an update with all the threads: on some CPUs MKL and
         oneDNN split a small matrix product's sum across threads; see docs/TRAINING.md.)
         """
-        work = lambda lr: lr.update(lr.value(inputs[lr.name]))  # noqa: E731
+        if self.packed:
+            return self._update_packed(inputs)
+        key_of = {id(lr): key for key, lr in self.learners.items()}
+        work = lambda lr: lr.update(lr.value(inputs[key_of[id(lr)]]))  # noqa: E731
         each, threads = self.threads_each(), torch.get_num_threads()
         if each == 1 and len(self.learners) <= threads and self.update_processes and self._processes_work:
             try:
@@ -145,7 +171,7 @@ class Placement:
         finally:
             torch.set_num_threads(threads)
 
-    def _update_in_processes(self, inputs: dict[str, dict]) -> dict[int, dict]:
+    def _update_in_processes(self, inputs: dict[Hashable, dict]) -> dict[Hashable, dict]:
         """``update`` with the first learner on this thread and each other in its process (``UpdateProcess``),
         all at one torch thread."""
         first, *others = self.learners
@@ -158,9 +184,9 @@ class Placement:
                     self._processes[i] = UpdateProcess(self.learners[i])
             for i in others:
                 learner = self.learners[i]
-                self._processes[i].start(learner, learner.value(inputs[learner.name]))
+                self._processes[i].start(learner, learner.value(inputs[i]))
             learner = self.learners[first]
-            results = {first: learner.update(learner.value(inputs[learner.name]))}
+            results = {first: learner.update(learner.value(inputs[first]))}
             results.update({i: self._processes[i].finish(self.learners[i]) for i in others})
             failed = False
             return results
@@ -168,6 +194,92 @@ class Placement:
             torch.set_num_threads(threads)
             if failed:  # (the learners' states are those of an update cut short: end the processes now)
                 self._close_processes(keep_state=False)
+
+    # -------------------------------------------------------------- packed
+    def _packed_groups(self, fits: Callable[[list[Learner]], bool], make: Callable[[list[Learner]], object]
+                       ) -> list[tuple[list[Hashable], object | None]]:
+        """The learners in groups that ``fits`` (each grouped with every later learner it fits with), each made into
+        ``make(group)``; a learner that fits with none is a group of its own, with None."""
+        groups, left = [], list(self.learners)
+        while left:
+            first, *rest = left
+            group = [first] + [k for k in rest if fits([self.learners[first], self.learners[k]])]
+            learners = [self.learners[k] for k in group]
+            if len(group) > 1 and fits(learners):
+                groups.append((group, make(learners)))
+            else:
+                group = [first]
+                groups.append((group, None))
+            left = [k for k in left if k not in group]
+        return groups
+
+    @contextmanager
+    def _acting_packed(self) -> Iterator[Callable[[Callable[[Learner], dict]], Acted]]:
+        """A pack's acting: each group of learners that stack (``can_stack``) in one ``StackedActing``, the others
+        one by one, all at one torch thread (a rollout step's operations are small)."""
+        if self._stacked_groups is None:
+            self._stacked_groups = self._packed_groups(can_stack, StackedActing)
+        threads = torch.get_num_threads()
+        torch.set_num_threads(1)
+        try:
+            for _, stacked in self._stacked_groups:
+                if stacked is not None:
+                    stacked.refresh()
+
+            def act(inputs_of: Callable[[Learner], dict]) -> Acted:
+                out = {}
+                for keys, stacked in self._stacked_groups:
+                    if stacked is None:
+                        out[keys[0]] = self.learners[keys[0]].act(inputs_of(self.learners[keys[0]]))
+                    else:
+                        out.update(zip(keys, stacked.act([inputs_of(self.learners[k]) for k in keys])))
+                return out
+
+            yield act
+        finally:
+            torch.set_num_threads(threads)
+
+    def _update_packed(self, inputs: dict[Hashable, dict]) -> dict[Hashable, dict]:
+        """A pack's update. On a GPU (or ``pack_update="vmap"``), each group of learners with the same feed-forward
+        network (``can_pack_update``) as one program (``PackedUpdate``), the others one by one, with every torch
+        thread. On a CPU (``"each"``, what ``"auto"`` picks there), every learner's own update at one torch thread,
+        the learners spread evenly over ``threads`` threads: at a minibatch of 512 rows a learner's update is bound
+        by its products' arithmetic, which a batched product does no faster (docs/PERFORMANCE.md), and each
+        learner's update at one thread is what it is in a trial alone on a CPU, bit for bit."""
+        if self.pack_update == "each" or (self.pack_update == "auto" and self.device.type == "cpu"):
+            return self._update_each(inputs)
+        if self._update_groups is None:
+            self._update_groups = self._packed_groups(can_pack_update, PackedUpdate)
+        out = {}
+        for keys, packed in self._update_groups:
+            if packed is None:
+                learner = self.learners[keys[0]]
+                out[keys[0]] = learner.update(learner.value(inputs[keys[0]]))
+            else:
+                out.update(zip(keys, packed.update([inputs[k] for k in keys])))
+        return out
+
+    def _update_each(self, inputs: dict[Hashable, dict]) -> dict[Hashable, dict]:
+        """Every learner's own update at one torch thread, the learners dealt in turn to ``min(learners, threads)``
+        lanes: the first lane on this thread, the others on a pool's."""
+        threads = torch.get_num_threads()
+        keys = list(self.learners)
+        lanes = [keys[n::threads] for n in range(min(len(keys), threads))]
+
+        def run(lane: list[Hashable]) -> dict[Hashable, dict]:
+            torch.set_num_threads(1)
+            return {k: self.learners[k].update(self.learners[k].value(inputs[k])) for k in lane}
+
+        if len(lanes) > 1 and self._pool is None:
+            self._pool = ThreadPoolExecutor(len(lanes) - 1, thread_name_prefix="learner")
+        futures = [self._pool.submit(run, lane) for lane in lanes[1:]]
+        try:
+            out = run(lanes[0])
+        finally:
+            torch.set_num_threads(threads)
+        for future in futures:
+            out.update(future.result())
+        return {k: out[k] for k in keys}
 
     # ------------------------------------------------------ optimizers, end
     def sync_optimizers(self) -> None:

@@ -9,13 +9,14 @@ from torch.nn import functional as F
 
 
 def compute_gae(rewards: torch.Tensor, values: torch.Tensor, next_values: torch.Tensor, dones: torch.Tensor,
-                gamma: float, lam: float) -> tuple[torch.Tensor, torch.Tensor]:
+                gamma: float | torch.Tensor, lam: float | torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Generalized advantage estimation over ``[T, B]`` tensors.
 
     ``next_values[t]`` is the value of the state reached by step ``t`` (for a truncated
     episode, the value of its final observation, so time limits are bootstrapped; 0 for a
     true termination). ``dones[t]`` is true when step ``t`` ended an episode: the trace is cut
-    there. Returns ``(advantages, returns)``.
+    there. ``gamma`` and ``lam`` are numbers, or ``[B]`` tensors: each column's own (a pack's learners side by
+    side). Returns ``(advantages, returns)``.
     """
     T = rewards.shape[0]
     adv = torch.zeros_like(rewards)

@@ -112,14 +112,20 @@ class StackedActing:
         them."""
         enc, L, t = self.encoder, len(self.learners), self.learners[0].steps
         rows = self.learners[0].rows
-        obs = inputs[0]["obs"][0]
+        obs = inputs[0]["obs"][0]  # (every learner's board has this shape; a pack's trials have boards of their own)
         P = obs.shape[1]
         patches = self.views_of("patches", (enc.cells ** 2, P + 1, 9))
         coarse = self.views_of("coarse", (P * -(-obs.shape[2] // enc.pool) * -(-obs.shape[3] // enc.pool),))
         for i, x in enumerate(inputs):
             views.window_patches(x["obs"][0], x["me"][0], enc.radius, enc.cells, out=patches[i, t])
-        views.pooled(obs, enc.pool, out=coarse[0, t])
-        coarse[1:, t] = coarse[0, t]  # one board: the same coarse view for every learner
+        board = None
+        for i, x in enumerate(inputs):  # one coarse view per board: a trial's learners share theirs
+            this = x["obs"][0]
+            if board is not None and this.data_ptr() == board.data_ptr() and this.shape == board.shape:
+                coarse[i, t] = coarse[i - 1, t]
+            else:
+                views.pooled(this, enc.pool, out=coarse[i, t])
+            board = this
         sides = [learner.model.side_inputs(x["goal"], x["extras"], learner.identity)[0]
                  for learner, x in zip(self.learners, inputs)]
         (w1, b1), (w2, b2), (w3, b3), (wa, ba), (wb, bb), (wc, bc), (wg, bg) = self.weights

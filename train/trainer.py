@@ -14,9 +14,8 @@ from __future__ import annotations
 import json
 import time
 import warnings
-from contextlib import suppress
 from pathlib import Path
-from typing import Callable
+from typing import Callable, Generator
 
 import numpy as np
 import torch
@@ -119,45 +118,33 @@ class Trainer:
               stop: Callable[[], bool] | None = None) -> dict:
         """Train to ``total_steps``; ``on_iteration(row, saved)`` is called after each iteration with its log row
         (and evaluation) and the checkpoint it saved (``latest.pt``), or None. ``stop()``, asked after each
-        iteration: true ends training there, with a checkpoint of that iteration (``colorgrid train``'s Ctrl+C)."""
-        cfg = self.config
+        iteration: true ends training there, with a checkpoint of that iteration (``colorgrid train``'s Ctrl+C).
+        This run alone is a ``Pack`` of one (``train.pack``)."""
+        from train.pack import Pack
+
+        report = None if on_iteration is None else (lambda trial, row, saved: on_iteration(row, saved))
+        return Pack([self]).train(report, stop)[0]
+
+    def start(self) -> None:
+        """Before the first iteration of ``train``: the run folder, its config and its logs."""
         self.run_dir.mkdir(parents=True, exist_ok=True)
-        (self.run_dir / "config.json").write_text(json.dumps(cfg.to_dict(), indent=2))
+        (self.run_dir / "config.json").write_text(json.dumps(self.config.to_dict(), indent=2))
         self.log = MetricsLog(self.run_dir, tensorboard=self.tensorboard)
-        bar = None
-        if self.progress:
-            from tqdm import tqdm
-            bar = tqdm(total=cfg.end_step, initial=self.step, unit="step", smoothing=0.1)
-        last = {}
         self._tick = time.perf_counter()
-        ended = False
-        try:
-            while self.iteration < cfg.num_iterations:
-                last = self.train_iteration()
-                if bar is not None:
-                    bar.update(cfg.batch_steps)
-                    bar.set_postfix(sps=f"{last['sps']:.0f}", team=f"{last.get('team_reward', float('nan')):.2f}")
-                if cfg.eval_every and self.iteration % cfg.eval_every == 0:
-                    last.update(self.evaluate())
-                stopping = stop is not None and stop()
-                saved = None
-                if self.iteration % cfg.save_every == 0 or self.iteration == cfg.num_iterations or stopping:
-                    saved = self.save()
-                if on_iteration is not None:
-                    on_iteration(last, saved)
-                if stopping:
-                    break
-            ended = True
-        finally:
-            if bar is not None:
-                bar.close()
-            self.log.close()
-            if ended:
-                self.close()
-            else:  # (an error or Ctrl+C is on its way out: nothing here may hide it)
-                with suppress(Exception):
-                    self.close()
-        return last
+
+    @property
+    def finished(self) -> bool:
+        """Whether this run has trained all its iterations."""
+        return self.iteration >= self.config.num_iterations
+
+    def after_iteration(self, row: dict, stopping: bool) -> Path | None:
+        """Evaluate and save where the config says (always when ``stopping``); returns the checkpoint saved."""
+        cfg = self.config
+        if cfg.eval_every and self.iteration % cfg.eval_every == 0:
+            row.update(self.evaluate())
+        if self.iteration % cfg.save_every == 0 or self.iteration == cfg.num_iterations or stopping:
+            return self.save()
+        return None
 
     def close(self) -> None:
         """End the threads and processes the learners update on (``train`` does when it ends); the next update
@@ -170,19 +157,27 @@ class Trainer:
     _stacked = property(lambda self: self.placement._stacked)
 
     def train_iteration(self) -> dict:
+        """One PPO iteration of this run alone: a ``Pack`` of one (``train.pack``)."""
+        from train.pack import Pack
+
+        return Pack([self]).train_iteration()[0]
+
+    def begin_iteration(self) -> None:
+        """Set what the schedules say for the iteration about to run (the wrong-block penalty's coefficient)."""
+        self.env.penalty_coef = self.config.schedule.penalty_coef(self.step, self.config.env.penalty_coef)
+
+    def end_iteration(self, episodes: dict, accuracy: dict, results: dict[int, dict], t0: float, t1: float,
+                      t2: float) -> dict:
+        """Count the iteration that rolled out between ``t0`` and ``t1`` and updated (``results``, by learner key)
+        until ``t2``, and log its row."""
         cfg = self.config
-        self.env.penalty_coef = cfg.schedule.penalty_coef(self.step, cfg.env.penalty_coef)
-        t0 = time.perf_counter()
-        episodes, accuracy = self.collect_rollout()
-        t1 = time.perf_counter()
         stats = {}
-        for i, result in self._update_learners().items():
+        for i, result in results.items():
             learner = self.learners[i]
             for key, value in result.items():
                 stats[f"{learner.name}/{key}"] = value
             for a in learner.agents:
                 stats[f"{self.names[a]}/rollout_goal_accuracy"] = accuracy[a]
-        t2 = time.perf_counter()
         self.wall_time += t2 - self._tick  # includes the last evaluation and save
         self._tick = t2
         self.iteration += 1
@@ -196,10 +191,29 @@ class Trainer:
 
     def _update_learners(self) -> dict[int, dict]:
         """Every learner's PPO update on the rollout just collected, wherever its placement runs it."""
-        return self.placement.update({lr.name: self._learner_tensors(lr) for lr in self.learners.values()})
+        return self.placement.update(self.update_inputs())
+
+    def update_inputs(self) -> dict[int, dict]:
+        """Every learner's network inputs now, by learner key: what its update bootstraps its values from."""
+        return {i: self._learner_tensors(lr) for i, lr in self.learners.items()}
 
     def collect_rollout(self) -> tuple[dict, dict]:
-        """``num_steps`` steps of every env; returns episode means and each learning agent's goal accuracy."""
+        """``num_steps`` steps of every env, the learners acting where this run's placement puts them; returns
+        episode means and each learning agent's goal accuracy (``rollout``)."""
+        with self.placement.acting() as act:
+            rollout = self.rollout()
+            inputs_of = next(rollout)
+            while True:
+                try:
+                    inputs_of = rollout.send(act(inputs_of))
+                except StopIteration as done:
+                    return done.value
+
+    def rollout(self) -> Generator[Callable[[Learner], dict], dict, tuple[dict, dict]]:
+        """``num_steps`` steps of every env, as a generator: at each step it yields ``inputs_of(learner)`` (the
+        network inputs of each of this run's learners) and is sent back what the learners chose, by learner key
+        (``Placement.acting``'s ``act`` gives it; a ``Pack`` acts for several runs at once). Returns episode means
+        and each learning agent's goal accuracy."""
         cfg, env = self.config, self.env
         B, A = cfg.ppo.num_envs, cfg.env.num_agents
         shaping = cfg.schedule.shaping_on(self.step)
@@ -208,40 +222,39 @@ class Trainer:
         done_eps: dict[str, list] = {}
         shaped_sum = self.shaped_sum
         hits = {a: 0 for learner in self.learners.values() for a in learner.agents}  # steps its goal head was right
-        with self.placement.acting() as act:
-            for _ in range(cfg.ppo.num_steps):
-                true_goal = env.state.goal.copy()
-                actions = np.zeros((B, A), dtype=np.int64)
-                targets = {i: self._aux_targets(lr, true_goal) for i, lr in self.learners.items()}
-                acted = act(lambda lr: self._learner_tensors(lr, true_goal))
-                for i, learner in self.learners.items():
-                    chosen, probs = acted[i]
-                    for k, a in enumerate(learner.agents):  # rows are agent-major: agent k's envs are rows kB..(k+1)B
-                        actions[:, a] = chosen[k * B:(k + 1) * B]
-                        hits[a] += np.count_nonzero(probs[k * B:(k + 1) * B].argmax(axis=1) == true_goal)
-                for i, partner in self.partners.items():
-                    actions[:, i] = partner.act(self._inputs(i, true_goal)).actions
-                self.obs, rewards, terms, truncs, infos = env.step(actions)
-                rewards = self._training_rewards(rewards, infos, shaping)
-                shaped_sum += rewards
-                done = terms.any(axis=1) | truncs.any(axis=1)  # [B]: every agent's episode ends at once
-                self.last.record(actions, infos, done)
-                final = self._final_values(infos, done) if done.any() else {}
-                for i, learner in self.learners.items():
-                    k = len(learner.agents)
-                    learner.record(rewards[:, learner.agents].T.reshape(-1), np.tile(done, k), np.tile(true_goal, k),
-                                   final.get(i), targets[i])
-                if done.any():
-                    fi = infos["final_info"]
-                    totals = {"block_reward": fi["episode_block_reward"][done],
-                              "goal_pickups": fi["episode_goal_pickups"][done],
-                              "wrong_pickups": fi["episode_wrong_pickups"][done],
-                              "net_pickups": fi["episode_goal_pickups"][done] - fi["episode_wrong_pickups"][done],
-                              "training_reward": shaped_sum[done]}
-                    for key, values in episode_columns(cfg.env, totals).items():
-                        done_eps.setdefault(key, []).extend(values)
-                    done_eps.setdefault("team_reward", []).extend(fi["episode_block_reward"][done].sum(axis=1))
-                    shaped_sum[done] = 0.0
+        for _ in range(cfg.ppo.num_steps):
+            true_goal = env.state.goal.copy()
+            actions = np.zeros((B, A), dtype=np.int64)
+            targets = {i: self._aux_targets(lr, true_goal) for i, lr in self.learners.items()}
+            acted = yield lambda lr, goal=true_goal: self._learner_tensors(lr, goal)
+            for i, learner in self.learners.items():
+                chosen, probs = acted[i]
+                for k, a in enumerate(learner.agents):  # rows are agent-major: agent k's envs are rows kB..(k+1)B
+                    actions[:, a] = chosen[k * B:(k + 1) * B]
+                    hits[a] += np.count_nonzero(probs[k * B:(k + 1) * B].argmax(axis=1) == true_goal)
+            for i, partner in self.partners.items():
+                actions[:, i] = partner.act(self._inputs(i, true_goal)).actions
+            self.obs, rewards, terms, truncs, infos = env.step(actions)
+            rewards = self._training_rewards(rewards, infos, shaping)
+            shaped_sum += rewards
+            done = terms.any(axis=1) | truncs.any(axis=1)  # [B]: every agent's episode ends at once
+            self.last.record(actions, infos, done)
+            final = self._final_values(infos, done) if done.any() else {}
+            for i, learner in self.learners.items():
+                k = len(learner.agents)
+                learner.record(rewards[:, learner.agents].T.reshape(-1), np.tile(done, k), np.tile(true_goal, k),
+                               final.get(i), targets[i])
+            if done.any():
+                fi = infos["final_info"]
+                totals = {"block_reward": fi["episode_block_reward"][done],
+                          "goal_pickups": fi["episode_goal_pickups"][done],
+                          "wrong_pickups": fi["episode_wrong_pickups"][done],
+                          "net_pickups": fi["episode_goal_pickups"][done] - fi["episode_wrong_pickups"][done],
+                          "training_reward": shaped_sum[done]}
+                for key, values in episode_columns(cfg.env, totals).items():
+                    done_eps.setdefault(key, []).extend(values)
+                done_eps.setdefault("team_reward", []).extend(fi["episode_block_reward"][done].sum(axis=1))
+                shaped_sum[done] = 0.0
         episodes = {k: float(np.mean(v)) for k, v in done_eps.items()}
         if done_eps:
             episodes["episodes"] = len(done_eps["team_reward"])
