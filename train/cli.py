@@ -28,7 +28,11 @@ def add_train_commands(sub) -> None:
                        help="override one setting, e.g. ppo.lr=3e-4, follower.net.lstm=true, env.asymmetric=false "
                             "(env settings are env.KEY here, in sweep files, and on eval, demo and replay import)")
     train.add_argument("--out", help="run directory (default runs/<preset>-<time>)")
-    train.add_argument("--resume", metavar="RUN_DIR", help="continue a run from RUN_DIR/checkpoints/latest.pt")
+    train.add_argument("--seeds", metavar="SEEDS",
+                       help="train one run per seed as one pack in one process (train/pack.py), each in OUT/seed_N: "
+                            "a range 0-7, a list 0,3,5, or both 0-3,8 (replaces the config's seed)")
+    train.add_argument("--resume", metavar="RUN_DIR", help="continue a run from RUN_DIR/checkpoints/latest.pt (a "
+                                                           "--seeds run: from each RUN_DIR/seed_N, as one pack)")
     train.add_argument("--no-progress", action="store_true", help="no progress bar")
     train.add_argument("--no-tensorboard", action="store_true", help="no TensorBoard event files")
     train.add_argument("--print-config", action="store_true", help="print the resolved config and exit")
@@ -103,25 +107,62 @@ def resumed_config(run_dir: Path, overrides: list[str]) -> TrainConfig:
         raise ValueError(f"{saved}{' with the --set overrides' if overrides else ''}: {err}") from None
 
 
+def parse_seeds(text: str) -> list[int]:
+    """``--seeds``: ``0-7``, ``0,3,5`` or ``0-3,8`` as a sorted list of distinct seeds."""
+    seeds = set()
+    for part in text.split(","):
+        low, dash, high = part.strip().partition("-")
+        try:
+            first, last = int(low), int(high if dash else low)
+        except ValueError:
+            first, last = 0, -1
+        if not 0 <= first <= last:
+            raise ValueError(f"--seeds {text!r}: give seeds as a range 0-7, a list 0,3,5, or both 0-3,8 (whole "
+                             f"numbers >= 0, each range low-high with low <= high)")
+        seeds.update(range(first, last + 1))
+    return sorted(seeds)
+
+
+def seed_runs(run_dir: Path) -> list[Path]:
+    """The runs of a ``--seeds`` run directory, ``RUN_DIR/seed_N`` by seed (none: it is one run)."""
+    runs = [d for d in run_dir.glob("seed_*") if d.is_dir() and d.name[5:].isdigit()]
+    return sorted(runs, key=lambda d: int(d.name[5:]))
+
+
 def cmd_train(args: argparse.Namespace) -> int:
     if args.resume:
         run_dir = Path(args.resume)
-        config = resumed_config(run_dir, args.set)
+        if args.seeds:
+            raise ValueError("--seeds starts runs; --resume continues them with the seeds they were started with: "
+                             "give one or the other")
+        runs = seed_runs(run_dir) or [run_dir]
+        configs = [resumed_config(run, args.set) for run in runs]
     else:
         config = resolve_config(args)
         run_dir = Path(args.out or f"runs/{Path(args.preset).stem}-{time.strftime('%Y%m%d-%H%M%S')}")
+        if args.seeds:
+            seeds = parse_seeds(args.seeds)
+            configs = [resolve(config.to_dict(), overrides=[f"seed={seed}"]) for seed in seeds]
+            runs = [run_dir / f"seed_{seed}" for seed in seeds]
+        else:
+            configs, runs = [config], [run_dir]
     if args.print_config:
-        print(json.dumps(config.to_dict(), indent=2))
+        print(json.dumps(configs[0].to_dict() if len(configs) == 1 else [c.to_dict() for c in configs], indent=2))
         return 0
-    from train.trainer import Trainer  # torch: imported once the config is known to be good
+    from train.pack import Pack  # torch: imported once the config is known to be good
+    from train.packing import check_packable
+    from train.trainer import Trainer
 
-    trainer = Trainer(config, run_dir, progress=not args.no_progress, tensorboard=not args.no_tensorboard)
+    check_packable(configs)
+    trainers = [Trainer(config, run, progress=not args.no_progress, tensorboard=not args.no_tensorboard)
+                for config, run in zip(configs, runs)]
     if args.resume:
-        latest = run_dir / "checkpoints" / "latest.pt"
-        trainer.restore(latest)
-        print(f"resuming {run_dir} at step {trainer.step}")
-    print(f"training {config.num_iterations} iterations of {config.batch_steps} steps on {trainer.device}; "
-          f"run directory {run_dir}")
+        for trainer, run in zip(trainers, runs):
+            trainer.restore(run / "checkpoints" / "latest.pt")
+        print(f"resuming {run_dir} at step {', '.join(str(t.step) for t in trainers)}")
+    pack = f" as one pack of {len(trainers)} (seeds {', '.join(str(c.seed) for c in configs)})" if len(runs) > 1 else ""
+    print(f"training {configs[0].num_iterations} iterations of {configs[0].batch_steps} steps on "
+          f"{trainers[0].device}{pack}; run directory {run_dir}")
     interrupted = threading.Event()
 
     def on_ctrl_c(signum, frame):
@@ -133,20 +174,22 @@ def cmd_train(args: argparse.Namespace) -> int:
 
     previous = signal.signal(signal.SIGINT, on_ctrl_c)
     try:
-        last = trainer.train(stop=interrupted.is_set)
+        lasts = Pack(trainers).train(stop=interrupted.is_set)
     except KeyboardInterrupt:
         print(f"stopped at once; continue from the last checkpoint with: colorgrid train --resume {run_dir}",
               file=sys.stderr)
         return 130
     finally:
         signal.signal(signal.SIGINT, previous)
-    if interrupted.is_set() and trainer.iteration < config.num_iterations:
-        print(f"stopped at step {trainer.step} of {config.end_step}; continue with: "
+    if interrupted.is_set() and not all(t.finished for t in trainers):
+        print(f"stopped at step {trainers[0].step} of {configs[0].end_step}; continue with: "
               f"colorgrid train --resume {run_dir}")
         return 130
-    shown = {k: round(v, 3) for k, v in last.items() if isinstance(v, float) and ("eval/" in k or k == "sps")}
-    print(f"done at step {trainer.step}: {shown}")
-    print(f"checkpoints in {run_dir / 'checkpoints'}")
+    for trainer, last in zip(trainers, lasts):
+        shown = {k: round(v, 3) for k, v in last.items() if isinstance(v, float) and ("eval/" in k or k == "sps")}
+        seed = f" (seed {trainer.config.seed})" if len(trainers) > 1 else ""
+        print(f"done at step {trainer.step}{seed}: {shown}")
+        print(f"checkpoints in {trainer.run_dir / 'checkpoints'}")
     return 0
 
 
