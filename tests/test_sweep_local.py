@@ -142,6 +142,31 @@ def test_stop_after_ends_every_trial_and_starts_no_other(tmp_path):
     assert json.loads((started[0] / "params.json").read_text()) == grid(load_sweep(path))[0]
 
 
+def test_a_packed_sweep_keeps_what_an_unpacked_one_does(tmp_path):
+    """``[resources] pack = 3``: the four trials train as a pack of three and a pack of one, in two processes, and
+    the tables hold every figure the same as when each trial trains alone (bit for bit on a CPU)."""
+    (tmp_path / "alone").mkdir()
+    (tmp_path / "packed").mkdir()
+    alone = tiny(tmp_path / "alone", seeds="[0, 1]", total=256)
+    packed = tiny(tmp_path / "packed", seeds="[0, 1]", total=256, tables="pack = 3")
+    assert run_local(load_sweep(alone, out=tmp_path / "a"), processes=2) == 0
+    run = colorgrid("sweep", "run", str(packed), "--out", str(tmp_path / "p"), "--local", "2")
+    out, _ = run.communicate(timeout=300)
+    assert run.returncode == 0, out
+    assert "4 trials in 2 packs of up to 3, 2 at a time" in out and "4 of 4 trials ran to the end here" in out
+    trials_a, curves_a = read_tables(tmp_path / "a")
+    trials_p, curves_p = read_tables(tmp_path / "p")
+    pd.testing.assert_frame_equal(learned(curves_p), learned(curves_a))
+    same = [c for c in trials_a.columns if c not in MACHINE and c != "trial" and "time" not in c]
+    order = ["configuration", "seed"]
+    pd.testing.assert_frame_equal(trials_p[same].sort_values(order).reset_index(drop=True),
+                                  trials_a[same].sort_values(order).reset_index(drop=True))
+    assert trials_p["finished"].all() and len(trials_p) == 4
+    again = colorgrid("sweep", "run", str(packed), "--out", str(tmp_path / "p"), "--local", "2")
+    out, _ = again.communicate(timeout=120)
+    assert "4 finished here before; 0 to run" in out  # finished trials are not trained again
+
+
 def test_kept_trials_are_not_run_and_tables_hold_them(tmp_path):
     from train.sweep.report import publish_report
 

@@ -50,12 +50,17 @@ class Resources(Table):
     gpus_per_trial: float = 0
     """GPUs each trial gets (fractions share one); with any, the trials train on ``cuda``."""
     max_concurrent: int = 0
-    """Trials at once (0: as many as the cluster's CPUs fit)."""
+    """Trials at once (0: as many as the cluster's CPUs fit); with ``pack``, packs at once."""
+    pack: int = 1
+    """Trials trained as one in a process (``train.pack``): up to this many trials whose shapes agree
+    (``train.packing.pack_key``) share a pack, which gets one trial's ``cpus_per_trial`` and ``gpus_per_trial``.
+    Each trial is still kept, reported and resumed on its own; 1: every trial alone."""
 
     def __post_init__(self):
         check_number(self, "cpus_per_trial", "a number > 0", lambda v: v > 0)
         check_number(self, "gpus_per_trial", "a number >= 0", lambda v: v >= 0)
         check_int(self, "max_concurrent", 0, allowed="a whole number >= 0 (0: as many as fit)")
+        check_int(self, "pack", 1, 4096, allowed="a whole number from 1 (every trial alone) to 4096")
 
 
 @dataclass(frozen=True)

@@ -79,10 +79,14 @@ def run_local(spec: SweepSpec, processes: int, stop_after: float | None = None) 
     failed = []
     context = get_context("spawn")
     stop = context.Event()
+    jobs = trial_packs(spec, todo)
+    if spec.resources.pack > 1 and todo:
+        print(f"sweep {spec.name}: {len(todo)} trials in {len(jobs)} packs of up to {spec.resources.pack}, "
+              f"{processes} at a time", flush=True)
     with ProcessPoolExecutor(max_workers=processes, mp_context=context, initializer=share_stop,
                              initargs=(stop,)) as pool:
-        futures = {pool.submit(run_one, str(folder), params, deadline, waited=i >= processes): params
-                   for i, params in enumerate(todo)}
+        futures = {pool.submit(run_pack, str(folder), job, deadline, waited=i >= processes): job
+                   for i, job in enumerate(jobs)}
 
         def stop_all(*_) -> None:  # running trials end with a checkpoint, waiting ones do not start
             stop.set()
@@ -96,8 +100,9 @@ def run_local(spec: SweepSpec, processes: int, stop_after: float | None = None) 
                     continue
                 error = future.exception()
                 if error is not None:
-                    failed.append(f"[{spec.label(spec.values(futures[future]))}, seed={futures[future]['seed']}]: "
-                                  f"{str(error).splitlines()[0] if str(error) else type(error).__name__}")
+                    failed.append(", ".join(f"[{spec.label(spec.values(p))}, seed={p['seed']}]"
+                                            for p in futures[future])
+                                  + f": {str(error).splitlines()[0] if str(error) else type(error).__name__}")
         finally:
             for sig, handler in previous.items():
                 signal.signal(sig, handler)
@@ -144,11 +149,22 @@ def finished(spec: SweepSpec, trial_dir: Path, params: dict) -> bool:
     return trained_to(trial_dir) >= spec.config(spec.values(params), int(params["seed"])).end_step
 
 
-def run_one(folder: str, params: dict, deadline: float | None, waited: bool = False) -> None:
-    """One trial in this process: train from its checkpoint if it has one, stop with a checkpoint at ``deadline``
-    or on SIGINT / SIGTERM. A trial that ``waited`` for its turn does not start once the sweep is stopping."""
+def trial_packs(spec: SweepSpec, todo: list[dict]) -> list[list[dict]]:
+    """The trials to run, in packs of up to ``[resources] pack`` trials whose shapes agree (``train.packing``); one
+    trial a pack without it."""
+    from train.packing import pack_key, packs
+    from train.sweep.trial import trial_config
+
+    return packs(todo, lambda params: pack_key(trial_config(spec, params)), spec.resources.pack)
+
+
+def run_pack(folder: str, pack: list[dict], deadline: float | None, waited: bool = False) -> None:
+    """The trials ``pack`` (parameter values of each) as one pack in this process (``train.pack``; one trial: an
+    ordinary run): each trains from its checkpoint if it has one, and all stop with a checkpoint at ``deadline`` or
+    on SIGINT / SIGTERM. A pack that ``waited`` for its turn does not start once the sweep is stopping."""
     if waited and ((_STOP is not None and _STOP.is_set()) or (deadline is not None and time.time() >= deadline)):
         return
+    from train.pack import Pack
     from train.sweep.trial import limit_threads, trial_config
     from train.trainer import Trainer
 
@@ -157,26 +173,29 @@ def run_one(folder: str, params: dict, deadline: float | None, waited: bool = Fa
     spec = load_folder(Path(folder))
     workdir = Path(folder) / WORKDIR_FILE
     os.chdir(workdir.read_text().strip())  # paths in the sweep file read as where it was started
-    trial_dir = Path(folder) / local_name(spec, params)
-    trial_dir.mkdir(exist_ok=True)
-    (trial_dir / "params.json").write_text(json.dumps(params))
-    config = trial_config(spec, params)
-    limit_threads(config.threads)
-    trainer = Trainer(config, trial_dir / RUN_FOLDER, progress=False, tensorboard=False, keep_steps=False)
-    latest = trial_dir / RUN_FOLDER / "checkpoints" / "latest.pt"
-    if latest.exists():
-        trainer.restore(latest)
-    label = f"trial [{spec.label(spec.values(params))}, seed={params['seed']}]"
-    total = config.end_step
-    last_line = [0.0]
+    trainers, labels = [], []
+    for params in pack:
+        trial_dir = Path(folder) / local_name(spec, params)
+        trial_dir.mkdir(exist_ok=True)
+        (trial_dir / "params.json").write_text(json.dumps(params))
+        config = trial_config(spec, params)
+        limit_threads(config.threads)
+        trainer = Trainer(config, trial_dir / RUN_FOLDER, progress=False, tensorboard=False, keep_steps=False)
+        latest = trial_dir / RUN_FOLDER / "checkpoints" / "latest.pt"
+        if latest.exists():
+            trainer.restore(latest)
+        trainers.append(trainer)
+        labels.append(f"trial [{spec.label(spec.values(params))}, seed={params['seed']}]")
+    last_line = [0.0] * len(pack)
 
-    def report(row: dict, saved: Path | None) -> None:
-        now = time.time()
-        if now - last_line[0] >= EVERY_S or trainer.step >= total:
-            last_line[0] = now
+    def report(k: int, row: dict, saved: Path | None) -> None:
+        now, trainer = time.time(), trainers[k]
+        if now - last_line[k] >= EVERY_S or trainer.finished:
+            last_line[k] = now
             value = row.get(spec.metric)
             shown = f" {spec.metric} {value:+.2f}" if isinstance(value, (int, float)) else ""
-            print(f"{label} step {trainer.step:,}/{total:,}{shown}, {row.get('sps', 0):,.0f} steps/s", flush=True)
+            print(f"{labels[k]} step {trainer.step:,}/{trainer.config.end_step:,}{shown}, "
+                  f"{row.get('sps', 0):,.0f} steps/s", flush=True)
 
-    trainer.train(on_iteration=report,
-                  stop=lambda: bool(asked) or (_STOP is not None and _STOP.is_set()) or (deadline is not None and time.time() >= deadline))
+    Pack(trainers).train(on_iteration=report, stop=lambda: bool(asked) or (_STOP is not None and _STOP.is_set())
+                         or (deadline is not None and time.time() >= deadline))
