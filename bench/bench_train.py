@@ -8,8 +8,12 @@ Also prints each setup's arithmetic: floating-point operations per env-step (cou
 torch's FlopCounterMode on a short rollout and one update epoch, scaled to the configured
 epochs) and the ceiling this machine's own matrix-multiply rate puts on env-steps/s.
 
+With ``--pack K [K ...]``, each setup is also measured as a pack of K trials (seeds 0..K-1) trained as one
+(``train.pack``): the pack's env-steps/s are all its trials' steps together, and its share of the ceiling
+is what the machine does for all of them.
+
 Usage: python bench/bench_train.py [--setup fast fast-lstm paper] [--iterations 5] [--threads 0] [--device auto]
-                                  [--num-envs 16]
+                                  [--num-envs 16] [--pack 1 2 4 8 16]
 
 On a GPU (``--device cuda``) the ceiling is the GPU's own float32 matrix-multiply rate.
 """
@@ -30,6 +34,8 @@ from common import machine  # noqa: E402
 import torch  # noqa: E402
 
 from train.config import from_dict  # noqa: E402
+from train.metrics import MetricsLog  # noqa: E402
+from train.pack import Pack  # noqa: E402
 from train.trainer import Trainer  # noqa: E402
 
 SETUPS = {
@@ -49,30 +55,36 @@ def setup_config(name: str, num_envs: int, **settings) -> dict:
     return {**SETUPS[name], "ppo": ppo, **settings}
 
 
-def measure(name: str, iterations: int, threads: int, device: str, num_envs: int = 16) -> dict:
-    config = from_dict(setup_config(name, num_envs, threads=threads, device=device, eval_every=0,
-                                    total_steps=10**9))
+def measure(name: str, iterations: int, threads: int, device: str, num_envs: int = 16, pack: int = 1) -> dict:
+    """Median figures of ``iterations`` PPO iterations (after one warm-up) of setup ``name``: one trial, or a pack
+    of ``pack`` trials (seeds 0..pack-1) trained as one, whose env-steps/s count every trial's steps."""
+    configs = [from_dict(setup_config(name, num_envs, threads=threads, device=device, eval_every=0,
+                                      total_steps=10**9, seed=seed)) for seed in range(pack)]
     with tempfile.TemporaryDirectory() as tmp:
-        trainer = Trainer(config, tmp, progress=False, tensorboard=False)
-        from train.metrics import MetricsLog
-
-        trainer.log = MetricsLog(Path(tmp), tensorboard=False)
-        rows, cpus = [], []
+        trainers = [Trainer(config, Path(tmp) / str(k), progress=False, tensorboard=False)
+                    for k, config in enumerate(configs)]
+        for trainer in trainers:
+            trainer.run_dir.mkdir()
+            trainer.log = MetricsLog(trainer.run_dir, tensorboard=False)
+        together = Pack(trainers)
+        walls, cpus, rollout, update = [], [], [], []
         for i in range(iterations + 1):
-            c = cpu_seconds()
-            row = trainer.train_iteration()
+            c, w = cpu_seconds(), time.perf_counter()
+            rows = together.train_iteration()
             if i:  # the first iteration warms caches and allocators
-                rows.append(row)
+                walls.append(time.perf_counter() - w)
                 cpus.append(cpu_seconds() - c)
-        trainer.close()
-        trainer.log.close()
-    steps = config.batch_steps
+                rollout.append(configs[0].batch_steps / rows[0]["rollout_sps"])  # the pack's seconds
+                update.append(configs[0].batch_steps / rows[0]["update_sps"])
+        together.close()
+        for trainer in trainers:
+            trainer.log.close()
+    steps = pack * configs[0].batch_steps
     return {
-        "setup": name, "device": str(trainer.device), "threads": torch.get_num_threads(),
-        "sps": statistics.median(r["sps"] for r in rows),
-        "rollout_sps": statistics.median(r["rollout_sps"] for r in rows),
-        "update_sps": statistics.median(r["update_sps"] for r in rows),
-        "cpu_s_per_iter": statistics.median(cpus), "steps_per_iter": steps, "num_envs": config.ppo.num_envs,
+        "setup": name, "device": str(trainers[0].device), "threads": torch.get_num_threads(), "pack": pack,
+        "sps": steps / statistics.median(walls), "rollout_sps": steps / statistics.median(rollout),
+        "update_sps": steps / statistics.median(update),
+        "cpu_s_per_iter": statistics.median(cpus), "steps_per_iter": steps, "num_envs": configs[0].ppo.num_envs,
     }
 
 
@@ -136,27 +148,32 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=0, help="torch threads (0: all cores)")
     parser.add_argument("--device", default="auto")
     parser.add_argument("--num-envs", type=int, default=16, help="envs a rollout (the paper's 16 by default)")
+    parser.add_argument("--pack", type=int, nargs="+", default=[1],
+                        help="trials a pack, each measured (e.g. 1 2 4 8 16; 32 64 on CUDA)")
     parser.add_argument("--profile", action="store_true", help="print torch's profile of one update (first setup)")
     args = parser.parse_args()
     print(f"machine: {machine()}; torch {torch.__version__}; cuda: {torch.cuda.is_available()}")
-    print(f"{'setup':<10} {'device':<7} {'threads':>7} {'env-steps/s':>12} {'rollout/s':>10} {'update/s':>10} "
-          f"{'CPU s/iter':>10}")
+    print(f"{'setup':<10} {'pack':>4} {'device':<7} {'threads':>7} {'env-steps/s':>12} {'rollout/s':>10} "
+          f"{'update/s':>10} {'CPU s/iter':>10}")
     measured = {}
     for name in args.setup:
-        r = measured[name] = measure(name, args.iterations, args.threads, args.device, args.num_envs)
-        print(f"{r['setup']:<10} {r['device']:<7} {r['threads']:>7} {r['sps']:>12.0f} {r['rollout_sps']:>10.0f} "
-              f"{r['update_sps']:>10.0f} {r['cpu_s_per_iter']:>10.2f}", flush=True)
-    print(f"(median over iterations of {args.num_envs} envs x 128 steps, both agents learning; the paper's public "
-          "trainer: about 36 env-steps/s on a 2-core CPU)")
-    device = measured[args.setup[0]]["device"]
+        for pack in args.pack:
+            r = measured[name, pack] = measure(name, args.iterations, args.threads, args.device, args.num_envs, pack)
+            print(f"{r['setup']:<10} {pack:>4} {r['device']:<7} {r['threads']:>7} {r['sps']:>12.0f} "
+                  f"{r['rollout_sps']:>10.0f} {r['update_sps']:>10.0f} {r['cpu_s_per_iter']:>10.2f}", flush=True)
+    print(f"(median over iterations of {args.num_envs} envs x 128 steps a trial, both agents learning, every trial of "
+          "a pack counted; the paper's public trainer: about 36 env-steps/s on a 2-core CPU)")
+    device = next(iter(measured.values()))["device"]
     rate = matmul_rate(args.threads, device=device)
     where = torch.cuda.get_device_name() if device.startswith("cuda") else f"this CPU ({torch.get_num_threads()} threads)"
     print(f"\n{where}: float32 matmul rate {rate / 1e9:.0f} GFLOP/s")
-    print(f"{'setup':<10} {'GFLOP/env-step':>15} {'ceiling env-steps/s':>20} {'share of the ceiling':>21}")
+    print(f"{'setup':<10} {'pack':>4} {'GFLOP/env-step':>15} {'ceiling env-steps/s':>20} {'share of the ceiling':>21}")
     for name in args.setup:
         work = flops_per_env_step(name)
         ceiling = rate / work
-        print(f"{name:<10} {work / 1e9:>15.4f} {ceiling:>20.0f} {measured[name]['sps'] / ceiling:>21.0%}", flush=True)
+        for pack in args.pack:
+            print(f"{name:<10} {pack:>4} {work / 1e9:>15.4f} {ceiling:>20.0f} "
+                  f"{measured[name, pack]['sps'] / ceiling:>21.0%}", flush=True)
     print("(the ceiling: every operation at the matmul rate; nothing else costs time)")
     if args.profile:
         profile_update(args.setup[0], args.threads, args.device)
