@@ -326,14 +326,14 @@ def test_waiting_rooms_count_as_sessions_and_expire(tmp_path):
     async def scenario():
         hub = GameHub(ServerSettings(replays_dir=tmp_path, follower="copy", max_sessions=2, room_wait_s=0.2))
         waiting = [Inbox(), Inbox()]
-        for client in waiting:
-            await hub.create_room("2:1", None, None, "turn", 5, True, client)
+        rooms = [await hub.create_room("2:1", None, None, "turn", 5, True, client) for client in waiting]
         with pytest.raises(ServerFull):
             await hub.create_room("2:1", None, None, "turn", 5, True, Inbox())
         with pytest.raises(ServerFull):
             await hub.new_game(None, None, "turn", 5, True, Inbox())
-        await asyncio.sleep(0.3)
-        await hub.sweep()
+        await hub.lobby.expire(min(room.created for room in rooms) + 0.1)  # the wait (0.2 s) is not over: they stay
+        assert len(hub.rooms) == 2
+        await hub.lobby.expire(max(room.created for room in rooms) + 0.3)
         assert not hub.rooms
         game = await hub.new_game(None, None, "turn", 5, True, Inbox(), team="1:2")  # room for games again
         assert len(game.ai) == 2 and {p.pool.agent_index for p in game.ai.values()} == {1, 2}

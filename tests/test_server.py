@@ -11,7 +11,8 @@ from colorgrid.config import AGENTS, EnvConfig
 from colorgrid.render import look
 from colorgrid.replay import load, verify
 from server.protocol import KEY_ACTIONS
-from tests.conftest import ROOT
+from tests.conftest import ROOT, start_server, stop_server
+from tests.helpers import wait_until
 
 MOVES = ["ArrowUp", "ArrowDown", "ArrowLeft", "ArrowRight"]
 
@@ -48,11 +49,21 @@ class Client:
         self._connection.__exit__(None, None, None)
 
 
-def wait_for_no_games(server, timeout=20):
-    end = time.monotonic() + timeout
-    while server.get("/api/health")[0]["games"] and time.monotonic() < end:
-        time.sleep(0.2)
-    assert server.get("/api/health")[0]["games"] == 0
+def wait_for_no_games(server):
+    wait_until(lambda: server.get("/api/health")[0]["games"] == 0, "the server's games to end")
+
+
+def listed(server, replay_id: str) -> bool:
+    """Whether the replay list has ``replay_id`` (the list's scan of the folders is reused for a second)."""
+    return replay_id in {i["id"] for i in server.get("/api/replays?limit=500")[0]["items"]}
+
+
+@pytest.fixture(scope="module")
+def patient_server(tmp_path_factory):
+    """A server whose rejoin grace (ten minutes) no reconnect of a loaded machine can miss."""
+    srv = start_server(tmp_path_factory.mktemp("patient"), "--rejoin-grace-s", "600", "--follower", "copy")
+    yield srv
+    stop_server(srv)
 
 
 def test_health_options_and_openapi(server):
@@ -199,13 +210,14 @@ def test_a_flood_is_refused_without_harming_another_game(server):
         c.close()
 
 
-def test_disconnect_then_rejoin_with_the_token(server):
+def test_disconnect_then_rejoin_with_the_token(patient_server):
+    server = patient_server
     client = Client(server)
     welcome, _ = client.new_game(mode="turn", horizon=30)
     client.key("ArrowUp")
     client.recv("state")
     client.close()
-    time.sleep(0.3)
+    wait_until(lambda: server.get("/api/health")[0]["connections"] == 0, "the server to see the socket closed")
     other = Client(server)
     other.send({"type": "rejoin", "game_id": welcome["game_id"], "token": "wrong"})
     assert "no game with that id and token" in other.recv("error")["message"]
@@ -220,20 +232,15 @@ def test_disconnect_then_rejoin_with_the_token(server):
     other.close()
 
 
-def test_a_game_left_disconnected_is_saved_as_such(server):
+def test_a_game_left_disconnected_past_the_rejoin_grace_is_saved_as_such(server):
     client = Client(server)
     welcome, _ = client.new_game(mode="turn", horizon=30)
     for key in ("ArrowUp", "ArrowLeft"):
         client.key(key)
         client.recv("state")
     client.close()
-    path = None
-    end = time.monotonic() + 15
-    while time.monotonic() < end and path is None:
-        matches = list(server.replays_dir.glob(f"*{welcome['game_id']}.replay.json"))
-        path = matches[0] if matches else None
-        time.sleep(0.2)
-    assert path is not None, "saved after the 1.5 s grace period"
+    [path] = wait_until(lambda: list(server.replays_dir.glob(f"*{welcome['game_id']}.replay.json")),
+                        "the game to be saved once its rejoin grace (1.5 s) is over")
     replay = load(path)
     assert replay.ended == "disconnected" and replay.num_steps == 2 and verify(replay).ok
 
@@ -329,8 +336,7 @@ def test_a_replay_branched_on_the_server_shares_its_first_steps_and_verifies(ser
     mtime = saved.stat().st_mtime
     assert post_json(server, f"/api/replays/{parent_id}/branch", {"step": 20, "follower": "copy"}) == (answer, 200)
     assert saved.stat().st_mtime == mtime, "the same branch is reused, not made again"
-    listed = server.get("/api/replays?limit=500")[0]["items"]
-    assert answer["id"] in {i["id"] for i in listed}
+    assert answer["id"] in {i["id"] for i in server.get("/api/replays?limit=500")[0]["items"]}
     # errors: a follower that is not offered (names only: never a path), a step out of range, an unknown id
     for body in ({"step": 20, "follower": "tests/evil.pt"}, {"step": 20, "follower": "astar"}):
         assert post_json(server, f"/api/replays/{parent_id}/branch", body)[1] == 400
@@ -340,7 +346,7 @@ def test_a_replay_branched_on_the_server_shares_its_first_steps_and_verifies(ser
     assert post_json(server, "/api/replays/nope/branch", {"step": 0, "follower": "copy"})[1] == 404
     assert post_json(server, "/api/replays/..%2F..%2Fsecret/branch", {"step": 0, "follower": "copy"})[1] == 404
     (server.replays_dir / "broken.replay.json").write_text("{")
-    time.sleep(1.1)  # the catalogue's scan is reused for a second
+    wait_until(lambda: listed(server, "broken"), "the broken file in the replay list")
     assert post_json(server, "/api/replays/broken/branch", {"step": 0, "follower": "copy"})[1] == 422
     assert not (server.replays_dir / "branches" / "broken--branch0-copy.replay.json").exists()
 
@@ -402,12 +408,12 @@ def test_a_branch_of_a_played_game_is_listed_as_a_branch_of_its_parent(server):
     over = client.recv("game_over")
     client.close()
     parent_id = over["replay_id"]
-    time.sleep(1.1)  # the catalogue's scan is reused for a second
+    wait_until(lambda: listed(server, parent_id), "the game in the replay list")
     answer, status = post_json(server, f"/api/replays/{parent_id}/branch", {"step": 3, "follower": "copy"})
     assert status == 200
-    time.sleep(1.1)
-    listed = {i["id"]: i for i in server.get("/api/replays?limit=500")[0]["items"]}
-    parent, child = listed[parent_id], listed[answer["id"]]
+    wait_until(lambda: listed(server, answer["id"]), "the branch in the replay list")
+    items = {i["id"]: i for i in server.get("/api/replays?limit=500")[0]["items"]}
+    parent, child = items[parent_id], items[answer["id"]]
     assert parent["source"] == "play" and parent["leader"] == "human" and parent["branch_of"] is None
     assert child["source"] == "branch", "not a game someone played"
     assert child["leader"] == "human (replayed)" and child["follower"] == "copy"
