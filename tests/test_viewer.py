@@ -18,6 +18,7 @@ from colorgrid.replay import load, save
 from colorgrid.replay.timeline import timeline
 from colorgrid_apps.viewer import (STEP_SECONDS, ReplayViewer, TabView, block_capacity, board_bounds, export_html,
                                    frame_at, framing_camera)
+from tests.helpers import wait_until
 
 ROOT = Path(__file__).resolve().parents[1]
 BAYES = sorted(glob.glob(str(ROOT / "replays/default/astar+bayes*.replay.json")))[0]
@@ -193,12 +194,17 @@ def test_standalone_html_export_carries_the_panel_and_chart_and_counts_steps(tmp
     slider = page.locator(".mantine-Slider-root")
     area = slider.bounding_box()
     seen = set()
+    read = """() => [document.getElementById("colorgrid-step").textContent,
+                     Number(document.querySelector("[role=slider]").getAttribute("aria-valuenow"))]"""
     for fraction in (0.3, 0.62):  # seeking pauses playback at a time between two steps
+        before = page.evaluate(read)[1]
         slider.click(position={"x": area["width"] * fraction, "y": area["height"] / 2})
-        page.wait_for_timeout(400)
-        shown, clock = page.evaluate("""() => [document.getElementById("colorgrid-step").textContent,
-            Number(document.querySelector("[role=slider]").getAttribute("aria-valuenow"))]""")
-        assert shown == str(int(clock // STEP_SECONDS)), (shown, clock)  # whole steps, the one on screen
+        # the clock has moved to where the slider was clicked, and the counter shows that time's whole step
+        shown, clock = page.wait_for_function(f"""() => {{
+            const [shown, clock] = ({read})();
+            return clock !== {before} && shown === String(Math.floor(clock / {STEP_SECONDS})) && [shown, clock];
+        }}""").json_value()
+        assert abs(clock / recording["durationSeconds"] - fraction) < 0.1, (clock, fraction)
         seen.add(shown)
     assert len(seen) == 2
     box, clock_box = counter.bounding_box(), page.locator(".mantine-NumberInput-root").bounding_box()
@@ -216,18 +222,23 @@ def test_export_command_prints_only_what_it_wrote(tmp_path):
     assert "__VISER_EMBED_DATA__" in out.read_text()
 
 
-def test_the_export_button_sends_the_file_to_the_browser_and_writes_nothing(viewer, monkeypatch):
-    tab = TabView(viewer, viewer.server)
+def test_the_export_button_sends_the_file_to_the_browser_and_writes_nothing(viewer, browser, tmp_path):
     before = sorted(viewer.folder.rglob("*"))
-    sent = []
-    monkeypatch.setattr(viewer.server, "send_file_download",
-                        lambda name, content, **kw: sent.append((name, content, kw)))
-    tab.export()
+    page = browser.new_page(accept_downloads=True)
+    try:
+        page.goto(f"http://127.0.0.1:{viewer.port}/")
+        button = page.get_by_text("export standalone HTML")
+        with page.expect_download(timeout=120_000) as info:  # the page is recorded on the server first
+            button.click()
+        download = info.value
+        assert download.suggested_filename == "a.html"
+        download.save_as(tmp_path / "a.html")
+        content = (tmp_path / "a.html").read_bytes()
+        assert b"__VISER_EMBED_DATA__" in content and b"<title>ColorGrid replay: a.replay.json</title>" in content
+        expect(page.get_by_text("to the browser")).to_have_text("sent a.html to the browser")
+    finally:
+        page.close()
     assert sorted(viewer.folder.rglob("*")) == before
-    [(name, content, kw)] = sent
-    assert name == "a.html" and kw == {"save_immediately": True}
-    assert b"__VISER_EMBED_DATA__" in content and b"<title>ColorGrid replay: a.replay.json</title>" in content
-    assert "a.html" in tab.export_note.content
 
 
 def test_a_browser_tab_opens_on_the_whole_board_with_a_step_chart(viewer, browser):
@@ -237,16 +248,26 @@ def test_a_browser_tab_opens_on_the_whole_board_with_a_step_chart(viewer, browse
         page.get_by_text("play / pause").wait_for(timeout=30000)
         data = timeline(load(BAYES))
         center = np.array([data["width"] / 2, data["height"] / 2, 0.4])
-        deadline = time.monotonic() + 30
-        camera = None
-        while time.monotonic() < deadline:  # until the browser reports the camera it was given
+        scene_aspect = """() => {  // the 3D canvas (the largest: the chart draws on one too), as laid out now
+            const c = [...document.querySelectorAll("canvas")].sort((a, b) =>
+                b.clientWidth * b.clientHeight - a.clientWidth * a.clientHeight)[0];
+            return c.clientWidth / c.clientHeight;
+        }"""
+
+        def camera_reported():
+            """The tab's camera once the browser reports it aimed at the board, for its canvas as docked beside
+            the panel."""
             clients = list(viewer.server.get_clients().values())
-            if clients and np.allclose(clients[0].camera.look_at, center, atol=1e-3):
-                camera = clients[0].camera
-                break
-            time.sleep(0.1)
-        assert camera is not None, "the tab's camera was aimed at the board"
-        page.wait_for_timeout(500)  # the panel docks beside the canvas; the camera report follows
+            if not clients or not np.allclose(clients[0].camera.look_at, center, atol=1e-3):
+                return None
+            camera = clients[0].camera
+            try:
+                return camera if abs(camera.aspect - page.evaluate(scene_aspect)) < 1e-3 else None
+            except AssertionError:  # viser: no size reported by the browser yet
+                return None
+
+        camera = wait_until(camera_reported, "the tab's camera aimed at the board, for the canvas beside the panel")
+        clients = list(viewer.server.get_clients().values())
         spots = in_view(board_corners(data), camera.position, camera.look_at, camera.up_direction, camera.fov,
                         camera.aspect)
         assert (np.abs(spots) <= 1).all(), (spots, camera.aspect)
@@ -258,12 +279,14 @@ def test_a_browser_tab_opens_on_the_whole_board_with_a_step_chart(viewer, browse
         assert page.evaluate(f"() => {chart}.series.map(s => s.label)") == ["step", "red", "green", "blue"]
         legend = page.locator(".u-legend .u-series").all_inner_texts()
         assert not any("now" in row or "step 60" in row for row in legend), legend  # the legend lists curves only
-        page.wait_for_timeout(300)  # drawn: a dark vertical line across the plot at step 60, whatever the curves
-        line = page.evaluate(f"""() => {{
+        # drawn (on a frame after the move): a dark vertical line across the plot at step 60, whatever the curves
+        line = page.wait_for_function(f"""() => {{
             const u = {chart}, x = Math.round(u.valToPos(60, "x", true)), top = u.bbox.top, height = u.bbox.height;
             const ctx = u.ctx;
-            return [0.1, 0.3, 0.5, 0.7, 0.9].map(f => [...ctx.getImageData(x, Math.round(top + f * height), 1, 1).data]);
-        }}""")
+            const line = [0.1, 0.3, 0.5, 0.7, 0.9].map(f =>
+                [...ctx.getImageData(x, Math.round(top + f * height), 1, 1).data]);
+            return line.every(rgba => Math.max(...rgba.slice(0, 3)) < 80 && rgba[3] > 200) && line;
+        }}""").json_value()
         assert all(max(rgba[:3]) < 80 and rgba[3] > 200 for rgba in line), line
         ticks = f"{chart}.axes[0].values({chart}, [0, 64, 128], 0, 50, 64)"  # the x axis's label formatter
         time_scale, ticks = page.evaluate(f"() => [{chart}.scales.x.time, {ticks}]")
