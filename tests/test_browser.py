@@ -122,9 +122,21 @@ def test_replay_list_shows_the_latest_filters_answer_when_an_older_one_comes_bac
     """A filter changed while the list's earlier request is still out: the earlier answer, held back on its way to
     the page until the new one is shown, must not replace it (the real server answers both)."""
     page = browser.new_page()
-    held = []
+    held, asked = [], []
+    # every answer to the list's requests, counted once the page's script has read it (web/replays.js awaits
+    # response.json(), then shows the list or drops an answer to an older filter, in the same turn of its loop)
+    page.add_init_script("""
+        window.__listAnswers = 0;
+        const json = Response.prototype.json;
+        Response.prototype.json = function () {
+            return json.call(this).then((data) => {
+                if (this.url.includes("/api/replays?")) window.__listAnswers += 1;
+                return data;
+            });
+        };""")
 
     def hold_unfiltered(route):
+        asked.append(route.request.url)
         if "setting=" in route.request.url:
             route.continue_()
         else:  # every request before the setting is chosen reaches the page last
@@ -138,7 +150,7 @@ def test_replay_list_shows_the_latest_filters_answer_when_an_older_one_comes_bac
     assert len(held) >= 2  # the first load and the collection's
     for route in held:
         route.continue_()
-    page.wait_for_timeout(500)  # the held answers arrive
+    page.wait_for_function(f"() => window.__listAnswers === {len(asked)}")  # the held answers reached the script
     expect(page.locator("#list tbody tr")).to_have_count(6)
     assert set(page.locator("#list tbody tr td:nth-child(3)").all_text_contents()) == {"default"}
     page.close()
@@ -190,9 +202,16 @@ def test_replay_player_scrubs_plays_links_and_downloads(server, browser, tmp_pat
     page.keyboard.press(" ")
     page.wait_for_function("() => Number(document.getElementById('board').dataset.step) >= 50")
     page.keyboard.press(" ")
+    expect(page.locator("#play")).to_have_text("play")  # paused
     stopped = int(board.get_attribute("data-step"))
-    page.wait_for_timeout(300)
-    assert int(board.get_attribute("data-step")) == stopped
+    # twenty frames drawn later (at 8x a step is drawn every 16 ms) the board still shows the step it stopped at
+    shown = page.evaluate("""() => new Promise((done) => {
+        let frames = 0;
+        const frame = () => (++frames < 20 ? requestAnimationFrame(frame)
+                                            : done(Number(document.getElementById("board").dataset.step)));
+        requestAnimationFrame(frame);
+    })""")
+    assert shown == stopped
     # clicking the chart jumps there
     box = chart.bounding_box()
     chart.click(position={"x": box["width"] - 9, "y": box["height"] / 2})
@@ -342,7 +361,7 @@ def test_branch_here_draws_the_branch_beside_the_replay_on_one_cursor(server, br
     page.locator("#branch-follower").evaluate("s => s.add(new Option('tests/x.pt', 'tests/x.pt'))")
     page.select_option("#branch-follower", "tests/x.pt")
     page.click("#branch-here")
-    expect(page.locator("#branch-status")).to_contain_text("follower must be one of", timeout=30_000)
+    expect(page.locator("#branch-status")).to_contain_text("follower must be one of")
     expect(page.locator("#branch-panel")).to_be_hidden()
     assert errors == []
     page.close()
@@ -606,12 +625,18 @@ def test_a_real_time_game_goes_on_through_the_tab_hidden_and_shown_again(server,
     page.goto(server.url + "/")
     page.select_option("#follower", "copy")
     page.select_option("#mode", "realtime")
-    page.fill("#horizon", "60")  # 3 s at the test server's 20 steps/s
-    page.click("#start")
+    page.fill("#horizon", "1000")  # 50 s at the test server's 20 steps/s: more than the test needs; it quits
     countdown, board = page.locator("#countdown"), page.locator("#board")
+    page.evaluate("""() => {  // what the countdown shows, each time it changes, and whether the tab was hidden then
+        const shown = document.getElementById("countdown");
+        window.__countdown = [];
+        new MutationObserver(() => window.__countdown.push([shown.textContent, document.hidden]))
+            .observe(shown, { childList: true, characterData: true, subtree: true });
+    }""")
+    page.click("#start")
     expect(countdown).to_have_text("3")
-    set_visibility(page, False)  # hidden during the countdown
-    expect(countdown).to_have_text("2")
+    set_visibility(page, False)  # hidden during the countdown: it goes on
+    page.wait_for_function("() => window.__countdown.some(([text, hidden]) => hidden && text !== '3')")
     set_visibility(page, True)
     expect(page.locator("#game")).to_be_visible()
     expect(board).not_to_have_attribute("data-step", "0")
@@ -620,12 +645,16 @@ def test_a_real_time_game_goes_on_through_the_tab_hidden_and_shown_again(server,
     page.wait_for_function(f"() => Number(document.getElementById('board').dataset.step) > {step + 5}")
     set_visibility(page, True)
     before = board.get_attribute("data-leader")
-    for _ in range(3):
+    for _ in range(10):  # a key, then two steps of the server's (its state after the key): a move may be blocked
+        step = int(board.get_attribute("data-step"))
         page.keyboard.press("ArrowDown" if int(before) < 32 * 16 else "ArrowUp")
-        page.wait_for_timeout(60)
-    page.wait_for_function(f"() => document.getElementById('board').dataset.leader !== '{before}'")
-    expect(page.locator("#over")).to_be_visible(timeout=15_000)
-    expect(page.locator("#status")).to_have_text("Game over.")
+        page.wait_for_function(f"() => Number(document.getElementById('board').dataset.step) >= {step + 2}")
+        if board.get_attribute("data-leader") != before:
+            break
+    assert board.get_attribute("data-leader") != before, "keys move the leader after the tab is back"
+    page.click("#quit")
+    expect(page.locator("#over")).to_be_visible()
+    expect(page.locator("#status")).to_have_text(ENDING_WORDS[Ending.QUIT])
     expect(countdown).to_be_hidden()
     replay = load(server.replays_dir / f"{page.locator('#replay-link').get_attribute('href').split('id=')[1]}.replay.json")
     changes = [e["visible"] for e in replay.meta["page_events"] if e["event"] == "visibilitychange"]
