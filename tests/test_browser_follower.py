@@ -73,14 +73,14 @@ def test_a_turn_based_game_in_the_follower_seat_with_beliefs_and_probes(seat_ser
     expect(page.locator("#probe")).to_be_visible()  # step 2 asks
     expect(page.locator("#probe-note")).to_have_text("The game waits for your answer.")
     page.keyboard.press("ArrowLeft")  # the game waits: a move does nothing meanwhile
-    page.wait_for_timeout(300)
-    expect(board).to_have_attribute("data-step", "2")
     # an answer the server refuses (a confidence below chance, forced past the page's range) is asked again
     page.locator("#probe-confidence").evaluate("r => { r.min = 0; r.value = 10; }")
     page.click(".probe-color[data-color='2']")
     page.click("#probe-answer")
     expect(page.locator("#probe-problem")).to_have_text("Choose how sure you are: from a guess to certain.")
     expect(page.locator("#probe")).to_be_visible()
+    # the server answered the move before that answer (one socket, in order): had it stepped, its state came first
+    expect(board).to_have_attribute("data-step", "2")
     page.locator("#probe-confidence").evaluate("r => { r.min = 34; r.value = 80; "
                                                "r.dispatchEvent(new Event('input')); }")
     expect(page.locator("#probe-percent")).to_have_text("80%")
@@ -115,20 +115,21 @@ def test_a_turn_based_game_in_the_follower_seat_with_beliefs_and_probes(seat_ser
 
 
 def test_a_realtime_game_in_the_follower_seat_asks_without_stopping_the_clock(seat_server, browser):
-    page, errors = open_setup(seat_server, browser, "realtime", 60, "8")
+    page, errors = open_setup(seat_server, browser, "realtime", 600, "8")  # a minute: the test quits it
     page.click("#start")
-    expect(page.locator("#game")).to_be_visible(timeout=10_000)  # after the 3-2-1
+    expect(page.locator("#game")).to_be_visible()  # after the 3-2-1
     board = page.locator("#board")
     page.keyboard.press("3")
     expect(page.locator("#stated-now")).to_have_text("You said the goal is blue.")
-    expect(page.locator("#probe")).to_be_visible(timeout=10_000)
+    expect(page.locator("#probe")).to_be_visible()
     expect(page.locator("#probe-note")).to_have_text("The game goes on while you answer.")
     asked = int(board.get_attribute("data-step"))
     expect(board).not_to_have_attribute("data-step", str(asked))  # the clock goes on
     page.click(".probe-color[data-color='1']")
     page.click("#probe-answer")
     expect(page.locator("#probe")).to_be_hidden()
-    expect(page.locator("#over")).to_be_visible(timeout=20_000)
+    page.click("#quit")
+    expect(page.locator("#over")).to_be_visible()
     replay = replay_of(page, seat_server)
     probe = replay.probes[0]
     assert probe["status"] == "answered" and probe["color"] == 1 and probe["answered_step"] > probe["step"] == 8
