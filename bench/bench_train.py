@@ -13,7 +13,7 @@ With ``--pack K [K ...]``, each setup is also measured as a pack of K trials (se
 is what the machine does for all of them.
 
 Usage: python bench/bench_train.py [--setup fast fast-lstm paper] [--iterations 5] [--threads 0] [--device auto]
-                                  [--num-envs 16] [--pack 1 2 4 8 16]
+                                  [--num-envs 16] [--pack 1 2 4 8 16] [--pack-mode auto]
 
 On a GPU (``--device cuda``) the ceiling is the GPU's own float32 matrix-multiply rate.
 """
@@ -36,6 +36,7 @@ import torch  # noqa: E402
 from train.config import from_dict  # noqa: E402
 from train.metrics import MetricsLog  # noqa: E402
 from train.pack import Pack  # noqa: E402
+from train.placement import PACK_MODES  # noqa: E402
 from train.trainer import Trainer  # noqa: E402
 
 SETUPS = {
@@ -55,7 +56,8 @@ def setup_config(name: str, num_envs: int, **settings) -> dict:
     return {**SETUPS[name], "ppo": ppo, **settings}
 
 
-def measure(name: str, iterations: int, threads: int, device: str, num_envs: int = 16, pack: int = 1) -> dict:
+def measure(name: str, iterations: int, threads: int, device: str, num_envs: int = 16, pack: int = 1,
+            mode: str = "auto") -> dict:
     """Median figures of ``iterations`` PPO iterations (after one warm-up) of setup ``name``: one trial, or a pack
     of ``pack`` trials (seeds 0..pack-1) trained as one, whose env-steps/s count every trial's steps."""
     configs = [from_dict(setup_config(name, num_envs, threads=threads, device=device, eval_every=0,
@@ -66,7 +68,7 @@ def measure(name: str, iterations: int, threads: int, device: str, num_envs: int
         for trainer in trainers:
             trainer.run_dir.mkdir()
             trainer.log = MetricsLog(trainer.run_dir, tensorboard=False)
-        together = Pack(trainers)
+        together = Pack(trainers, mode=mode)
         walls, cpus, rollout, update = [], [], [], []
         for i in range(iterations + 1):
             c, w = cpu_seconds(), time.perf_counter()
@@ -150,15 +152,19 @@ def main() -> None:
     parser.add_argument("--num-envs", type=int, default=16, help="envs a rollout (the paper's 16 by default)")
     parser.add_argument("--pack", type=int, nargs="+", default=[1],
                         help="trials a pack, each measured (e.g. 1 2 4 8 16; 32 64 on CUDA)")
+    parser.add_argument("--pack-mode", default="auto", choices=sorted(PACK_MODES),
+                        help="how a pack acts and updates (auto: stacked on a CPU, vmap on a GPU)")
     parser.add_argument("--profile", action="store_true", help="print torch's profile of one update (first setup)")
     args = parser.parse_args()
-    print(f"machine: {machine()}; torch {torch.__version__}; cuda: {torch.cuda.is_available()}")
+    print(f"machine: {machine()}; torch {torch.__version__}; cuda: {torch.cuda.is_available()}; "
+          f"pack mode: {args.pack_mode}")
     print(f"{'setup':<10} {'pack':>4} {'device':<7} {'threads':>7} {'env-steps/s':>12} {'rollout/s':>10} "
           f"{'update/s':>10} {'CPU s/iter':>10}")
     measured = {}
     for name in args.setup:
         for pack in args.pack:
-            r = measured[name, pack] = measure(name, args.iterations, args.threads, args.device, args.num_envs, pack)
+            r = measured[name, pack] = measure(name, args.iterations, args.threads, args.device, args.num_envs, pack,
+                                               args.pack_mode)
             print(f"{r['setup']:<10} {pack:>4} {r['device']:<7} {r['threads']:>7} {r['sps']:>12.0f} "
                   f"{r['rollout_sps']:>10.0f} {r['update_sps']:>10.0f} {r['cpu_s_per_iter']:>10.2f}", flush=True)
     print(f"(median over iterations of {args.num_envs} envs x 128 steps a trial, both agents learning, every trial of "

@@ -63,7 +63,8 @@ def test_a_pack_trains_each_trial_bit_for_bit_as_it_trains_alone_on_the_cpu(tmp_
         t.train()
     packed = [trainer(tmp_path / "packed" / str(k), c) for k, c in enumerate(TRIALS.values())]
     seen = []
-    Pack(packed).train(lambda trial, row, saved: seen.append((trial, row["iteration"], saved is not None)))
+    Pack(packed).train(lambda done: seen.extend((k, row["iteration"], saved is not None)
+                                                for k, (row, saved) in done.items()))
     for name, a, p in zip(TRIALS, alone, packed):
         assert p.step == a.step == a.config.num_iterations * 64
         for la, lp in zip(a.learners.values(), p.learners.values()):
@@ -81,7 +82,7 @@ def test_a_pack_trains_each_trial_bit_for_bit_as_it_trains_alone_on_the_cpu(tmp_
 
 
 def test_the_batched_update_computes_what_each_learner_computes_alone(tmp_path):
-    """``pack_update="vmap"`` (what a GPU runs): the first rollout is the same, the losses and weights after it
+    """``pack_mode="vmap"`` (what a GPU runs): the first rollout is the same, the losses and weights after it
     agree to float rounding, and a learner whose KL stops its epochs early stops there while the others go on."""
     trials = {k: v for k, v in TRIALS.items() if "memory" not in k}
     alone = [trainer(tmp_path / "alone" / str(k), c) for k, c in enumerate(trials.values())]
@@ -89,7 +90,7 @@ def test_the_batched_update_computes_what_each_learner_computes_alone(tmp_path):
     for t in alone:
         t.start()  # (its log: ``train_iteration`` writes a row)
     first = [t.train_iteration() for t in alone]
-    pack = Pack(packed, update="vmap")
+    pack = Pack(packed, mode="vmap")
     placement = pack.placement(tuple(range(len(packed))))
     for t in packed:
         t.start()
@@ -116,19 +117,19 @@ def test_the_batched_update_computes_what_each_learner_computes_alone(tmp_path):
         t.log.close()
 
 
-@pytest.mark.parametrize("update", ["each", "vmap"])
-def test_a_packed_run_stopped_and_resumed_continues_bit_for_bit(tmp_path, update):
+@pytest.mark.parametrize("mode", ["stacked", "vmap"])
+def test_a_packed_run_stopped_and_resumed_continues_bit_for_bit(tmp_path, mode):
     trials = [TRIALS["seed 0"], TRIALS["seed 1, kappa 0, annealed"]]
     straight = [trainer(tmp_path / "a" / str(k), c) for k, c in enumerate(trials)]
-    Pack(straight, update=update).train()
+    Pack(straight, mode=mode).train()
     first = [trainer(tmp_path / "b" / str(k), c) for k, c in enumerate(trials)]
     asked = iter([False, True])
-    Pack(first, update=update).train(stop=lambda: next(asked))  # stopped after iteration 2, with a checkpoint
+    Pack(first, mode=mode).train(stop=lambda: next(asked))  # stopped after iteration 2, with a checkpoint
     assert [t.iteration for t in first] == [2, 2]
     resumed = [trainer(tmp_path / "b" / str(k), c) for k, c in enumerate(trials)]
     for t in resumed:
         t.restore(t.run_dir / "checkpoints" / "latest.pt")
-    Pack(resumed, update=update).train()
+    Pack(resumed, mode=mode).train()
     for a, b in zip(straight, resumed):
         assert rows(b.run_dir) == rows(a.run_dir)
         assert_same_weights(a, b)

@@ -7,13 +7,17 @@ a ``Pack`` does the same with PyTorch. Each trial is a ``Trainer`` as ever, with
 partners, optimizers, generators, schedules, logs, evaluations and checkpoints; the pack only
 decides *how* their learners act and update, through one ``Placement`` over all of them:
 
-- acting: the learners of every trial whose networks stack (``train.stacked.can_stack``) act in
-  one set of batched operations, each layer one batched product for all of them;
-- updating: learners with the same feed-forward network update as one program
-  (``train.packed_update``: their weights stacked, each minibatch one ``torch.func.vmap`` of the
-  network and the PPO loss, forward and backward), each with its own minibatch order, loss
-  weights, learning rate, gradient clip and early stop on KL (a learner that stops is masked, the
-  others go on); any other learner updates on its own, as it would alone.
+- on a CPU (``mode="stacked"``): the learners of every trial whose networks stack
+  (``train.stacked.can_stack``) act in one set of batched operations, each layer one batched
+  product for all of them; every learner updates as it would alone, at one torch thread, the
+  learners spread over the threads (at 512-row minibatches a learner's update is bound by its
+  products' arithmetic, which batching over learners does not speed up on a CPU);
+- on a GPU (``mode="vmap"``): learners with the same feed-forward network act and update as one
+  program each (``train.packed_acting``, ``train.packed_update``: their weights stacked, each
+  step and minibatch one ``torch.func.vmap`` of the network and the PPO loss, forward and
+  backward), each with its own minibatch order, loss weights, learning rate, gradient clip and
+  early stop on KL (a learner that stops is masked, the others go on); any other learner acts and
+  updates on its own, as it would alone.
 
 A trial computes what it computes alone, up to float rounding (``tests/test_pack.py``). A pack of
 one trial is today's trainer: ``Trainer.train`` is ``Pack([trainer]).train``, and with one trial
@@ -40,12 +44,12 @@ from train.trainer import Trainer
 class Pack:
     """``trainers`` trained as one (see the module docstring); each keeps its own run folder."""
 
-    def __init__(self, trainers: list[Trainer], update: str = "auto"):
-        """``update``: how the learners of a pack of two or more update (``train.placement.PACK_UPDATES``)."""
+    def __init__(self, trainers: list[Trainer], mode: str = "auto"):
+        """``mode``: how the learners of a pack of two or more act and update (``train.placement.PACK_MODES``)."""
         if not trainers:
             raise ValueError("a pack needs at least one trial")
         check_packable([t.config for t in trainers])
-        self.trainers, self.update = trainers, update
+        self.trainers, self.mode = trainers, mode
         self._placement: Placement | None = None
         self._members: tuple[int, ...] = ()  # the trials the placement serves
 
@@ -61,16 +65,16 @@ class Pack:
             first = self.trainers[members[0]]
             learners = {(k, i): lr for k in members for i, lr in self.trainers[k].learners.items()}
             self._placement, self._members = Placement(learners, first.device, False, packed=True,
-                                                     pack_update=self.update), members
+                                                     pack_mode=self.mode), members
         return self._placement
 
     # ------------------------------------------------------------------ loop
-    def train(self, on_iteration: Callable[[int, dict, Path | None], None] | None = None,
+    def train(self, on_iteration: Callable[[dict[int, tuple[dict, Path | None]]], None] | None = None,
               stop: Callable[[], bool] | None = None) -> list[dict]:
-        """Train every trial to its ``total_steps``; ``on_iteration(trial, row, saved)`` after each iteration of each
-        trial (``trial`` its index in the pack), with its log row and the checkpoint it saved or None. ``stop()``,
-        asked after each iteration: true ends every trial there, each with a checkpoint. Returns each trial's last
-        row."""
+        """Train every trial to its ``total_steps``; ``on_iteration(done)`` after each iteration of the pack, with
+        each trial that took part (by its index in the pack) mapped to its log row and the checkpoint it saved, or
+        None. ``stop()``, asked after each iteration: true ends every trial there, each with a checkpoint. Returns
+        each trial's last row."""
         last: list[dict] = [{} for _ in self.trainers]
         ended = False
         with ExitStack() as logs:
@@ -85,11 +89,11 @@ class Pack:
                     members = tuple(k for k, t in enumerate(self.trainers) if not t.finished)
                     rows = self.train_iteration(members)
                     stopping = stop is not None and stop()
+                    done = {k: (row, self.trainers[k].after_iteration(row, stopping)) for k, row in zip(members, rows)}
                     for k, row in zip(members, rows):
-                        saved = self.trainers[k].after_iteration(row, stopping)
                         last[k] = row
-                        if on_iteration is not None:
-                            on_iteration(k, row, saved)
+                    if on_iteration is not None:
+                        on_iteration(done)
                     if bar is not None:
                         bar.update(sum(self.trainers[k].config.batch_steps for k in members))
                         if len(self.trainers) == 1:

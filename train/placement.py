@@ -33,15 +33,18 @@ import numpy as np
 import torch
 
 from train.learner import Learner
+from train.packed_acting import PackedActing
 from train.packed_update import PackedUpdate, can_pack_update
 from train.stacked import StackedActing, can_stack
 from train.update_process import AVAILABLE as UPDATE_PROCESSES, Unavailable, UpdateProcess
 
 R = TypeVar("R")
-PACK_UPDATES = {"auto": "each on a CPU, vmap on a GPU",
-                "vmap": "learners of one feed-forward network as one program (train.packed_update)",
-                "each": "every learner's own update, the learners spread over the torch threads"}
-"""How a pack's learners update (``Placement(pack_update=...)``)."""
+PACK_MODES = {"auto": "stacked on a CPU, vmap on any other device",
+              "stacked": "acting through train.stacked where the networks stack, every learner's own update at one "
+                         "thread, the learners spread over the torch threads",
+              "vmap": "acting and updating as one torch.func.vmap program per network shape (train.packed_acting, "
+                      "train.packed_update)"}
+"""How a pack's learners act and update (``Placement(pack_mode=...)``, ``Pack(mode=...)``)."""
 Acted = dict[Hashable, tuple[np.ndarray, np.ndarray]]
 """Each learner's sampled actions ``[rows]`` and goal probabilities ``[rows, C]``, by learner key."""
 
@@ -71,13 +74,13 @@ class Placement:
     update in a process of its own (``TrainConfig.update_processes``)."""
 
     def __init__(self, learners: dict[Hashable, Learner], device: torch.device, update_processes: bool,
-                 packed: bool = False, pack_update: str = "auto"):
-        if pack_update not in PACK_UPDATES:
-            raise ValueError(f"pack_update={pack_update!r}: one of {list(PACK_UPDATES)}")
+                 packed: bool = False, pack_mode: str = "auto"):
+        if pack_mode not in PACK_MODES:
+            raise ValueError(f"pack mode {pack_mode!r}: one of {', '.join(PACK_MODES)}")
         self.learners, self.device, self.update_processes = learners, device, update_processes
         self.packed = packed  # a pack's learners (``train.pack``): acting and updating by groups of one shape
-        self.pack_update = pack_update
-        self._stacked_groups: list | None = None  # packed: (learner keys, their StackedActing or None), made once
+        self.pack_mode = ("stacked" if device.type == "cpu" else "vmap") if pack_mode == "auto" else pack_mode
+        self._stacked_groups: list | None = None  # packed: (learner keys, how they act as one or None), made once
         self._update_groups: list | None = None  # packed: (learner keys, their PackedUpdate or None), made once
         self._pool: ThreadPoolExecutor | None = None  # the update's threads, kept between updates
         self._processes: dict[int, UpdateProcess] = {}  # by learner key: where that learner updates
@@ -216,11 +219,13 @@ class Placement:
     @contextmanager
     def _acting_packed(self) -> Iterator[Callable[[Callable[[Learner], dict]], Acted]]:
         """A pack's acting: each group of learners that stack (``can_stack``) in one ``StackedActing``, the others
-        one by one, all at one torch thread (a rollout step's operations are small)."""
+        one by one, all at one torch thread (a rollout step's operations are small), or with ``pack_mode="vmap"``
+        each group of one feed-forward network in one ``PackedActing``, at the thread count as it is."""
         if self._stacked_groups is None:
-            self._stacked_groups = self._packed_groups(can_stack, StackedActing)
+            self._stacked_groups = (self._packed_groups(can_stack, StackedActing) if self.pack_mode == "stacked" else
+                                    self._packed_groups(can_pack_update, PackedActing))
         threads = torch.get_num_threads()
-        torch.set_num_threads(1)
+        torch.set_num_threads(1 if self.pack_mode == "stacked" else threads)
         try:
             for _, stacked in self._stacked_groups:
                 if stacked is not None:
@@ -240,13 +245,13 @@ class Placement:
             torch.set_num_threads(threads)
 
     def _update_packed(self, inputs: dict[Hashable, dict]) -> dict[Hashable, dict]:
-        """A pack's update. On a GPU (or ``pack_update="vmap"``), each group of learners with the same feed-forward
-        network (``can_pack_update``) as one program (``PackedUpdate``), the others one by one, with every torch
-        thread. On a CPU (``"each"``, what ``"auto"`` picks there), every learner's own update at one torch thread,
+        """A pack's update. With ``pack_mode="vmap"`` (what a GPU gets), each group of learners with the same
+        feed-forward network (``can_pack_update``) as one program (``PackedUpdate``), the others one by one, with
+        every torch thread. With ``"stacked"`` (a CPU's), every learner's own update at one torch thread,
         the learners spread evenly over ``threads`` threads: at a minibatch of 512 rows a learner's update is bound
         by its products' arithmetic, which a batched product does no faster (docs/PERFORMANCE.md), and each
         learner's update at one thread is what it is in a trial alone on a CPU, bit for bit."""
-        if self.pack_update == "each" or (self.pack_update == "auto" and self.device.type == "cpu"):
+        if self.pack_mode == "stacked":
             return self._update_each(inputs)
         if self._update_groups is None:
             self._update_groups = self._packed_groups(can_pack_update, PackedUpdate)
