@@ -78,6 +78,33 @@ def test_tiny_sweep_writes_tables_and_report(tmp_path):
         run_local(spec, processes=1)  # nor continued without Ray: both would hold the same trials
 
 
+def test_a_packed_sweep_on_ray_keeps_what_an_unpacked_one_does(tmp_path, capsys):
+    """``[resources] pack = 3`` on Ray Tune: two Tune trials train the four trials (a pack of three, a pack of one),
+    each trial in a folder of its own with a checkpoint; the tables are those of the trials trained alone."""
+    params = '[params]\n"ppo.lr" = [1e-4, 1e-3]'
+    alone = sweep_file(tmp_path, "alone", params)
+    packed = sweep_file(tmp_path, "packed", params, tables="pack = 3")
+    assert run_local(load_sweep(alone, out=tmp_path / "a"), processes=2) == 0
+    capsys.readouterr()
+    assert run_sweep(load_sweep(packed, out=tmp_path / "p")) == 0
+    out = capsys.readouterr().out
+    assert "ended [pack of 3: ppo.lr=0.0001, seed=0; ppo.lr=0.001, seed=0; ppo.lr=0.0001, seed=1]" in out, out
+    assert "4 of 4 trials ran to the end" in out, out
+    trials_a, curves_a = read_tables(tmp_path / "a")
+    trials_p, curves_p = read_tables(tmp_path / "p")
+    assert len(trials_p) == 4 and trials_p["finished"].all()
+    order = ["configuration", "seed", "step"]
+    columns = [c for c in learned(curves_a).columns if c in curves_p.columns]
+    pd.testing.assert_frame_equal(curves_p[columns].sort_values(order).reset_index(drop=True),
+                                  curves_a[columns].sort_values(order).reset_index(drop=True))
+    for trial in trials_p["trial"]:  # each trial's own folder, run and checkpoint, beside its pack's Tune trial
+        assert (tmp_path / "p" / trial / "run" / "checkpoints" / "latest.pt").exists()
+        assert "pack" not in json.loads((tmp_path / "p" / trial / "params.json").read_text())
+    with pytest.raises(ValueError, match=r"^\[resources\] pack = 3 with \[scheduler\] kind = 'asha': "):
+        run_sweep(load_sweep(sweep_file(tmp_path, "asha", params, tables="pack = 3\n[scheduler]\nkind = 'asha'"),
+                             out=tmp_path / "asha"))
+
+
 def test_kept_trials_are_not_run_again(tmp_path, capsys):
     """A sweep publishes its finished trials into its results folder; the same sweep with more seeds (one of them
     for one configuration only, ``[[more_seeds]]``), started in a fresh folder (a new machine), trains only the

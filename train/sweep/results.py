@@ -193,6 +193,8 @@ def collect(folder: str | Path) -> tuple[pd.DataFrame, pd.DataFrame]:
     curves, trials = [], []
     for trial_dir in sorted(p for p in folder.iterdir() if p.is_dir() and (p / "params.json").exists()):
         params = json.loads((trial_dir / "params.json").read_text())
+        if "pack" in params:  # a Tune trial that trains a pack: its trials have folders of their own beside it
+            continue
         if not spec.wants(params):  # a seed the sweep file no longer gives this configuration
             continue
         values = trial_values(spec, params)

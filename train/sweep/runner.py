@@ -19,9 +19,9 @@ from pathlib import Path
 import ray
 from ray import tune
 
-from train.sweep.local import LOCAL_FILE
-from train.sweep.spec import SPEC_FILE, WORKDIR_FILE, SweepError, SweepSpec, load_folder
-from train.sweep.trial import run_trial, trial_folder
+from train.sweep.local import LOCAL_FILE, trial_packs
+from train.sweep.spec import SPEC_FILE, WORKDIR_FILE, SweepError, SweepSpec, grid, load_folder
+from train.sweep.trial import PACK, run_trial, trial_folder
 
 MAX_FAILURES = 3
 """Restarts of a trial from its last checkpoint before it counts as failed."""
@@ -109,10 +109,16 @@ def check_resources(spec: SweepSpec) -> None:
                              f"cluster has {most:g}; lower [resources] or join a larger cluster (--address)")
 
 
-def param_space(spec: SweepSpec) -> dict:
+def param_space(spec: SweepSpec, kept: frozenset = frozenset()) -> dict:
     """Every seed, listed value and option is a grid axis; the random parameters' draws are one more axis
     (``sample``), drawn once, so that the seeds of a configuration share its draw. The seeds are ``all_seeds``:
-    a trial of a ``[[more_seeds]]`` seed its configuration does not take ends at once (``run_trial``)."""
+    a trial of a ``[[more_seeds]]`` seed its configuration does not take ends at once (``run_trial``).
+
+    With ``[resources] pack`` above 1, the one axis is the packs (``pack``): the trials not ``kept``, in packs
+    of trials whose shapes agree (``train.sweep.local.trial_packs``), each a Tune trial."""
+    if spec.resources.pack > 1:
+        todo = [params for params in grid(spec) if (spec.label(spec.values(params)), int(params["seed"])) not in kept]
+        return {PACK: tune.grid_search(trial_packs(spec, todo))}
     space = {"seed": tune.grid_search(list(spec.all_seeds))}
     for param in spec.params:
         if not param.random:
@@ -154,6 +160,9 @@ def kept_trials(spec: SweepSpec, folder: Path | None = None) -> frozenset:
 
 
 def trial_label(spec: SweepSpec, params: dict) -> str:
+    """How a line names a Tune trial: its configuration and seed, or a pack's trials in turn."""
+    if PACK in params:
+        return f"pack of {len(params[PACK])}: " + "; ".join(trial_label(spec, p) for p in params[PACK])
     return f"{spec.label(spec.values(params))}, seed={params.get('seed')}"
 
 
@@ -174,6 +183,10 @@ def run_sweep(spec: SweepSpec, address: str | None = None, num_cpus: int | None 
         raise SweepError(f"{folder} holds a sweep run without Ray (--local); continue it with colorgrid sweep run "
                          f"{spec.path} --local N, or choose another --out")
     spec.check_files()
+    if spec.resources.pack > 1 and spec.scheduler.kind != "none":
+        raise SweepError(f"[resources] pack = {spec.resources.pack} with [scheduler] kind = "
+                         f"{spec.scheduler.kind!r}: a scheduler stops trials one by one and a pack trains its "
+                         f"trials as one; use pack = 1 with a scheduler")
     connect(address, num_cpus)
     check_resources(spec)
     folder.mkdir(parents=True, exist_ok=True)
@@ -181,8 +194,9 @@ def run_sweep(spec: SweepSpec, address: str | None = None, num_cpus: int | None 
     (folder / WORKDIR_FILE).write_text(os.getcwd())
     concurrent = spec.resources.max_concurrent or None
     print(f"sweep {spec.name}: {spec.summary()} into {folder}", flush=True)
+    kept = kept_trials(spec)
     tuner = tune.Tuner(
-        trainable(spec, kept=kept_trials(spec)), param_space=param_space(spec),
+        trainable(spec, kept=kept), param_space=param_space(spec, kept),
         tune_config=tune.TuneConfig(metric=spec.metric, mode=spec.mode, scheduler=scheduler(spec),
                                     max_concurrent_trials=concurrent, trial_dirname_creator=trial_folder_name,
                                     reuse_actors=True),  # a worker process imports torch and compiles once
@@ -212,7 +226,7 @@ def finish(tuner, spec: SweepSpec, folder: Path) -> int:
 
     grid = tuner.fit()
     trials, _ = collect(folder)
-    ended = ended_trials(folder, spec)
+    ended = ended_trials(folder, spec) + (len(trial_keys_kept(spec, folder)) if spec.resources.pack > 1 else 0)
     done = int(trials["finished"].sum()) if len(trials) else 0
     early = ended - done - grid.num_errors  # ended on disk without reaching the end: the scheduler stopped them
     print(f"sweep {folder.name}: {done} of {spec.num_trials()} trials ran to the end"
@@ -234,7 +248,15 @@ def ended_trials(folder: Path, spec: SweepSpec) -> int:
     end at once. After Ctrl+C Tune saves the state before it stops the running trials, so those count as not
     ended there, and ``Tuner.restore`` continues them."""
     analysis = tune.ExperimentAnalysis(str(folder))
-    return sum(t.status in ("TERMINATED", "ERROR") and spec.wants(t.config) for t in analysis.trials)
+    return sum(sum(map(spec.wants, t.config[PACK])) if PACK in t.config else spec.wants(t.config)
+               for t in analysis.trials if t.status in ("TERMINATED", "ERROR"))
+
+
+def trial_keys_kept(spec: SweepSpec, folder: Path) -> set:
+    """The sweep's trials its results folder keeps (a packed sweep trains none of them: no Tune trial counts them)."""
+    from train.sweep.results import committed_keys
+
+    return committed_keys(spec, folder)
 
 
 def first_line(error: BaseException) -> str:

@@ -9,12 +9,17 @@ checkpoints hold every random state), so a restarted trial ends with the metrics
 
 from __future__ import annotations
 
+import json
 import math
 import os
 from pathlib import Path
 
+import numpy as np
+
 from train.sweep.spec import SweepSpec
 
+PACK = "pack"
+"""The key of a Tune trial's parameters that lists the sweep's trials it trains as one pack."""
 RUN_FOLDER = "run"
 """The training run's folder inside the trial's folder (config.json, metrics.jsonl, train.csv, ...)."""
 
@@ -44,6 +49,8 @@ def run_trial(params: dict, spec: SweepSpec, workdir: str, kept: frozenset = fro
 
     if Path(workdir).is_dir():  # paths in the sweep file (checkpoints, populations) read as where it was started
         os.chdir(workdir)
+    if PACK in params:
+        return run_pack_trial(params[PACK], spec, kept)
     config = trial_config(spec, params)
     if not spec.wants(params):  # Tune's grid crosses every seed with every configuration; [[more_seeds]] does not
         tune.report({spec.metric: math.nan, "step": 0, "total_steps": 0, "skipped": 1.0})
@@ -77,6 +84,63 @@ def run_trial(params: dict, spec: SweepSpec, workdir: str, kept: frozenset = fro
             tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(str(saved.parent)))
 
     trainer.train(on_iteration=report)
+
+
+def run_pack_trial(pack: list[dict], spec: SweepSpec, kept: frozenset = frozenset()) -> None:
+    """A Tune trial that trains a pack of the sweep's trials as one (``[resources] pack``; ``train.pack``). Each
+    trial of the pack has a folder of its own beside the Tune trial's (``TUNE_TRIAL_k``: its ``params.json`` and
+    run, as an unpacked trial's), so that the tables, reports and kept results read it as any trial; Tune sees the
+    pack: each report holds the mean of the trials' metric, and its checkpoint every trial's ``latest.pt``
+    (``k/latest.pt``), from which a restarted pack continues each trial exactly. A trial kept in the sweep's
+    results folder since the pack was made is not trained."""
+    import shutil
+    import tempfile
+
+    from ray import tune
+
+    from train.pack import Pack
+    from train.trainer import Trainer
+
+    base = Path(spec.out) / trial_folder(tune.get_context().get_trial_id())
+    members = {k: params for k, params in enumerate(pack)
+               if (spec.label(spec.values(params)), int(params["seed"])) not in kept}
+    trainers = {}
+    for k, params in members.items():
+        folder = Path(f"{base}_{k}")
+        folder.mkdir(parents=True, exist_ok=True)
+        (folder / "params.json").write_text(json.dumps(params))
+        config = trial_config(spec, params)
+        limit_threads(config.threads)
+        trainers[k] = Trainer(config, folder / RUN_FOLDER, progress=False, tensorboard=False, keep_steps=False)
+    if not trainers:
+        tune.report({spec.metric: math.nan, "step": 0, "total_steps": 0, "kept": 1.0})
+        return
+    checkpoint = tune.get_checkpoint()
+    if checkpoint is not None:
+        with checkpoint.as_directory() as saved:
+            for k, trainer in trainers.items():
+                if (Path(saved) / str(k) / "latest.pt").exists():  # (one that had saved none starts afresh)
+                    trainer.restore(Path(saved) / str(k) / "latest.pt")
+    order = list(trainers)  # the pack's trial index -> the pack member's
+    threads = thread_counts()
+
+    def report(done: dict[int, tuple[dict, Path | None]]) -> None:
+        values = [row.get(spec.metric, math.nan) for row, _ in done.values()]
+        metrics = {spec.metric: float(np.nanmean(values)) if not np.isnan(values).all() else math.nan,
+                   "step": min(t.step for t in trainers.values()),
+                   "total_steps": max(t.config.end_step for t in trainers.values()), "pack": len(trainers), **threads}
+        if not any(saved for _, saved in done.values()):
+            tune.report(metrics)
+            return
+        with tempfile.TemporaryDirectory() as folder:  # every trial's latest checkpoint, saved now or before
+            for k, trainer in trainers.items():
+                latest = trainer.run_dir / "checkpoints" / "latest.pt"
+                if latest.exists():
+                    (Path(folder) / str(k)).mkdir()
+                    shutil.copy2(latest, Path(folder) / str(k) / "latest.pt")
+            tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(folder))
+
+    Pack([trainers[k] for k in order]).train(on_iteration=lambda done: report({order[i]: v for i, v in done.items()}))
 
 
 def limit_threads(threads: int) -> None:
