@@ -11,8 +11,9 @@ import pandas as pd
 import pytest
 
 from colorgrid_apps.cli import main
-from train.sweep.claims import Verdict, evaluate, format_claims, level
-from train.sweep.claims import table as claims_table
+from train.sweep.claim_table import format_claims
+from train.sweep.claim_table import table as claims_table
+from train.sweep.claims import Verdict, evaluate, level
 from train.sweep.report import publish_report, write_report
 from train.sweep.results import committed_keys
 from train.sweep.spec import SweepError, load_sweep
@@ -130,7 +131,7 @@ def test_a_claim_tested_again_on_added_seeds_is_held_to_alpha_over_its_looks(tmp
     again, untouched = evaluate(spec, table)
     assert (again.looks, again.p) == (2, pytest.approx(once.p)) and again.verdict is Verdict.IN_DIRECTION
     assert untouched.looks == 1
-    assert f"{again.p:.3g} (level 0.025: 2 looks)" in format_claims([again, untouched])
+    assert f"| {again.p:.3g} | {again.p_adjusted:.3g} | 0.025 (2 looks) |" in format_claims([again, untouched])
     rows = claims_table([again, untouched])
     assert list(rows["looks"]) == [2, 1] and list(rows["level"]) == [0.025, 0.05]
     assert list(rows["verdict"]) == ["in direction only", "reproduced"]
@@ -142,7 +143,7 @@ def test_a_claim_tested_again_on_added_seeds_is_held_to_alpha_over_its_looks(tmp
     spec = spec_with(tmp_path, claim("again", A, B, ">") + third)
     assert [o.looks for o in evaluate(spec, table)] == [3]
     unfinished = evaluate(spec, trials_table({("+4/-1", 0.0): a}))  # side b has no finished trial: no p, no level
-    assert "looks" not in format_claims(unfinished)
+    assert "(3 looks)" in format_claims(unfinished) and unfinished[0].verdict is Verdict.INCONCLUSIVE
     assert level(3) == pytest.approx(0.05 / 3)
 
 
@@ -240,7 +241,7 @@ def test_report_decides_claims_and_publish_keeps_finished_trials(tmp_path):
     assert tuple(summary.loc["rewards=+1/-1, aux=0.0", ["seeds", "finished"]]) == (3, 3)  # not trial_b3
     assert summary.loc["rewards=+2/-1, aux=0.2", "final_team_reward_mean"] == pytest.approx(5.0)  # none finished
     assert "| optimism pays (a > b, team_reward) | the paper says so | rewards=+4/-1, aux=0.0: +11.00 (n=3) | " \
-           "rewards=+1/-1, aux=0.0: +2.00 (n=3) | +9.00 [" in text
+           "rewards=+1/-1, aux=0.0: +2.00 (n=3) | Welch | +9.00 [" in text
     assert "**reproduced**" in text and "- optimism pays: a: +10.00, +11.00, +12.00; b: +1.00, +2.00, +3.00" in text
     claims_csv = pd.read_csv(folder / "claims.csv")
     assert claims_csv.loc[0, "verdict"] == "reproduced" and claims_csv.loc[0, "n_a"] == 3

@@ -10,6 +10,29 @@ from enum import Enum
 from train.sweep.checks import SweepError, bad, same_value
 
 
+@dataclass(frozen=True)
+class Baseline:
+    """A claim's side b that is a baseline's per-seed figures (``b = { baseline = "astar/copy" }``): the policy
+    ``policy`` beside the partner ``partner``, evaluated on each trial seed's own evaluation seeds and kept in the
+    results folder (``train.sweep.baselines``). The claim is tested paired by seed."""
+
+    name: str
+    """``<partner>/<policy>`` as the kept file names it (``astar/copy``, ``population_people_held_out/bayes``)."""
+
+    def __post_init__(self):
+        partner, _, policy = self.name.partition("/")
+        if not partner or not policy:
+            raise SweepError(f"baseline={self.name!r} is invalid: '<partner>/<policy>', e.g. 'astar/copy'")
+
+    @property
+    def policy(self) -> str:
+        return self.name.partition("/")[2]
+
+    @property
+    def partner(self) -> str:
+        return self.name.partition("/")[0]
+
+
 class Direction(str, Enum):
     GREATER = ">"
     LESS = "<"
@@ -24,8 +47,8 @@ class Claim:
     """A short name, e.g. ``annealing helps``."""
     a: dict
     """Side a: ``{parameter: value or [values]}`` (a parameter left out pools over all its values)."""
-    b: dict | float
-    """Side b: a configuration as ``a``, or a constant."""
+    b: dict | float | Baseline
+    """Side b: a configuration as ``a``, a baseline's per-seed figures, or a constant (a true threshold: 0)."""
     direction: Direction
     margin: float = 0.0
     """``~`` only: the largest difference that counts as none, in the column's units (> 0)."""
@@ -34,9 +57,11 @@ class Claim:
     paper: str = ""
     """The paper's words (or figures) for the claim."""
     b_name: str = ""
-    """What a constant side b is (``the copy follower beside the same leader``)."""
+    """What a constant or baseline side b is (``the copy follower beside the same leader``)."""
 
-    def side_name(self, side: dict | float, name: str = "") -> str:
+    def side_name(self, side: dict | float | Baseline, name: str = "") -> str:
+        if isinstance(side, Baseline):
+            return name or f"{side.policy} beside {side.partner}"
         if not isinstance(side, dict):
             return name or f"{side:+g}"
         if not side:
@@ -84,6 +109,9 @@ def parse_claims(params: tuple, metric: str, summarised: set[str], rows) -> tupl
         b = _side(params, f"{where}.b", row.get("b"), constant_ok=True)
         if isinstance(b, dict) and _overlap(params, a, b):
             raise bad(f"{where}.b", row.get("b"), "a side sharing no configuration with a")
+        if isinstance(b, Baseline) and not _one_configuration(params, a):
+            raise bad(f"{where}.a", row.get("a"), "one configuration (one value of each listed parameter): a side "
+                                                  "against a baseline is paired with it by seed")
         for text in ("paper", "b_name"):
             if not isinstance(row.get(text, ""), str):
                 raise bad(f"{where}.{text}", row.get(text), "a string")
@@ -96,13 +124,25 @@ def _positive(v) -> bool:
     return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
 
 
-def _side(params: tuple, where: str, value, constant_ok: bool) -> dict | float:
+def _one_configuration(params: tuple, side: dict) -> bool:
+    return all(p.name in side and not isinstance(side[p.name], list) for p in params if not p.random)
+
+
+def _side(params: tuple, where: str, value, constant_ok: bool) -> dict | float | Baseline:
+    if constant_ok and isinstance(value, dict) and "baseline" in value:
+        if set(value) != {"baseline"} or not isinstance(value["baseline"], str):
+            raise bad(where, value, "{ baseline = '<partner>/<policy>' } alone, e.g. { baseline = 'astar/copy' }")
+        try:
+            return Baseline(value["baseline"])
+        except SweepError as error:
+            raise SweepError(f"{where}.{error}") from None
     if constant_ok and isinstance(value, (int, float)) and not isinstance(value, bool):
         if not math.isfinite(value):
             raise bad(where, value, "a finite number")
         return float(value)
     if not isinstance(value, dict):
-        allowed = "a table {parameter = value or [values]}" + (" or a number (a baseline)" if constant_ok else "")
+        allowed = "a table {parameter = value or [values]}" + (
+            ", { baseline = '<partner>/<policy>' } or a number (a threshold)" if constant_ok else "")
         raise bad(where, value, allowed)
     side = {}
     for name, wanted in value.items():

@@ -1,48 +1,58 @@
 """A sweep's claims, and the verdict on each computed from its trials' finals (docs/SWEEPS.md, "Claims").
 
-A claim (declared in a sweep file: ``train.sweep.claim_spec``) compares two sides of a sweep on one final column (the sweep's metric by default): side ``a``
-is a configuration (``{parameter: value}``; a parameter left out, or given a list of values, pools
-the seeds of every matching configuration), side ``b`` another, or a constant (a baseline's score).
-The paper's direction is ``a > b``, ``a < b``, or ``a ~ b`` (no difference beyond ``margin``, in the
-column's units). Each side's values are the per-seed finals of its finished trials.
+A claim (declared in a sweep file: ``train.sweep.claim_spec``) compares two sides of a sweep on one final column
+(the sweep's metric by default): side ``a`` is a configuration (``{parameter: value}``; a parameter left out, or
+given a list of values, pools the seeds of every matching configuration), side ``b`` another, a baseline's per-seed
+figures (``train.sweep.baselines``), or a constant (a true threshold, such as 0). The paper's direction is ``a > b``,
+``a < b``, or ``a ~ b`` (no difference beyond ``margin``, in the column's units).
 
-The statistics are scipy's: Welch's t-test (two-sided) and its 95% interval for the difference of
-means, or the one-sample t-test against a constant; for ``~``, two one-sided tests (TOST) against
-``-margin`` and ``+margin``. The verdict, by one rule (``verdict``):
+The test (``claim_stats.t_test``, scipy's): Welch's two-sided t-test between configurations; against a baseline,
+the t-test of the per-seed differences, paired by seed (the baseline played the arm's own evaluation episodes,
+so the seed-to-seed spread they share cancels); against a threshold, the one-sample t-test; for ``~``, two
+one-sided tests (TOST) against ``-margin`` and ``+margin``. The interval of ``a - b`` is the test's, two-sided at
+the claim's level: ``1 - level``.
 
-* ``>`` or ``<``: **reproduced** if the difference has the paper's sign and p < 0.05; **in direction
-  only** if it has the paper's sign and p >= 0.05; **not reproduced** if it has the opposite sign and
-  p < 0.05; **inconclusive** otherwise.
-* ``~``: **reproduced** if the TOST p < 0.05 (the difference is shown to lie within the margin);
-  **in direction only** if the difference of means lies within the margin without that; **not
-  reproduced** if it lies outside and Welch's p < 0.05; **inconclusive** otherwise.
+A file's claims are one family: read at 0.05 each, a file of 12 claims would call one reproduced wrongly far more
+often than 5% of the time. Each claim's p (``Outcome.decisive_p``) is adjusted by Holm's step-down method across the
+family, which holds the chance of any wrong verdict in the file at the level, and the verdict reads the adjusted p.
+The verdict, by one rule (``verdict``), at the claim's level:
 
-A side with fewer than two finished seeds, or two sides without spread, gives no p-value and is
-inconclusive.
+* ``>`` or ``<``: **reproduced** if the difference has the paper's sign and the adjusted p < level; **in direction
+  only** if it has the paper's sign without that (undecided: the report prints its power and the seeds it needs);
+  **not reproduced** if it has the opposite sign and the adjusted p < level; **inconclusive** otherwise.
+* ``~``: **reproduced** if the difference lies within the margin and the adjusted TOST p < level; **in direction
+  only** if it lies within the margin without that; **not reproduced** if it lies outside and the adjusted
+  two-sided p < level; **inconclusive** otherwise.
 
-A claim tested more than once is held to a stricter level. Seeds a ``[[more_seeds]]`` table adds to a
-configuration of a claim's side are there because the first seeds had not decided it, so the claim is tested
-once on ``seeds`` and again with each such round of seeds (``count_looks``), and at 0.05 each time it would come
-out reproduced wrongly more often than 5% of the time. Every 0.05 above is then 0.05 divided by the looks
-(Bonferroni's correction, ``level``): it holds whatever the number of seeds each look adds, where Pocock's
-boundaries (0.0294 a look for two) assume equal steps. Seeds every configuration gets whatever the first ones
-said go in ``seeds`` and cost no look. The interval stays at 95% whatever the level.
+A side with fewer than two finished seeds, or two sides without spread, gives no p-value and is inconclusive.
+
+A claim tested more than once is held to a stricter level: ``level`` is 0.05 divided by its looks (Bonferroni's
+correction, which holds whatever the number of seeds each look adds, where Pocock's boundaries assume equal steps).
+Its looks are counted by ``train.sweep.looks`` from the file's plan and the record of published reports.
+
+Beside the test, for each claim (``claim_stats``): its power at the observed difference and spread, the seeds a
+configuration needs for 80% power and the smallest difference the current seeds detect; each side's interquartile
+mean with a stratified bootstrap interval and the probability of improvement (rliable's measures: finals here are
+often bimodal); and how many of each side's trials are single-agent solutions.
 """
 
 from __future__ import annotations
 
 import math
-import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
 import numpy as np
 import pandas as pd
 
-from train.sweep.claim_spec import Claim, Direction, matches
+from train.sweep import claim_stats as st
+from train.sweep.baselines import baseline_finals
+from train.sweep.claim_spec import Baseline, Claim, Direction, matches
+from train.sweep.claim_stats import Power, Test, Comparison
+from train.sweep.looks import count_looks, read_history
 
 ALPHA = 0.05
-"""The significance level of a verdict on a claim tested once (``level``)."""
+"""The significance level of the family of a file's claims, each tested once (``level``)."""
 
 
 class Verdict(str, Enum):
@@ -52,31 +62,93 @@ class Verdict(str, Enum):
     INCONCLUSIVE = "inconclusive"
 
 
-def side_values(trials: pd.DataFrame, side: dict, column: str) -> list[float]:
+@dataclass(frozen=True)
+class Side:
+    """A side's finished trials: each final with its seed and configuration (the bootstrap's stratum), and whether
+    the team was a single-agent solution (None where the table lacks either agent's net pickups)."""
+
+    values: tuple[float, ...] = ()
+    seeds: tuple[int, ...] = ()
+    strata: tuple[str, ...] = ()
+    single: tuple[bool, ...] | None = None
+
+    def keep(self, seeds) -> "Side":
+        """The trials of these seeds only."""
+        chosen = [i for i, s in enumerate(self.seeds) if s in set(seeds)]
+        pick = lambda xs: None if xs is None else tuple(xs[i] for i in chosen)  # noqa: E731
+        return Side(pick(self.values), pick(self.seeds), pick(self.strata), pick(self.single))
+
+    def by_stratum(self) -> list[list[float]]:
+        return [[v for v, s in zip(self.values, self.strata) if s == stratum] for stratum in dict.fromkeys(self.strata)]
+
+
+def side_finals(trials: pd.DataFrame, side: dict, column: str) -> Side:
     """The finals of ``column`` of the finished trials of a configuration side, in seed order."""
     if trials.empty or column not in trials.columns:
-        return []
+        return Side()
     rows = trials[trials["finished"].astype(bool)]
     keep = [matches(side, row) for _, row in rows.iterrows()]
     chosen = rows[keep].sort_values(["seed"] + (["configuration"] if "configuration" in rows else []))
-    return [float(v) for v in chosen[column] if math.isfinite(v)]
+    chosen = chosen[np.isfinite(chosen[column].astype(float))]
+    stream = column[len("final_"):].rpartition("/")[0]
+    agents = [f"final_{stream + '/' if stream else ''}{role}_net_pickups" for role in ("leader", "follower")]
+    single = None
+    if all(c in chosen.columns for c in agents):
+        single = tuple(st.single_agent(float(x), float(y)) for x, y in zip(chosen[agents[0]], chosen[agents[1]]))
+    strata = chosen["configuration"].astype(str) if "configuration" in chosen else [""] * len(chosen)
+    return Side(tuple(float(v) for v in chosen[column]), tuple(int(s) for s in chosen["seed"]), tuple(strata), single)
+
+
+def side_values(trials: pd.DataFrame, side: dict, column: str) -> list[float]:
+    """The finals of ``column`` of the finished trials of a configuration side, in seed order."""
+    return list(side_finals(trials, side, column).values)
 
 
 @dataclass(frozen=True)
 class Outcome:
-    """A claim decided: each side's values, the difference of means with its 95% interval, p and the verdict."""
+    """A claim decided: each side's finals, the test (difference, its interval at the claim's level, raw p), the
+    family's Holm-adjusted p the verdict reads, and the measures beside it."""
 
     claim: Claim
     a: list[float]
     b: list[float] | float
-    difference: float
-    low: float
-    high: float
-    p: float
-    p_equivalence: float
+    kind: Comparison
+    test: Test
     verdict: Verdict
     looks: int = 1
-    """How many times the claim is tested (``count_looks``); its verdict is at ``level(looks)``."""
+    """How many times the claim is tested (``train.sweep.looks``); its verdict is at ``level(looks)``."""
+    seeds_a: tuple[int, ...] = ()
+    seeds_b: tuple[int, ...] = ()
+    p_adjusted: float = math.nan
+    """Holm's adjustment of ``decisive_p`` across the file's claims (the family)."""
+    power: Power = field(default_factory=Power)
+    iqm_a: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    """The interquartile mean of side a with its 95% stratified-bootstrap interval."""
+    iqm_b: tuple[float, float, float] = (math.nan, math.nan, math.nan)
+    p_improvement: float = math.nan
+    """P(a > b) (``claim_stats.probability_of_improvement``)."""
+    single_a: int | None = None
+    """Single-agent solutions among side a's trials (None where the table lacks the agents' figures)."""
+    single_b: int | None = None
+
+    difference = property(lambda self: self.test.difference)
+    low = property(lambda self: self.test.low)
+    high = property(lambda self: self.test.high)
+    p = property(lambda self: self.test.p)
+    p_equivalence = property(lambda self: self.test.p_equivalence)
+
+    @property
+    def level(self) -> float:
+        return level(self.looks)
+
+    @property
+    def decisive_p(self) -> float:
+        """The p the verdict reads before the family's adjustment: the two-sided p for ``>`` and ``<``; for ``~``,
+        the TOST p with the difference within the margin, the two-sided p outside it."""
+        if self.claim.direction is Direction.SAME and math.isfinite(self.difference) and (
+                abs(self.difference) <= self.claim.margin):
+            return self.p_equivalence
+        return self.p
 
     @property
     def mean_a(self) -> float:
@@ -89,138 +161,80 @@ class Outcome:
         return float(np.mean(self.b)) if self.b else math.nan
 
 
-def count_looks(spec, claim: Claim) -> int:
-    """How many times ``claim`` is tested: once on the sweep's ``seeds``, and once more for each set of seeds that
-    ``[[more_seeds]]`` tables give a configuration on either of its sides (tables with the same seeds, one for each
-    side, are one round; the module docstring says why). The looks are those the file plans: a table whose trials
-    have not run yet counts already, so the level does not change as they finish."""
-    sides = [side for side in (claim.a, claim.b) if isinstance(side, dict)]
-    compared = [c for c in spec.configurations() if any(matches(side, c) for side in sides)]
-    rounds = {tuple(sorted(more.seeds)) for more in spec.more_seeds if any(matches(more.where, c) for c in compared)}
-    return 1 + len(rounds)
-
-
 def level(looks: int = 1) -> float:
     """The significance level of each test of a claim tested ``looks`` times: ``ALPHA / looks`` (Bonferroni)."""
     return ALPHA / looks
 
 
-def verdict(direction: Direction, difference: float, p: float, p_equivalence: float = math.nan,
-            margin: float = 0.0, alpha: float = ALPHA) -> Verdict:
-    """The one rule (module docstring): the verdict from the difference of means (a - b) and the p-values, at
-    significance level ``alpha`` (``level``)."""
-    if not math.isfinite(difference):
+def verdict(direction: Direction, difference: float, p: float, margin: float = 0.0, alpha: float = ALPHA) -> Verdict:
+    """The one rule (module docstring): the verdict from the difference of means (a - b) and the p it reads (the
+    family-adjusted ``decisive_p``), at significance level ``alpha`` (``level``)."""
+    if not math.isfinite(difference) or not math.isfinite(p):
         return Verdict.INCONCLUSIVE
-    if direction is Direction.SAME:
-        if math.isfinite(p_equivalence) and p_equivalence < alpha:
-            return Verdict.REPRODUCED
-        if abs(difference) <= margin:
-            return Verdict.IN_DIRECTION
-        return Verdict.NOT_REPRODUCED if math.isfinite(p) and p < alpha else Verdict.INCONCLUSIVE
-    agrees = difference > 0 if direction is Direction.GREATER else difference < 0
-    if not math.isfinite(p):
-        return Verdict.INCONCLUSIVE
+    agrees = {Direction.GREATER: difference > 0, Direction.LESS: difference < 0,
+              Direction.SAME: abs(difference) <= margin}[direction]
     if agrees:
         return Verdict.REPRODUCED if p < alpha else Verdict.IN_DIRECTION
     return Verdict.NOT_REPRODUCED if p < alpha else Verdict.INCONCLUSIVE
 
 
-def decide(claim: Claim, a: list[float], b: list[float] | float, looks: int = 1) -> Outcome:
-    """Test ``a`` against ``b`` (values, or a constant) as the claim says, and give the verdict at the level of a
-    claim tested ``looks`` times."""
-    from scipy import stats
-
-    nan = math.nan
-    difference = low = high = p = p_eq = nan
-    a_arr = np.asarray(a, dtype=float)
+def decide(claim: Claim, a: Side, b: Side | float, kind: Comparison, looks: int = 1) -> Outcome:
+    """Test side ``a`` against ``b`` (a side, or a constant) as the claim says, at the level of a claim tested
+    ``looks`` times; the verdict reads the raw p until ``adjust`` gives the family's."""
     constant = isinstance(b, float)
-    b_arr = None if constant else np.asarray(b, dtype=float)
-    if len(a_arr) and (constant or len(b_arr)):
-        difference = float(a_arr.mean() - (b if constant else b_arr.mean()))
-    enough = len(a_arr) >= 2 and (constant or len(b_arr) >= 2)
+    values_b = b if constant else list(b.values)
+    enough = len(a.values) >= 2 and (constant or len(b.values) >= 2)
     if enough:
-        with warnings.catch_warnings(), np.errstate(all="ignore"):
-            warnings.simplefilter("ignore", RuntimeWarning)
-            if constant:
-                test = stats.ttest_1samp(a_arr, b)
-                interval = test.confidence_interval(0.95)
-                low, high = interval.low - b, interval.high - b
-            else:
-                test = stats.ttest_ind(a_arr, b_arr, equal_var=False)
-                interval = test.confidence_interval(0.95)
-                low, high = interval.low, interval.high
-            p = float(test.pvalue)
-            if claim.direction is Direction.SAME:
-                m = claim.margin
-                if constant:
-                    above = stats.ttest_1samp(a_arr, b - m, alternative="greater").pvalue
-                    below = stats.ttest_1samp(a_arr, b + m, alternative="less").pvalue
-                else:
-                    above = stats.ttest_ind(a_arr, b_arr - m, equal_var=False, alternative="greater").pvalue
-                    below = stats.ttest_ind(a_arr, b_arr + m, equal_var=False, alternative="less").pvalue
-                p_eq = float(max(above, below))
-    if not enough:
-        return Outcome(claim, list(a), b if constant else list(b), difference, nan, nan, nan, nan,
-                       Verdict.INCONCLUSIVE, looks)
-    return Outcome(claim, list(a), b if constant else list(b), difference, float(low), float(high), p, p_eq,
-                   verdict(claim.direction, difference, p, p_eq, claim.margin, level(looks)), looks)
+        test = st.t_test(kind, a.values, values_b, 1 - level(looks), claim.margin)
+    else:
+        nan = math.nan
+        test = Test(float(np.mean(a.values) - np.mean(values_b)) if a.values and (constant or b.values) else nan,
+                    nan, nan, nan)
+    chance = st.power(kind, a.values, values_b, test.difference, level(looks), claim.margin) if enough else Power()
+    count = lambda side: None if side.single is None else sum(side.single)  # noqa: E731
+    outcome = Outcome(
+        claim, list(a.values), b if constant else list(b.values), kind, test, Verdict.INCONCLUSIVE, looks,
+        a.seeds, () if constant else b.seeds, power=chance, iqm_a=st.iqm_interval(a.by_stratum()),
+        iqm_b=(b, math.nan, math.nan) if constant else st.iqm_interval(b.by_stratum()),
+        p_improvement=st.probability_of_improvement(a.values, b if constant else values_b),
+        single_a=count(a), single_b=None if constant else count(b))
+    return adjust(outcome, outcome.decisive_p)
 
 
-def evaluate(spec, trials: pd.DataFrame) -> list[Outcome]:
-    """Every claim of ``spec`` decided on the ``trials`` table (its ``final_<metric>`` columns)."""
+def adjust(outcome: Outcome, p_adjusted: float) -> Outcome:
+    """``outcome`` with the family's adjusted p, and the verdict that reads it."""
+    c = outcome.claim
+    return replace(outcome, p_adjusted=p_adjusted,
+                   verdict=verdict(c.direction, outcome.difference, p_adjusted, c.margin, outcome.level))
+
+
+def sides(spec, claim: Claim, trials: pd.DataFrame, results) -> tuple[Side, Side | float, Comparison]:
+    """The two sides of ``claim`` from the ``trials`` table (and, for a baseline, the ``results`` folder's kept
+    figures, paired with side a by seed), and how they are compared."""
+    column = f"final_{claim.metric}"
+    a = side_finals(trials, claim.a, column)
+    if isinstance(claim.b, float):
+        return a, claim.b, Comparison.ONE_SAMPLE
+    if isinstance(claim.b, Baseline):
+        figures = baseline_finals(results, claim.b.name, claim.metric)
+        a = a.keep(figures)
+        b = Side(tuple(figures[s] for s in a.seeds), a.seeds, ("",) * len(a.seeds))
+        return a, b, Comparison.PAIRED
+    return a, side_finals(trials, claim.b, column), Comparison.WELCH
+
+
+def evaluate(spec, trials: pd.DataFrame, history: pd.DataFrame | None = None) -> list[Outcome]:
+    """Every claim of ``spec`` decided on the ``trials`` table (its ``final_<metric>`` columns) as one family: each
+    claim's looks counted from the file and the record (``history``, by default the results folder's), its p
+    adjusted by Holm's method across the file's claims."""
+    from train.sweep.results import results_folder
+
+    results = results_folder(spec)
+    history = read_history(results) if history is None else history
     outcomes = []
     for claim in spec.claims:
-        column = f"final_{claim.metric}"
-        a = side_values(trials, claim.a, column)
-        b = claim.b if isinstance(claim.b, float) else side_values(trials, claim.b, column)
-        outcomes.append(decide(claim, a, b, count_looks(spec, claim)))
-    return outcomes
-
-
-def table(outcomes: list[Outcome]) -> pd.DataFrame:
-    """The decided claims as a tidy table (``claims.csv``)."""
-    rows = []
-    for o in outcomes:
-        c = o.claim
-        rows.append({
-            "claim": c.name, "paper": c.paper, "metric": c.metric, "expect": c.direction.value, "margin": c.margin,
-            "a": c.side_name(c.a), "b": c.side_name(c.b, c.b_name), "n_a": len(o.a),
-            "n_b": 0 if isinstance(o.b, float) else len(o.b), "mean_a": o.mean_a, "mean_b": o.mean_b,
-            "a_values": " ".join(f"{v:.3f}" for v in o.a),
-            "b_values": "" if isinstance(o.b, float) else " ".join(f"{v:.3f}" for v in o.b),
-            "difference": o.difference, "ci95_low": o.low, "ci95_high": o.high, "p": o.p,
-            "p_equivalence": o.p_equivalence, "looks": o.looks, "level": level(o.looks), "verdict": o.verdict.value})
-    return pd.DataFrame(rows)
-
-
-def format_claims(outcomes: list[Outcome]) -> str:
-    """The claims as Markdown: a table of verdicts, then each side's per-seed finals."""
-    if not outcomes:
-        return ""
-    head = ["claim", "the paper", "a", "b", "a - b (95% CI)", "p", "verdict"]
-    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for o in outcomes:
-        c = o.claim
-        shown_b = c.side_name(c.b, c.b_name)
-        diff = "-" if not math.isfinite(o.difference) else (
-            f"{o.difference:+.2f}" + (f" [{o.low:+.2f}, {o.high:+.2f}]" if math.isfinite(o.low) else ""))
-        p = "-" if not math.isfinite(o.p) else f"{o.p:.3g}"
-        if c.direction is Direction.SAME:
-            p += f"; within ±{c.margin:g}: " + ("-" if not math.isfinite(o.p_equivalence) else f"{o.p_equivalence:.3g}")
-        if o.looks > 1 and math.isfinite(o.p):
-            p += f" (level {level(o.looks):.3g}: {o.looks} looks)"
-        lines.append("| " + " | ".join([
-            f"{c.name} (a {c.direction.value} b{', ' + c.metric if c.metric else ''})", c.paper,
-            f"{c.side_name(c.a)}: {_mean(o.mean_a)} (n={len(o.a)})",
-            f"{shown_b}: {_mean(o.mean_b)}" + ("" if isinstance(o.b, float) else f" (n={len(o.b)})"),
-            diff, p, f"**{o.verdict.value}**"]) + " |")
-    lines += ["", "Per-seed finals:", ""]
-    for o in outcomes:
-        b = "" if isinstance(o.b, float) else f"; b: {', '.join(f'{v:+.2f}' for v in o.b) or 'none finished'}"
-        lines.append(f"- {o.claim.name}: a: {', '.join(f'{v:+.2f}' for v in o.a) or 'none finished'}{b}")
-    return "\n".join(lines)
-
-
-def _mean(value: float) -> str:
-    """A side's mean as the table shows it: ``-`` for a side with no finished trial yet."""
-    return f"{value:+.2f}" if math.isfinite(value) else "-"
+        a, b, kind = sides(spec, claim, trials, results)
+        seeds_b = () if isinstance(b, float) else b.seeds
+        outcomes.append(decide(claim, a, b, kind, count_looks(spec, claim, a.seeds, seeds_b, history)))
+    adjusted = st.holm([o.decisive_p for o in outcomes])
+    return [adjust(o, p) for o, p in zip(outcomes, adjusted)]

@@ -17,6 +17,9 @@ import numpy as np
 import pandas as pd
 
 from train.sweep import claims as claim_rules
+from train.sweep.claim_table import format_claims
+from train.sweep.claim_table import table as claims_table
+from train.sweep.looks import HISTORY_FILE, record
 from train.sweep.claim_spec import matches
 from train.sweep.results import collect, committed, publish, results_folder
 from train.sweep.spec import SweepError, SweepSpec, load_folder, load_sweep
@@ -152,6 +155,8 @@ def publish_report(folder: str | Path) -> tuple[Path, int, str]:
     where, count = publish(folder)
     trials, curves = committed(spec, Path(folder))
     text, _ = render(spec, trials, curves, where)
+    if spec.claims and not trials.empty:  # the record of what this published report decided, on which seeds
+        record(spec, claim_rules.evaluate(spec, trials), where)
     return where, count, text
 
 
@@ -167,14 +172,16 @@ def render(spec: SweepSpec, trials: pd.DataFrame, curves: pd.DataFrame, out: Pat
     done = int(trials["finished"].sum())
     claims_text = [] if not outcomes else [
         "## Claims", "",
-        f"Each side's values are its finished trials' finals (one per seed); a - b with the 95% interval of "
-        f"Welch's t-test (against a constant: the one-sample t-test), its two-sided p, and for '~' the p of two "
-        f"one-sided tests within the margin. Verdicts by one rule (train/sweep/claims.py, docs/SWEEPS.md): "
-        f"reproduced (the paper's direction, p < {claim_rules.ALPHA}), in direction only (the paper's direction, "
-        f"p >= {claim_rules.ALPHA}), not reproduced (the opposite, p < {claim_rules.ALPHA}), inconclusive "
-        f"otherwise; a claim tested again on seeds [[more_seeds]] added is held to {claim_rules.ALPHA} divided by "
-        f"its looks (its p says so; the interval stays at 95%).", "",
-        claim_rules.format_claims(outcomes), ""]
+        f"Each side's values are its finished trials' finals (one per seed). The test: Welch's t-test between "
+        f"configurations, paired by seed against a baseline evaluated on each seed's own evaluation episodes, "
+        f"one-sample against a threshold; for '~' also two one-sided tests within the margin. a - b is printed "
+        f"with the test's interval at the claim's level (1 - level, two-sided). The file's claims are one family: "
+        f"each p is adjusted by Holm's method across them, and the verdict reads the adjusted p at the claim's "
+        f"level, {claim_rules.ALPHA} divided by its looks (counted from the file's plan and the record in "
+        f"{HISTORY_FILE}). Verdicts by one rule (train/sweep/claims.py, docs/SWEEPS.md): reproduced (the paper's "
+        f"direction, adjusted p < level), in direction only (the paper's direction, not shown: undecided), not "
+        f"reproduced (the opposite, adjusted p < level), inconclusive otherwise.", "",
+        format_claims(outcomes), ""]
     text = "\n".join([
         f"# Sweep {spec.name}", "",
         spec.description, "",
@@ -188,5 +195,5 @@ def render(spec: SweepSpec, trials: pd.DataFrame, curves: pd.DataFrame, out: Pat
     (out / "report.md").write_text(text)
     table.to_csv(out / "summary.csv", index=False)
     if outcomes:
-        claim_rules.table(outcomes).to_csv(out / "claims.csv", index=False)
+        claims_table(outcomes).to_csv(out / "claims.csv", index=False)
     return text, pictures
