@@ -18,8 +18,10 @@ from websockets.sync.client import connect
 from colorgrid.replay import load
 from server.study.config import load_study
 from server.study.export import write_tables
+from tests import helpers
 from tests.conftest import start_server, stop_server
 from tests.delay_proxy import DelayProxy
+from tests.helpers import WAIT_S
 from tests.test_study import TOKEN, post
 
 STUDY = """
@@ -28,7 +30,7 @@ title = "Connections"
 [defaults]
 follower = "copy"
 mode = "realtime"
-horizon = 40
+horizon = 60
 tick_hz = 5.0
 [design]
 assignment = "within"
@@ -40,7 +42,7 @@ text = "Agree?"
 
 [[pages]]
 kind = "practice"
-game = { follower = "copy", horizon = 15, mode = "realtime", tick_hz = 5.0 }
+game = { follower = "copy", horizon = 30, mode = "realtime", tick_hz = 5.0 }
 
 [[pages]]
 kind = "trials"
@@ -61,6 +63,8 @@ text = "Thank you."
 """
 IDLE_S = 2.0
 """The server's ``--connection-idle-s`` here: a socket without a game that says nothing this long is closed."""
+# The games are real time, at 5 steps a second: the practice (6 s) holds the reload test's two keys, the trials (12 s)
+# its six and a reload, with room for a loaded machine (a game waits while its page reloads).
 ARROWS = {"ArrowUp": (-1, 0), "ArrowDown": (1, 0), "ArrowLeft": (0, -1), "ArrowRight": (0, 1)}
 
 
@@ -130,12 +134,10 @@ class PlaySockets:
         return self.state is not None and self.state["step"] < self.state["horizon"]
 
 
-def wait_until(page, condition, what: str, timeout_s: float = 30.0) -> None:
-    """Let chromium's events in (playwright delivers them while it is called) until ``condition()`` holds."""
-    deadline = time.monotonic() + timeout_s
-    while not condition():
-        assert time.monotonic() < deadline, f"timed out waiting for {what}"
-        page.wait_for_timeout(25)
+def wait_until(page, condition, what: str, timeout_s: float = WAIT_S) -> None:
+    """Ask ``condition()`` again until it holds, letting chromium's events in between (playwright delivers them
+    while it waits on a reply of the browser's: one round trip each time)."""
+    helpers.wait_until(lambda: page.context.cookies() is not None and condition(), what, timeout_s, every_s=0.025)
 
 
 def free_move(welcome: dict, state: dict) -> tuple[str, int]:
@@ -175,16 +177,16 @@ def start_game(page, sockets: PlaySockets, games_before: int) -> None:
     """Press Play on a real-time game's page: its 3-2-1, "go", then the game's board."""
     page.click("#play")
     expect(page.locator("#countdown")).to_have_text("3")
-    expect(page.locator("#countdown")).to_have_text("go", timeout=10_000)
-    expect(page.locator("#board")).to_be_visible(timeout=20_000)
+    expect(page.locator("#countdown")).to_have_text("go")
+    expect(page.locator("#board")).to_be_visible()
     wait_until(page, lambda: len(sockets.games) == games_before + 1 and sockets.state is not None,
                "the game's first state")
 
 
 def finish_game(page, sockets: PlaySockets, overs: int) -> None:
     """The game runs to its end; the page shows its page again with Continue."""
-    wait_until(page, lambda: sockets.overs >= overs, "game_over", timeout_s=60)
-    expect(page.locator("#next")).to_be_visible(timeout=30_000)
+    wait_until(page, lambda: sockets.overs >= overs, "game_over")
+    expect(page.locator("#next")).to_be_visible()
 
 
 def lost_connections(console: list[str]) -> list[str]:
@@ -194,10 +196,7 @@ def lost_connections(console: list[str]) -> list[str]:
 
 def no_connections(server) -> None:
     """The server holds no play socket (it closes a game's once the game is over)."""
-    deadline = time.monotonic() + 20
-    while server.get("/api/health")[0]["connections"]:
-        assert time.monotonic() < deadline, "the server still holds play sockets"
-        time.sleep(0.1)
+    helpers.wait_until(lambda: server.get("/api/health")[0]["connections"] == 0, "the server to close its play sockets")
 
 
 def replays_of(server, pid: str) -> dict:
@@ -218,7 +217,7 @@ def open_study(browser, server_url: str, pid: str):
     page.on("pageerror", lambda err: errors.append(str(err)))
     sockets = PlaySockets(page)
     page.goto(f"{server_url}/study?PROLIFIC_PID={pid}")
-    expect(page.locator("#page-title")).to_have_text("Consent", timeout=30_000)
+    expect(page.locator("#page-title")).to_have_text("Consent")
     page.click("#next")
     return context, page, sockets, console, errors
 
@@ -241,7 +240,7 @@ def test_one_connection_per_game_and_keys_number_on_across_a_reload(study_server
     page.reload()
     wait_until(page, lambda: sockets.welcomes == 3 and sockets.state is not None, "the rejoined game's state")
     assert sockets.welcome["game_id"] == trial and sockets.welcome["next_seq"] == 3  # the server says where to go on
-    expect(page.locator("#board")).to_be_visible(timeout=20_000)
+    expect(page.locator("#board")).to_be_visible()
     for _ in range(3):
         press(page, sockets)
     finish_game(page, sockets, 2)
@@ -303,13 +302,13 @@ def replaced_then_idle(study_server, old, ref) -> None:
         # the old socket has no game any more: closed once it has said nothing for IDLE_S
         with pytest.raises(ConnectionClosed) as closed:
             while True:
-                old.recv(timeout=5 * IDLE_S)
+                old.recv(timeout=15 * IDLE_S)
         assert (closed.value.rcvd.code, closed.value.rcvd.reason) == (1001, "idle: no game")
         new.send(json.dumps({"type": "key", "key": "ArrowUp", "seq": 1, "t_client": 2.0}))
         err = recv(new, "error")
         assert err["code"] == "bad_seq" and "from 2" in err["message"]
         new.send(json.dumps({"type": "key", "key": "ArrowDown", "seq": 2, "t_client": 3.0}))
-        over = recv(new, "game_over", timeout=30)
+        over = recv(new, "game_over", timeout=60)
         with pytest.raises(ConnectionClosed):
             new.recv(timeout=10)
     replay = load(study_server.replays_dir / f"{over['replay_id']}.replay.json")
