@@ -12,8 +12,8 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from train.sweep.claim_table import table as claims_table
 from train.sweep.claims import Verdict, evaluate
-from train.sweep.claims import table as claims_table
 from train.sweep.results import committed, results_folder
 from train.sweep.spec import load_sweep
 
@@ -51,7 +51,8 @@ def test_kept_claims_are_what_the_report_decides_from_the_kept_trials(path, monk
     assert list(now["claim"]) == list(kept["claim"]), "the file's claims are not the kept ones: run sweep report"
     assert list(now["verdict"]) == list(kept["verdict"])
     assert list(now["looks"]) == list(kept["looks"]) and list(now["n_a"]) == list(kept["n_a"])
-    for column in ("difference", "p", "p_equivalence"):  # kept to the CSV's precision
+    assert list(now["n_b"]) == list(kept["n_b"]) and list(now["test"]) == list(kept["test"])
+    for column in ("difference", "ci_low", "ci_high", "p", "p_equivalence", "p_adjusted"):  # to the CSV's precision
         for a, b in zip(now[column], kept[column]):
             assert (math.isnan(a) and math.isnan(b)) or a == pytest.approx(b, rel=1e-9, abs=1e-12), column
 

@@ -90,11 +90,17 @@ def count_looks(spec, claim: Claim, seeds_a=(), seeds_b=(), history: pd.DataFram
     decided = set()
     if history is not None and not history.empty:
         for _, row in history[history["claim"] == claim.name].iterrows():
-            if bool(row["look"]):
-                decided.add((read_seeds(row["seeds_a"]), read_seeds(row["seeds_b"])))
+            if str(row["look"]) == "True":
+                decided.add(trials_of(claim, read_seeds(row["seeds_a"]), read_seeds(row["seeds_b"])))
     if is_look(spec, claim, seeds_a, seeds_b):
-        decided.add((frozenset(seeds_a), frozenset(seeds_b)))
+        decided.add(trials_of(claim, seeds_a, seeds_b))
     return max(planned_looks(spec, claim), len(decided))
+
+
+def trials_of(claim: Claim, seeds_a, seeds_b) -> tuple[frozenset[int], frozenset[int]]:
+    """What a look decided on: the seeds of each side that is a configuration (a baseline's or a constant's figures
+    are not trials of the sweep: the same trials against them are the same look)."""
+    return frozenset(seeds_a), frozenset(seeds_b) if isinstance(claim.b, dict) else frozenset()
 
 
 def read_history(folder: Path | None) -> pd.DataFrame:
@@ -117,7 +123,8 @@ def record(spec, outcomes, folder: Path, when: str | None = None) -> int:
             continue
         a, b = seeds_text(o.seeds_a), seeds_text(o.seeds_b)
         mine = history[history["claim"] == o.claim.name]
-        if len(mine) and (mine.iloc[-1]["seeds_a"], mine.iloc[-1]["seeds_b"]) == (a, b):
+        if len(mine) and trials_of(o.claim, read_seeds(mine.iloc[-1]["seeds_a"]), read_seeds(
+                mine.iloc[-1]["seeds_b"])) == trials_of(o.claim, o.seeds_a, o.seeds_b):
             continue
         planned_a, planned_b = rounds(spec, o.claim)[-1]
         rows.append({"published": when, "claim": o.claim.name, "seeds_a": a, "seeds_b": b,
