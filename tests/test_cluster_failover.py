@@ -16,8 +16,10 @@ import time
 
 import pytest
 from playwright.sync_api import expect
+from websockets.exceptions import ConnectionClosed
 
 from server.cluster.haproxy import BACKEND_COOKIE, BACKEND_HEADER, ROUTE_COOKIE
+from tests.helpers import wait_until as wait_for
 from tests.test_cluster import alive, children, receive, socket_to, start_cluster, stop_cluster
 from tests.test_page_connections import PlaySockets, wait_until
 from tests.test_study import TOKEN, complete_fast_study, fast_study
@@ -92,13 +94,14 @@ def test_a_backend_killed_mid_game_loses_nothing_finished_and_is_started_again(s
     os.kill(study_cluster.process.pid, signal.SIGSTOP)
     try:
         os.kill(before[home]["pid"], signal.SIGKILL)  # mid-game: two of its four steps played
-        with pytest.raises(Exception):
-            receive(ws, "state", timeout=5)  # the socket is gone with its process
+        with pytest.raises(ConnectionClosed):
+            receive(ws, "state", timeout=60)  # the socket is gone with its process
         ws.close()
 
-        # The page reconnects (socket.js: a second later): the proxy sends it to the other backend, which has
-        # no such game; the page asks for its page again and is offered the game again.
-        time.sleep(1)
+        # The page reconnects once the process is gone: the proxy sends it to the other backend (a refused
+        # connection is tried on another), which has no such game; the page asks for its page again and is offered
+        # the game again.
+        wait_for(lambda: not alive(before[home]["pid"]), "the killed backend's process to be gone")
         again = socket_to(study_cluster, cookies)
     finally:
         os.kill(study_cluster.process.pid, signal.SIGCONT)
@@ -179,24 +182,24 @@ def test_the_study_page_goes_on_after_backends_are_killed_mid_join_and_mid_game(
         expect(page.locator("#page-title")).to_have_text(title)
         page.click("#next")
     page.click("#play")  # the practice (real time, 4 steps), on the participant's own backend
-    expect(page.locator("#next")).to_be_visible(timeout=30_000)
+    expect(page.locator("#next")).to_be_visible()
     page.click("#next")
     expect(page.locator("#page-title")).to_have_text("Game 1 of 4")
 
     # Mid-join: the study's database is held (another writer has it), so the backend cannot record the new game and
-    # answer; it is killed then. The launcher is held (SIGSTOP), so the other backend takes the participant.
+    # answer; it is killed once the page has sent its new_game. The launcher is held (SIGSTOP), so the other backend
+    # takes the participant.
     database = sqlite3.connect(study_cluster.folder / "study.sqlite", isolation_level=None, timeout=30)
     database.execute("BEGIN IMMEDIATE")
     os.kill(study_cluster.process.pid, signal.SIGSTOP)
     try:
         page.click("#play")
         wait_until(page, lambda: "new_game" in sockets.sent_types, "the page's new_game")
-        page.wait_for_timeout(500)
         os.kill(before[home]["pid"], signal.SIGKILL)
         database.execute("ROLLBACK")
         database.close()
         # Not asked again (the game may have been made): the page asks for its page, which offers the game again.
-        expect(page.locator("#status")).to_contain_text("lost while your game was starting", timeout=30_000)
+        expect(page.locator("#status")).to_contain_text("lost while your game was starting")
         expect(page.locator("#play")).to_be_visible()
         assert sockets.sent_types.count("new_game") == 2 and len(sockets.sockets) == 2  # the practice's, this one
 
@@ -209,7 +212,7 @@ def test_the_study_page_goes_on_after_backends_are_killed_mid_join_and_mid_game(
             page.keyboard.press("ArrowUp" if step else "ArrowLeft")
             expect(page.locator("#board")).to_have_attribute("data-step", str(step + 1))
         os.kill(before[other]["pid"], signal.SIGKILL)
-        expect(page.locator("#status")).to_contain_text("connection lost: reconnecting", timeout=30_000)
+        expect(page.locator("#status")).to_contain_text("connection lost: reconnecting")
         wait_until(page, lambda: len(reconnect_waits(console)) >= 3, "three tries to connect again", timeout_s=60)
         first, second, third = reconnect_waits(console)[:3]
         assert first < second < third, reconnect_waits(console)  # about 1 s, 2 s, 4 s
@@ -225,7 +228,7 @@ def test_the_study_page_goes_on_after_backends_are_killed_mid_join_and_mid_game(
     for step in range(4):
         expect(page.locator("#board")).to_have_attribute("data-step", str(step))
         page.keyboard.press("ArrowLeft" if step % 2 else "ArrowUp")
-    expect(page.locator("#next")).to_be_visible(timeout=30_000)
+    expect(page.locator("#next")).to_be_visible()
     assert sockets.overlapping == 0, "never two connections at once"
     context.close()
     trial = [g for g in games_of(study_cluster, pid) if g["kind"] == "trial"]
@@ -280,8 +283,5 @@ def test_ctrl_c_stops_the_backends_their_workers_and_haproxy(study_cluster):
     everything = started + [p for child in started for p in children(child)]
     assert len(started) == 3  # two backends and haproxy
     assert stop_cluster(study_cluster) == 0
-    deadline = time.monotonic() + 10
-    while any(alive(p) for p in everything) and time.monotonic() < deadline:
-        time.sleep(0.2)
-    assert not [p for p in everything if alive(p)]
+    wait_for(lambda: not any(alive(p) for p in everything), "every process the launcher started to end")
     assert "stopping: the backends save their games" in study_cluster.log()
