@@ -7,6 +7,7 @@ import pytest
 
 from colorgrid_apps.cli import main
 from train.config import from_dict, load_preset, merge, parse_override
+from train.sweep.claim_spec import Baseline
 from train.sweep.spec import SweepError, load_sweep
 from train.sweep.trial import trial_config
 
@@ -289,9 +290,10 @@ def test_each_recipe_arm_takes_exactly_one_ingredient_away(name):
     needed = [c for c in spec.claims if c.b == {"arm": "recipe"} and c.direction.value == "<"]
     assert sorted(c.a["arm"] for c in needed) == sorted(arms)  # one claim per ingredient, beside A* ...
     assert all(c.metric in ("", spec.metric) for c in needed)
-    beside_ippo = [c.metric for c in spec.claims if c.a == {"arm": "ippo-leader partner"} and isinstance(c.b, float)]
-    assert beside_ippo == ["eval/follower_net_pickups"]  # ... and the paper's setting, beside its own partner
-    judged = {c.metric for c in spec.claims if isinstance(c.b, float) and c.a == {"arm": "recipe"}}
+    beside_ippo = [(c.metric, c.b) for c in spec.claims if c.a == {"arm": "ippo-leader partner"}
+                   and isinstance(c.b, Baseline)]  # ... and the paper's setting, beside its own partner, paired by seed
+    assert beside_ippo == [("eval/follower_net_pickups", Baseline("ippo-leader/copy"))]
+    judged = {c.metric for c in spec.claims if isinstance(c.b, Baseline) and c.a == {"arm": "recipe"}}
     assert judged == {"eval_astar/follower_net_pickups", "eval_population_people_held_out/follower_net_pickups"}
     config = spec.config({"arm": "ippo-leader partner"}, 0)  # ... and every arm judged beside the same partners
     assert config.eval_partners == ("astar", "population:people#held_out") and spec.metric.startswith("eval_astar/")
