@@ -26,6 +26,13 @@ def mean_ci(values: np.ndarray) -> dict:
     return {"mean": float(values.mean()), "ci95": float(half)}
 
 
+def format_mean_ci(m: dict, form: str = "{:+.2f}") -> str:
+    """``mean_ci``'s figure as text, ``+1.25 ± 0.40``; the mean alone where there is no interval (one value: its
+    ``ci95`` is NaN), never ``± nan``."""
+    mean = form.format(m["mean"])
+    return mean if not np.isfinite(m["ci95"]) else f"{mean} ± {form.format(m['ci95']).lstrip('+')}"
+
+
 def summarize(batch: EpisodeBatch) -> dict:
     """Per-agent and team metrics of a batch of episodes, and per-role ones beyond the 1:1 team (see
     docs/EVALUATION.md)."""
@@ -174,8 +181,7 @@ def record_team(batch, names: Sequence[str], policies: Sequence[Policy], out_dir
 def format_reports(reports: list[dict]) -> str:
     """A side-by-side table, one column per report (e.g. per follower, on the same seeds): per agent, then,
     beyond the 1:1 team, per role."""
-    def ci(m):
-        return f"{m['mean']:+.2f} ± {m['ci95']:.2f}"
+    ci = format_mean_ci
 
     def belief(entry, key, text):
         return text(entry["belief"][key]) if "belief" in entry else "-"

@@ -2,6 +2,7 @@
 recorded game counted by hand, and ``colorgrid replay rescore``."""
 
 import json
+import re
 import math
 import subprocess
 import sys
@@ -146,3 +147,58 @@ def test_rescore_prints_the_people_beside_the_followers_and_writes_json(tmp_path
     assert person["stated_steps"] == 38 and person["probes_answered"] == 3
     bayes = report["human_follower"]["measures"]["bayes"]
     assert bayes["net_pickups"]["mean"] == report["net_pickups"]["bayes"]["mean"]  # rescore's, in the person's seat
+
+
+def shown_game(seed: int, study_kind: str | None = None) -> Replay:
+    """A game of the person with the goal shown (a control) and every probe answered right; with ``study_kind``, a
+    study's game of that kind."""
+    replay = recorded_game(seed)
+    for probe in replay.probes:
+        if probe["status"] == "answered":
+            probe.update(color=replay.goal[probe["step"]], confidence=0.9)
+    replay.meta["goal_view"] = "shown"
+    if study_kind is not None:
+        replay.meta["study"] = {"study": "human_follower", "participant": "p-1", "kind": study_kind}
+    return replay
+
+
+def test_rescore_reports_practice_and_goal_shown_games_apart_never_pooled_with_the_persons(tmp_path):
+    games = tmp_path / "games"
+    save(recorded_game(), games / "hidden.replay.json")
+    save(shown_game(8), games / "shown.replay.json")
+    save(shown_game(9, "practice"), games / "practice.replay.json")
+    save(shown_game(10, "practice"), games / "practice2.replay.json")
+    out = tmp_path / "rescore.json"
+    done = subprocess.run([sys.executable, "-m", "colorgrid_apps", "replay", "rescore", str(games),
+                           "--follower", "bayes", "--json", str(out)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    report = json.loads(out.read_text())["human_follower"]
+    person = report["measures"]["person"]  # the hidden-goal game alone: one probe of three right, as counted by hand
+    assert person["games"] == 1 and person["probe_accuracy"] == pytest.approx(1 / 3) and person["probes_answered"] == 3
+    assert [g["game"].rsplit("/", 1)[1] for g in report["games"]] == ["hidden.replay.json"]
+    apart = report["set_apart"]
+    assert set(apart) == {"practice", "goal_shown"}
+    assert apart["practice"]["measures"]["person"]["games"] == 2 and apart["goal_shown"]["measures"]["person"]["games"] == 1
+    assert apart["practice"]["measures"]["person"]["probe_accuracy"] == 1.0
+    text = done.stdout
+    assert "1 recorded game(s) with a person in the follower seat, the goal hidden" in text
+    assert "set apart, not in the person's figures above: 2 practice game(s) of a study" in text
+    assert "set apart, not in the person's figures above: 1 game(s) that showed the person the goal" in text
+    assert "nan" not in text  # one game has no interval
+    first = text.split("set apart")[0]
+    net = next(line for line in first.splitlines() if line.startswith("net pickups "))
+    assert "±" not in net, net
+    practice = text.split("practice game(s) of a study")[1].split("set apart")[0]
+    assert re.search(r"probe answers right\s+100\.0%", practice) and "net pickups " in practice
+
+
+def test_only_games_set_apart_still_report_them_and_say_the_person_has_no_figures(tmp_path):
+    save(shown_game(9, "practice"), tmp_path / "practice.replay.json")
+    done = subprocess.run([sys.executable, "-m", "colorgrid_apps", "replay", "rescore", str(tmp_path),
+                           "--follower", "bayes"], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    assert "no recorded game of a person in the follower seat with the goal hidden" in done.stdout
+    assert "1 practice game(s) of a study" in done.stdout and "nan" not in done.stdout
+    assert "1 recorded games, each leader's moves replayed" in done.stdout
+    follower = next(line for line in done.stdout.splitlines() if line.startswith("bayes "))
+    assert "±" not in follower, follower  # rescore's own table: one game, no interval

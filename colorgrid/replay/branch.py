@@ -157,11 +157,14 @@ def rescore(files: list[Path], followers: list[str], seed: int | None = None) ->
 
 
 def format_rescore(report: dict) -> str:
+    """``rescore``'s report as a table; an interval only where there are two games or more."""
+    from colorgrid.evaluate import format_mean_ci
+
     lines = [f"{len(report['games'])} recorded games, each leader's moves replayed open-loop with each follower",
              f"{'follower':<36}{'net pickups ± 95%':>22}{'wrong pickups':>16}"]
     for f in report["followers"]:
         n, w = report["net_pickups"][f], report["wrong_pickups"][f]
-        lines.append(f"{f:<36}{n['mean']:>+14.2f} ± {n['ci95']:<5.2f}{w['mean']:>16.2f}")
+        lines.append(f"{f:<36}{format_mean_ci(n):>22}{w['mean']:>16.2f}")
     for f, d in report["paired_difference"].items():
-        lines.append(f"{f} - {report['baseline']}: {d['mean']:+.2f} ± {d['ci95']:.2f} net pickups per game (paired)")
+        lines.append(f"{f} - {report['baseline']}: {format_mean_ci(d)} net pickups per game (paired)")
     return "\n".join(lines)

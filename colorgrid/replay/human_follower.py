@@ -16,6 +16,10 @@ The AI followers' side is paired: each follower **watches** the recorded history
 very leader moves the person saw; its accuracy, log-loss and Brier are taken on the same steps and probes, its switch
 lags on the same switches. Its pickups come from ``rescore`` (1:1 games: the follower plays the seat open-loop beside
 the recorded leader), which is not paired that exactly: once it moves differently the board differs.
+
+The person's figures are those of the games that measure reading a hidden goal. A study's practice game and a game that
+showed the person the goal (``meta.goal_view == "shown"``, a control) measure something else; each kind is reported
+apart (``SET_APART``), never pooled with them.
 """
 
 from __future__ import annotations
@@ -24,12 +28,24 @@ from pathlib import Path
 
 import numpy as np
 
+from colorgrid.enums import GameKind
 from colorgrid.replay import Replay, load
-from colorgrid.evaluate import catch_lags, mean_ci
+from colorgrid.evaluate import catch_lags, format_mean_ci, mean_ci
 
 LOG_LOSS_FLOOR = 1e-6
 PERSON = "person"
 """The row of the person in the reports (the AI followers' rows are their names)."""
+SET_APART = {GameKind.PRACTICE.value: "practice game(s) of a study",
+             "goal_shown": "game(s) that showed the person the goal (a control)"}
+"""The games kept out of the person's figures, each kind reported apart: what each is, in words."""
+
+
+def set_apart(replay: Replay) -> str | None:
+    """The ``SET_APART`` kind of ``replay``, or None for a game that measures reading a hidden goal: a study's practice
+    game (``meta.study.kind``) whatever it showed, else a game that showed the goal (``meta.goal_view``)."""
+    if (replay.meta.get("study") or {}).get("kind") == GameKind.PRACTICE:
+        return GameKind.PRACTICE.value
+    return "goal_shown" if replay.meta.get("goal_view") == "shown" else None
 
 
 def human_followers(replay: Replay) -> list[str]:
@@ -124,12 +140,14 @@ def _mean(values: list) -> float | None:
 def human_follower_report(files: list[Path], followers: list[str], seed: int | None = None,
                           pickups: dict | None = None) -> dict | None:
     """People in the follower seat in ``files`` beside each of ``followers`` watching their seats: per game and
-    pooled, with paired differences (follower minus person) over games. ``pickups``: ``rescore``'s report, whose
+    pooled, with paired differences (follower minus person) over games. Only games that measure reading a hidden goal
+    are pooled; practice games and games that showed the goal are reported apart, each kind with its own figures, under
+    ``set_apart`` (``SET_APART``'s keys; ``games`` may then be empty). ``pickups``: ``rescore``'s report, whose
     per-game net pickups of each follower (1:1 games) are set beside the person's. None when no game had a person in
     a follower seat."""
     from colorgrid.replay.branch import watch
 
-    games = []
+    games, apart = [], {kind: [] for kind in SET_APART}
     for path in files:
         replay = load(path)
         if replay.kind != "actions" or "branch_of" in replay.meta:
@@ -138,13 +156,21 @@ def human_follower_report(files: list[Path], followers: list[str], seed: int | N
             index = replay.config.agent_names.index(agent)
             entry = {"game": str(path), "agent": agent, "leader": _leaders(replay),
                      "goal_view": replay.meta.get("goal_view"), "mode": replay.meta.get("mode"),
-                     PERSON: person_measures(replay, agent), "followers": {}}
+                     "set_apart": set_apart(replay), PERSON: person_measures(replay, agent), "followers": {}}
             for follower in followers:
                 beliefs = watch(replay, follower, index, seed)
                 entry["followers"][follower] = None if beliefs is None else follower_measures(replay, agent, beliefs)
-            games.append(entry)
-    if not games:
+            (games if entry["set_apart"] is None else apart[entry["set_apart"]]).append(entry)
+    if not games and not any(apart.values()):
         return None
+    return {**_report(games, followers, pickups),
+            "set_apart": {kind: _report(kept, followers, pickups) for kind, kept in apart.items() if kept}}
+
+
+def _report(games: list[dict], followers: list[str], pickups: dict | None) -> dict:
+    """The pooled rows and paired differences of ``games`` (``measures`` empty when there is none)."""
+    if not games:
+        return {"games": [], "followers": followers, "measures": {}, "paired_difference": {}}
     rows = {PERSON: _pooled([g[PERSON] for g in games])}
     paired = {}
     for follower in followers:
@@ -218,20 +244,32 @@ def _add_pickups(rows: dict, games: list[dict], pickups: dict, followers: list[s
 
 
 def format_human_report(report: dict) -> str:
-    """The report as an eval-style table: one column for the people, one per AI follower watching their seats."""
-    rows, names = report["measures"], [PERSON, *report["followers"]]
+    """The report as an eval-style table: one column for the people, one per AI follower watching their seats; then
+    each kind of game set apart (practice, the goal shown), in a table of its own."""
     n = len(report["games"])
-    lines = [f"{n} recorded game(s) with a person in the follower seat; each AI follower watches the person's seat "
-             "(the same leader moves)", f"{'':<34}" + "".join(f"{name:>22}" for name in names)]
+    if n:
+        lines = [f"{n} recorded game(s) with a person in the follower seat, the goal hidden; each AI follower watches "
+                 "the person's seat (the same leader moves)", *_table(report)]
+    else:
+        lines = ["no recorded game of a person in the follower seat with the goal hidden: nothing to measure the "
+                 "person's reading of the goal on"]
+    for kind, part in report.get("set_apart", {}).items():
+        lines += ["", f"set apart, not in the person's figures above: {len(part['games'])} {SET_APART[kind]}",
+                  *_table(part)]
+    return "\n".join(lines)
+
+
+def _table(report: dict) -> list[str]:
+    rows, names = report["measures"], [PERSON, *report["followers"]]
+    lines = [f"{'':<34}" + "".join(f"{name:>22}" for name in names)]
 
     def cell(name, key, form):
         row = rows.get(name)
         value = None if row is None else row.get(key)
         if value is None:
             return f"{'-':>22}"
-        if isinstance(value, dict):  # a mean with its 95% interval
-            text = f"{value['mean']:{'+' if key == 'net_pickups' else ''}.2f} ± {value['ci95']:.2f}"
-            return f"{text:>22}"
+        if isinstance(value, dict):  # a mean with its 95% interval (none over one game)
+            return f"{format_mean_ci(value, '{:+.2f}' if key == 'net_pickups' else '{:.2f}'):>22}"
         return f"{form(value):>22}"
 
     table = [("belief accuracy (stated steps)", "accuracy", "{:.1%}".format),
@@ -253,8 +291,8 @@ def format_human_report(report: dict) -> str:
                                  ("median_switch_lag", "median switch lag", "{:+.1f} steps")):
             d = diffs.get(key)
             if d is not None:
-                words.append(f"{label} {form.format(d['mean'])} ± {form.format(d['ci95']).lstrip('+')}")
+                words.append(f"{label} {format_mean_ci(d, form)}")
         if words:
             lines.append(f"{follower} - person (paired over games): " + ", ".join(words))
     lines.append("net pickups: the person's own; a follower's when it plays the person's seat open-loop (1:1 games)")
-    return "\n".join(lines)
+    return lines
