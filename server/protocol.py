@@ -219,13 +219,20 @@ class Key(_Message):
     t_client: float = Field(default=0.0, ge=-1e15, le=1e15)
 
 
+StrictIndex = Annotated[int, Field(strict=True, ge=-2**31, le=2**31)]
+"""A color or a probe's id in what a person states: a JSON integer only (``"2"``, ``true`` or ``2.0`` are refused, not
+read as 2 or as green). The game checks the range it allows."""
+StrictNumber = Annotated[float, Field(strict=True, ge=-1e15, le=1e15)]
+"""A number in what a person states: a JSON number only (``"0.8"`` and ``true`` are refused, not read as 0.8 or 1)."""
+
+
 class Belief(_Message):
     """A person in the follower seat says which color they believe is the goal (a click on its swatch; the number
     keys send ``key``)."""
 
     type: Literal["belief"]
-    color: int = Field(ge=-2**31, le=2**31)
-    t_client: float = Field(default=0.0, ge=-1e15, le=1e15)
+    color: StrictIndex
+    t_client: StrictNumber = 0.0
 
 
 class ProbeAnswer(_Message):
@@ -233,10 +240,10 @@ class ProbeAnswer(_Message):
     as a probability from chance (1 / colors) to 1."""
 
     type: Literal["probe_answer"]
-    probe: int = Field(ge=-2**31, le=2**31)
-    color: int = Field(ge=-2**31, le=2**31)
-    confidence: float = Field(ge=-1e15, le=1e15)
-    t_client: float = Field(default=0.0, ge=-1e15, le=1e15)
+    probe: StrictIndex
+    color: StrictIndex
+    confidence: StrictNumber
+    t_client: StrictNumber = 0.0
 
 
 class PageEvent(_Message):
