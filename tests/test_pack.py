@@ -27,6 +27,8 @@ TRIALS = {
                                           "follower": {"train_reward": "own", "wrong_weight": 2.0}},
     "seed 3, beside A*, fewer steps": {"seed": 3, "leader": {"policy": "astar"}, "total_steps": 2 * 64},
     "seed 4, a memory": {"seed": 4, "follower": {"net": {"lstm": True, "extra_inputs": True}}},
+    "seed 5, a memory, kappa 0": {"seed": 5, "follower": {"net": {"lstm": True, "extra_inputs": True},
+                                                          "aux_coef": 0.0}},
 }
 
 
@@ -78,13 +80,13 @@ def test_a_pack_trains_each_trial_bit_for_bit_as_it_trains_alone_on_the_cpu(tmp_
     assert sorted(seen) == sorted((k, i, i % 2 == 0 or i == t.config.num_iterations)
                                   for k, t in enumerate(packed) for i in range(1, t.config.num_iterations + 1))
     # the trial with fewer steps left the pack after its last iteration; the others went on
-    assert [trial for trial, iteration, _ in seen if iteration == 3] == [0, 1, 2, 4]
+    assert [trial for trial, iteration, _ in seen if iteration == 3] == [0, 1, 2, 4, 5]
 
 
 def test_the_batched_update_computes_what_each_learner_computes_alone(tmp_path):
     """``pack_mode="vmap"`` (what a GPU runs): the first rollout is the same, the losses and weights after it
     agree to float rounding, and a learner whose KL stops its epochs early stops there while the others go on."""
-    trials = {k: v for k, v in TRIALS.items() if "memory" not in k}
+    trials = TRIALS
     alone = [trainer(tmp_path / "alone" / str(k), c) for k, c in enumerate(trials.values())]
     packed = [trainer(tmp_path / "packed" / str(k), c) for k, c in enumerate(trials.values())]
     for t in alone:
@@ -96,7 +98,7 @@ def test_the_batched_update_computes_what_each_learner_computes_alone(tmp_path):
         t.start()
     together = pack.train_iteration()
     groups = [keys for keys, batched in placement._update_groups if batched is not None]
-    assert [len(keys) for keys in groups] == [7]  # every learner: leaders and followers have one network shape
+    assert [len(keys) for keys in groups] == [9, 2]  # every feed-forward learner: one network shape; the LSTMs
     for name, a, p, row_a, row_p in zip(trials, alone, packed, first, together):
         for la, lp in zip(a.learners.values(), p.learners.values()):
             for key in ("actions", "logp"):  # the same rollout: acting is not batched differently

@@ -9,6 +9,7 @@ feed-forward networks simply flatten the time axis.
 from __future__ import annotations
 
 import dataclasses
+from contextlib import contextmanager
 
 import torch
 from torch import nn
@@ -253,6 +254,7 @@ class ActorCritic(nn.Module):
     def __init__(self, net: NetConfig, env: EnvConfig, agents: int | tuple[int, ...]):
         super().__init__()
         self.net, self.env = net, env
+        self.stepwise = False  # the LSTM step by step (``recurrence_by_steps``: what ``torch.func.vmap`` can batch)
         self.agents = tuple(int(a) for a in agents) if isinstance(agents, (tuple, list)) else (int(agents),)
         self.shared = len(self.agents) > 1
         C = env.num_colors
@@ -294,7 +296,10 @@ class ActorCritic(nn.Module):
         return F.one_hot(slots, len(self.agents)).float()[None]
 
     def _recur(self, x, starts, state):
-        """Run the LSTM over ``x [T, B, F]`` in segments that start where any env starts an episode."""
+        """Run the LSTM over ``x [T, B, F]`` in segments that start where any env starts an episode (step by step
+        under ``recurrence_by_steps``)."""
+        if self.stepwise:
+            return lstm_by_steps(self.lstm, x, starts, state)
         T = x.shape[0]
         bounds = sorted({0, *torch.nonzero(starts.any(dim=1)).flatten().tolist(), T})
         h, c = state
@@ -363,6 +368,35 @@ class ActorCritic(nn.Module):
             heads.append(torch.softmax(goal_logits, dim=2).detach())
         h = join(heads, dim=2)
         return layers(self.policy, h), layers(self.value, h)[..., 0], goal_logits, state
+
+
+def lstm_by_steps(lstm: nn.LSTM, x: torch.Tensor, starts: torch.Tensor, state: tuple[torch.Tensor, torch.Tensor]
+                  ) -> tuple[torch.Tensor, tuple[torch.Tensor, torch.Tensor]]:
+    """``lstm`` over ``x [T, B, F]`` one step at a time, the state zeroed in each row at its episode starts
+    (``starts [T, B]``): what ``ActorCritic._recur`` computes with ``nn.LSTM`` on segments (the same gates, to float
+    rounding), with no control flow that depends on the data, so ``torch.func.vmap`` batches it over networks."""
+    h, c = state  # [1, B, H] each
+    gates_in = F.linear(x, lstm.weight_ih_l0, lstm.bias_ih_l0)  # [T, B, 4H]: the input's part, all steps at once
+    outs = []
+    for t in range(x.shape[0]):
+        keep = (~starts[t]).to(x.dtype)[None, :, None]
+        h, c = h * keep, c * keep
+        i, f, g, o = (gates_in[t][None] + F.linear(h, lstm.weight_hh_l0, lstm.bias_hh_l0)).chunk(4, dim=-1)
+        c = torch.sigmoid(f) * c + torch.sigmoid(i) * torch.tanh(g)
+        h = torch.sigmoid(o) * torch.tanh(c)
+        outs.append(h)
+    return torch.cat(outs, dim=0), (h, c)
+
+
+@contextmanager
+def recurrence_by_steps(model: "ActorCritic"):
+    """Within: ``model``'s LSTM runs step by step (``lstm_by_steps``), as ``torch.func.vmap`` needs (it has no
+    batching rule for ``aten::lstm``, and segments split where episodes start depend on the data)."""
+    before, model.stepwise = model.stepwise, True
+    try:
+        yield model
+    finally:
+        model.stepwise = before
 
 
 def with_leader_progress(model: ActorCritic) -> ActorCritic:

@@ -12,12 +12,12 @@ decides *how* their learners act and update, through one ``Placement`` over all 
   product for all of them; every learner updates as it would alone, at one torch thread, the
   learners spread over the threads (at 512-row minibatches a learner's update is bound by its
   products' arithmetic, which batching over learners does not speed up on a CPU);
-- on a GPU (``mode="vmap"``): learners with the same feed-forward network act and update as one
+- on a GPU (``mode="vmap"``): learners with the same network (an LSTM or not) act and update as one
   program each (``train.packed_acting``, ``train.packed_update``: their weights stacked, each
   step and minibatch one ``torch.func.vmap`` of the network and the PPO loss, forward and
   backward), each with its own minibatch order, loss weights, learning rate, gradient clip and
-  early stop on KL (a learner that stops is masked, the others go on); any other learner acts and
-  updates on its own, as it would alone.
+  early stop on KL (a learner that stops is masked, the others go on); a learner with a network
+  of a shape no other has acts and updates on its own, as it would alone.
 
 A trial computes what it computes alone, up to float rounding (``tests/test_pack.py``). A pack of
 one trial is today's trainer: ``Trainer.train`` is ``Pack([trainer]).train``, and with one trial

@@ -1,10 +1,11 @@
-"""A rollout step of several learners with the same feed-forward network as one program, on any device.
+"""A rollout step of several learners with the same network as one program, on any device.
 
 ``train.stacked.StackedActing`` is the CPU's way: hand-stacked layers over each learner's window
 patches, cut by compiled kernels. On a GPU a pack's rollout step is bound by calls, not arithmetic
 (a 16-env trial alone trains no faster on an H100 than on two CPU cores: docs/PERFORMANCE.md), so
 here the learners' networks run as one ``torch.func.vmap`` of ``ActorCritic.forward`` over their
-stacked weights: one call per layer for the whole pack. Each learner keeps what ``Learner.act``
+stacked weights (and stacked recurrent states, an LSTM run by ``train.nets.lstm_by_steps``): one call
+per layer for the whole pack. Each learner keeps what ``Learner.act``
 keeps (its view, inputs, action, log-probability and value) and draws its sample from its own
 generator, so its update reads the same rollout it would alone (up to float rounding).
 """
@@ -16,6 +17,7 @@ import torch
 from torch.func import functional_call, vmap
 
 from train.learner import _SIDE, Learner, sample_from
+from train.nets import recurrence_by_steps
 from train.packed_update import can_pack_update
 
 
@@ -25,17 +27,18 @@ class PackedActing:
 
     def __init__(self, learners: list[Learner]):
         if not can_pack_update(learners):
-            raise ValueError("these learners cannot act as one: each must be a feed-forward network of the same "
-                             "configuration and shapes, on one device (train.packed_update.can_pack_update)")
+            raise ValueError("these learners cannot act as one: each must be a network of the same configuration and "
+                             "shapes, on one device (train.packed_update.can_pack_update)")
         self.learners = learners
         self.template = learners[0].model
         self.params: dict[str, torch.Tensor] = {}
-        self._forward = vmap(self._one, in_dims=(0, 0, 0))
+        self.recurrent = self.template.lstm is not None
+        self._forward = vmap(self._one, in_dims=(0, 0, 0, 0 if self.recurrent else None))
 
-    def _one(self, params: dict, view: dict, side: dict):
-        logits, value, goal_logits, _ = functional_call(self.template, params,
-                                                        (view, *(side[k] for k in _SIDE), None))
-        return logits, value, goal_logits
+    def _one(self, params: dict, view: dict, side: dict, state: tuple | None):
+        logits, value, goal_logits, state = functional_call(self.template, params,
+                                                            (view, *(side[k] for k in _SIDE), state))
+        return logits, value, goal_logits, (() if state is None else state)
 
     @torch.no_grad()
     def refresh(self) -> None:
@@ -52,7 +55,13 @@ class PackedActing:
         views = [lr.model.prepare(x["obs"], x["me"], lr.identity) for lr, x in zip(self.learners, inputs)]
         view = {k: torch.stack([v[k] for v in views]) for k in views[0]}
         side = {k: torch.stack([x[k] for x in inputs]) for k in _SIDE}
-        logits, value, goal_logits = self._forward(self.params, view, side)
+        state = (tuple(torch.stack([lr.state[n] for lr in self.learners]) for n in range(2)) if self.recurrent
+                 else None)
+        with recurrence_by_steps(self.template):
+            logits, value, goal_logits, state = self._forward(self.params, view, side, state)
+        if self.recurrent:
+            for i, learner in enumerate(self.learners):
+                learner.state = (state[0][i], state[1][i])
         probs = torch.softmax(logits[:, 0], dim=2)  # [L, rows, A]
         uniforms = torch.stack([torch.rand(probs.shape[1], 1, generator=lr.generator) for lr in self.learners])
         actions = sample_from(probs, uniforms.to(probs.device))

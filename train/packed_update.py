@@ -1,4 +1,4 @@
-"""The PPO update of several learners with the same feed-forward network as one program (a pack's update).
+"""The PPO update of several learners with the same network as one program (a pack's update).
 
 Each learner is updated exactly as ``Learner.update`` updates it alone (the same advantages,
 minibatch order from its own generator, loss, gradient clip, Adam step and early stop on KL), but
@@ -9,8 +9,10 @@ learner keeps its own optimizer, so its checkpoint is what it would be alone. A 
 stops its epochs early is left out of the later epochs; the others go on.
 
 The results are each learner's own up to float rounding (a batched product may sum in another
-order than a single one; ``tests/test_pack.py`` compares). Recurrent networks are not packed here
-(their sequences split where episodes start, which ``vmap`` cannot batch): they update on their own.
+order than a single one; ``tests/test_pack.py`` compares). A recurrent network's minibatches are whole
+envs replayed from their state at the rollout's start, as alone; its LSTM runs step by step here
+(``train.nets.lstm_by_steps``: ``vmap`` has no batching rule for ``aten::lstm``, and the segments
+``nn.LSTM`` runs split where episodes start, which depends on the data).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import torch
 from torch.func import functional_call, vmap
 
 from train.learner import _SIDE, Learner, rows
+from train.nets import recurrence_by_steps
 from train.packing import PACK_SHAPED
 from train.ppo import LossWeights, compute_gae, explained_variance, ppo_loss
 
@@ -30,12 +33,12 @@ _PER_LEARNER = ("clip_coef", "ent_coef", "vf_coef", "aux_coef")
 
 
 def can_pack_update(learners: list[Learner]) -> bool:
-    """Whether these learners can update as one ``PackedUpdate``: feed-forward networks of one configuration and
-    the same parameter shapes, on one device, with the same rows and the same PPO shape (``PACK_SHAPED``)."""
+    """Whether these learners can update as one ``PackedUpdate``: networks of one configuration (with or without
+    an LSTM) and the same parameter shapes, on one device, with the same rows and the same PPO shape
+    (``PACK_SHAPED``)."""
     first = learners[0]
     shapes = [p.shape for p in first.parameters]
-    return (all(lr.model.lstm is None for lr in learners)
-            and all(lr.device == first.device and lr.rows == first.rows for lr in learners)
+    return (all(lr.device == first.device and lr.rows == first.rows for lr in learners)
             and all(lr.model.net == first.model.net and lr.model.agents.__len__() == len(first.model.agents)
                     for lr in learners)
             and all([p.shape for p in lr.parameters] == shapes for lr in learners)
@@ -49,21 +52,22 @@ class PackedUpdate:
 
     def __init__(self, learners: list[Learner]):
         if not can_pack_update(learners):
-            raise ValueError("these learners cannot update as one: each must be a feed-forward network of the same "
-                             "configuration and shapes, on one device, with the same PPO shape "
-                             "(train.packed_update.can_pack_update)")
+            raise ValueError("these learners cannot update as one: each must be a network of the same configuration "
+                             "and shapes, on one device, with the same PPO shape (train.packed_update.can_pack_update)")
         self.learners = learners
         self.template = learners[0].model  # whose forward runs, on the stacked weights
         self.names = [name for name, _ in self.template.named_parameters()]
         self.ppo = learners[0].ppo
         self.shuffled: dict[str, torch.Tensor] = {}  # [L, N, ...] per view key: each learner's epoch order
-        self._step = vmap(self._loss, in_dims=(0, 0, 0, 0))
+        self.recurrent = self.template.lstm is not None
+        self._step = vmap(self._loss, in_dims=(0, 0, 0, 0, 0 if self.recurrent else None))
 
-    def _loss(self, params: dict, view: dict, mb: dict, w: dict):
-        """One learner's PPO loss on its minibatch (``view`` and ``mb`` ``[1, n, ...]``), from its weights ``params``
-        and loss weights ``w`` (under ``vmap``: one of the pack)."""
+    def _loss(self, params: dict, view: dict, mb: dict, w: dict, state: tuple | None):
+        """One learner's PPO loss on its minibatch (``view`` and ``mb`` ``[T, n, ...]``: one step of ``n`` samples,
+        or ``n`` whole envs from the recurrent ``state`` they had at the rollout's start), from its weights
+        ``params`` and loss weights ``w`` (under ``vmap``: one of the pack)."""
         logits, value, goal_logits, _ = functional_call(self.template, params,
-                                                        (view, *(mb[k] for k in _SIDE), None))
+                                                        (view, *(mb[k] for k in _SIDE), state))
         flat = {k: t.reshape(-1, *t.shape[2:]) for k, t in mb.items()}
         first = self.learners[0].weights
         weights = LossWeights(w["clip_coef"], first.clip_vloss, w["ent_coef"], w["vf_coef"], w["aux_coef"],
@@ -79,54 +83,81 @@ class PackedUpdate:
         learners, ppo = self.learners, self.ppo
         rollouts = [lr.stacked() for lr in learners]
         bootstrap = [lr.value(x) for lr, x in zip(learners, inputs)]
-        samples = self._samples(rollouts, bootstrap)  # per learner: {key: [N, ...]}
-        views = [{k: v.reshape(-1, *v.shape[2:]) for k, v in b["view"].items()} for b in rollouts]
-        N = len(samples[0]["values"])
-        n = N // ppo.num_minibatches
+        samples = self._samples(rollouts, bootstrap)  # per learner: {key: [T, B, ...]}
         weights = [dataclasses.asdict(lr.weights) for lr in learners]
         active = list(range(len(learners)))
         last: list[dict] = [{} for _ in learners]
         epochs = [0] * len(learners)
-        for _ in range(ppo.update_epochs):
-            orders = [torch.randperm(N, generator=learners[i].generator).to(learners[i].device) for i in active]
-            shuffled = {k: self._storage(k, len(active), views[0][k]) for k in views[0]}
-            for j, (i, order) in enumerate(zip(active, orders)):
-                for k in shuffled:
-                    rows(views[i][k], 0, order, out=shuffled[k][j])
-            picked = {k: torch.stack([samples[i][k].index_select(0, order) for i, order in zip(active, orders)])
-                      for k in samples[0]}
-            w = {k: torch.tensor([weights[i][k] for i in active], device=learners[0].device) for k in _PER_LEARNER}
-            stats = []
-            for start in range(0, N, n):
-                part = lambda t: t[:, None, start:start + n]  # noqa: E731  [L, 1, n, ...]
-                stats.append(self._minibatch([learners[i] for i in active], {k: part(v) for k, v in shuffled.items()},
-                                             {k: part(t) for k, t in picked.items()}, w))
-            still = []
-            for j, i in enumerate(active):
-                epochs[i] += 1
-                last[i] = {k: torch.stack([s[k][j] for s in stats]).mean() for k in stats[0]}
-                target = learners[i].ppo.target_kl
-                if target is None or not last[i]["approx_kl"] > target:
-                    still.append(i)
-            active = still
-            if not active:
-                break
+        with recurrence_by_steps(self.template):
+            for _ in range(ppo.update_epochs):
+                w = {k: torch.tensor([weights[i][k] for i in active], device=learners[0].device)
+                     for k in _PER_LEARNER}
+                minibatches = (self._sequences(rollouts, samples, active) if self.recurrent
+                               else self._shuffled_steps(rollouts, samples, active))
+                stats = [self._minibatch([learners[i] for i in active], view, mb, w, state)
+                         for view, mb, state in minibatches]
+                still = []
+                for j, i in enumerate(active):
+                    epochs[i] += 1
+                    last[i] = {k: torch.stack([s[k][j] for s in stats]).mean() for k in stats[0]}
+                    target = learners[i].ppo.target_kl
+                    if target is None or not last[i]["approx_kl"] > target:
+                        still.append(i)
+                active = still
+                if not active:
+                    break
         out = []
         for i, learner in enumerate(learners):
             result = {k: float(v) for k, v in last[i].items()}
             result["explained_variance"] = explained_variance(rollouts[i]["values"].flatten(),
-                                                              samples[i]["returns"])
+                                                              samples[i]["returns"].flatten())
             result["epochs"] = epochs[i]
             result["lr"] = learner.optimizer.param_groups[0]["lr"]
             out.append(result)
         return out
 
-    def _minibatch(self, learners: list[Learner], view: dict, mb: dict, w: dict) -> dict[str, torch.Tensor]:
+    def _shuffled_steps(self, rollouts: list[dict], samples: list[dict], active: list[int]):
+        """Feed-forward minibatches of one epoch, as ``Learner.shuffled_steps`` cuts them for each active learner
+        (its own order, from its generator): ``(view, samples, None)``, every tensor ``[L, 1, n, ...]``."""
+        learners = self.learners
+        views = [{k: v.reshape(-1, *v.shape[2:]) for k, v in rollouts[i]["view"].items()} for i in active]
+        N = len(samples[0]["values"].reshape(-1))
+        orders = [torch.randperm(N, generator=learners[i].generator).to(learners[i].device) for i in active]
+        shuffled = {k: self._storage(k, len(active), views[0][k]) for k in views[0]}
+        for j, order in enumerate(orders):
+            for k in shuffled:
+                rows(views[j][k], 0, order, out=shuffled[k][j])
+        picked = {k: torch.stack([samples[i][k].reshape(N, *samples[i][k].shape[2:]).index_select(0, order)
+                                  for i, order in zip(active, orders)]) for k in samples[0]}
+        n = N // self.ppo.num_minibatches
+        for start in range(0, N, n):
+            part = lambda t: t[:, None, start:start + n]  # noqa: E731
+            yield {k: part(v) for k, v in shuffled.items()}, {k: part(t) for k, t in picked.items()}, None
+
+    def _sequences(self, rollouts: list[dict], samples: list[dict], active: list[int]):
+        """Recurrent minibatches of one epoch, as ``Learner.sequences`` makes them for each active learner: whole
+        envs in its own order, replayed from the recurrent state they had at the rollout's start; ``(view, samples,
+        state)``, every tensor ``[L, T, b, ...]`` (the state ``[L, 1, b, H]``)."""
+        learners = self.learners
+        B = samples[0]["values"].shape[1]
+        orders = [torch.randperm(B, generator=learners[i].generator).to(learners[i].device)
+                  .view(self.ppo.num_minibatches, -1) for i in active]
+        for m in range(self.ppo.num_minibatches):
+            parts = [(i, order[m]) for i, order in zip(active, orders)]
+            view = {k: torch.stack([rows(rollouts[i]["view"][k], 1, idx) for i, idx in parts])
+                    for k in rollouts[active[0]]["view"]}
+            mb = {k: torch.stack([samples[i][k].index_select(1, idx) for i, idx in parts]) for k in samples[0]}
+            state = tuple(torch.stack([learners[i].initial_state[n].index_select(1, idx) for i, idx in parts])
+                          for n in range(2))
+            yield view, mb, state
+
+    def _minibatch(self, learners: list[Learner], view: dict, mb: dict, w: dict, state: tuple | None
+                   ) -> dict[str, torch.Tensor]:
         """One minibatch of every learner in ``learners`` (the active ones, in the order of ``view``'s and ``mb``'s
         first axis): one batched loss, forward and backward, then each one's clip and Adam step."""
         stacked = {name: torch.stack([p.detach() for p in group]).requires_grad_()
                    for name, group in zip(self.names, zip(*(lr.parameters for lr in learners)))}
-        loss, stats = self._step(stacked, view, mb, w)
+        loss, stats = self._step(stacked, view, mb, w, state)
         loss.sum().backward()  # the learners share nothing: each one's gradient is its own loss's
         for j, learner in enumerate(learners):
             for name, param in zip(self.names, learner.parameters):
@@ -137,7 +168,7 @@ class PackedUpdate:
         return stats
 
     def _samples(self, rollouts: list[dict], bootstrap: list[torch.Tensor]) -> list[dict[str, torch.Tensor]]:
-        """Each learner's flat samples ``{key: [T * B, ...]}``, its advantages and returns by GAE with its own gamma
+        """Each learner's samples ``{key: [T, B, ...]}``, its advantages and returns by GAE with its own gamma
         and lambda (one pass over the steps for all learners: GAE is column by column)."""
         values = torch.cat([b["values"] for b in rollouts], dim=1)  # [T, L * B]
         dones = torch.cat([b["dones"] for b in rollouts], dim=1)
@@ -157,7 +188,7 @@ class PackedUpdate:
             if with_target:  # every learner's goal head then learns from soft targets: the true goal as one-hot
                 s["aux_target"] = (b["aux_target"] if "aux_target" in b else
                                    torch.nn.functional.one_hot(b["true_goal"], self.template.env.num_colors).float())
-            out.append({k: t.reshape(-1, *t.shape[2:]) for k, t in s.items()})
+            out.append(s)
         return out
 
     def _storage(self, key: str, count: int, like: torch.Tensor) -> torch.Tensor:

@@ -220,7 +220,7 @@ class Placement:
     def _acting_packed(self) -> Iterator[Callable[[Callable[[Learner], dict]], Acted]]:
         """A pack's acting: each group of learners that stack (``can_stack``) in one ``StackedActing``, the others
         one by one, all at one torch thread (a rollout step's operations are small), or with ``pack_mode="vmap"``
-        each group of one feed-forward network in one ``PackedActing``, at the thread count as it is."""
+        each group of one network shape in one ``PackedActing``, at the thread count as it is."""
         if self._stacked_groups is None:
             self._stacked_groups = (self._packed_groups(can_stack, StackedActing) if self.pack_mode == "stacked" else
                                     self._packed_groups(can_pack_update, PackedActing))
@@ -246,7 +246,7 @@ class Placement:
 
     def _update_packed(self, inputs: dict[Hashable, dict]) -> dict[Hashable, dict]:
         """A pack's update. With ``pack_mode="vmap"`` (what a GPU gets), each group of learners with the same
-        feed-forward network (``can_pack_update``) as one program (``PackedUpdate``), the others one by one, with
+        network (``can_pack_update``, an LSTM or not) as one program (``PackedUpdate``), the others one by one, with
         every torch thread. With ``"stacked"`` (a CPU's), every learner's own update at one torch thread,
         the learners spread evenly over ``threads`` threads: at a minibatch of 512 rows a learner's update is bound
         by its products' arithmetic, which a batched product does no faster (docs/PERFORMANCE.md), and each

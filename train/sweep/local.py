@@ -25,6 +25,7 @@ from multiprocessing import get_context
 from pathlib import Path
 
 from train.sweep.checks import SweepError
+from train.sweep.declared import declare
 from train.sweep.spec import SPEC_FILE, WORKDIR_FILE, SweepSpec, grid, load_folder
 from train.sweep.trial import RUN_FOLDER
 
@@ -64,6 +65,7 @@ def run_local(spec: SweepSpec, processes: int, stop_after: float | None = None) 
     (folder / SPEC_FILE).write_text(spec.text)
     (folder / WORKDIR_FILE).write_text(os.getcwd())
     (folder / LOCAL_FILE).write_text("trials run as plain processes: colorgrid sweep run FILE --local N\n")
+    declare(spec, folder)  # each claim's digest, before the first trial starts (train/sweep/declared.py)
     kept = committed_keys(spec, folder)
     todo, skipped = [], 0
     for params in grid(spec):
