@@ -47,13 +47,18 @@ class Test:
     high: float
     p: float
     p_equivalence: float = math.nan
-    """``~`` only: the larger p of two one-sided tests against ``-margin`` and ``+margin`` (TOST)."""
+    """``~`` only: the larger p of two one-sided tests against ``-margin`` and ``+margin`` (TOST): below alpha
+    exactly when the ``1 - 2 alpha`` interval lies within the margin."""
+    p_outside: float = math.nan
+    """``~`` only: the smaller p of the one-sided tests that the difference lies above ``+margin`` or below
+    ``-margin``: below alpha exactly when the ``1 - 2 alpha`` interval lies wholly outside the margin."""
 
 
 def t_test(kind: Comparison, a, b, confidence: float, margin: float = 0.0) -> Test:
     """Test ``a`` (per-seed finals) against ``b``: finals of another configuration (``WELCH``), the baseline's
     finals on the same seeds in the same order (``PAIRED``), or a constant (``ONE_SAMPLE``). The interval is two-sided
-    at ``confidence``; with ``margin`` > 0 the TOST p of equivalence within it too. Sides without spread give NaN."""
+    at ``confidence``; with ``margin`` > 0 the TOST p of equivalence within it, and the p of a difference beyond
+    it, too. Sides without spread give NaN."""
     from scipy import stats
 
     a = np.asarray(a, dtype=float)
@@ -64,17 +69,21 @@ def t_test(kind: Comparison, a, b, confidence: float, margin: float = 0.0) -> Te
             test = stats.ttest_1samp(a, b)
             tails = (stats.ttest_1samp(a, b - margin, alternative="greater"),
                      stats.ttest_1samp(a, b + margin, alternative="less"))
+            beyond = (stats.ttest_1samp(a, b + margin, alternative="greater"),
+                      stats.ttest_1samp(a, b - margin, alternative="less"))
             shift = b  # scipy's interval is of a's mean: made one of the difference
         else:
             b = np.asarray(b, dtype=float)
             two = stats.ttest_rel if kind is Comparison.PAIRED else partial(stats.ttest_ind, equal_var=False)
             test = two(a, b)
             tails = (two(a, b - margin, alternative="greater"), two(a, b + margin, alternative="less"))
+            beyond = (two(a, b + margin, alternative="greater"), two(a, b - margin, alternative="less"))
             shift = 0.0
         interval = test.confidence_interval(confidence)
         p_eq = float(max(t.pvalue for t in tails)) if margin > 0 else math.nan
+        p_out = float(min(t.pvalue for t in beyond)) if margin > 0 else math.nan
     return Test(float(a.mean() - np.mean(b)), float(interval.low - shift), float(interval.high - shift),
-                float(test.pvalue), p_eq)
+                float(test.pvalue), p_eq, p_out)
 
 
 def holm(p_values) -> list[float]:

@@ -13,8 +13,10 @@ from train.sweep.claims import Outcome, Verdict
 
 
 def table(outcomes: list[Outcome]) -> pd.DataFrame:
-    """The decided claims as a tidy table (``claims.csv``): the interval is at ``ci_level`` (1 - the claim's level),
-    ``p`` is the test's own and ``p_adjusted`` Holm's across the file's claims (what the verdict reads)."""
+    """The decided claims as a tidy table (``claims.csv``): the interval is at ``ci_level`` (1 - the claim's level;
+    1 - twice it for ``~``), ``p`` is the test's own, ``p_equivalence`` and ``p_outside`` a ``~`` claim's within and
+    beyond the margin, ``p_adjusted`` Holm's across the file's claims (what the verdict reads), and ``declared``
+    whether the claim was declared before its data (``train.sweep.declared``; after: the verdict is exploratory)."""
     rows = []
     for o in outcomes:
         c = o.claim
@@ -25,42 +27,43 @@ def table(outcomes: list[Outcome]) -> pd.DataFrame:
             "seeds_a": " ".join(map(str, o.seeds_a)), "seeds_b": " ".join(map(str, o.seeds_b)),
             "a_values": " ".join(f"{v:.3f}" for v in o.a),
             "b_values": "" if isinstance(o.b, float) else " ".join(f"{v:.3f}" for v in o.b),
-            "difference": o.difference, "ci_level": 1 - o.level, "ci_low": o.low, "ci_high": o.high, "p": o.p,
-            "p_equivalence": o.p_equivalence, "p_adjusted": o.p_adjusted, "looks": o.looks, "level": o.level,
+            "difference": o.difference, "ci_level": o.confidence, "ci_low": o.low, "ci_high": o.high, "p": o.p,
+            "p_equivalence": o.p_equivalence, "p_outside": o.p_outside, "p_adjusted": o.p_adjusted, "looks": o.looks, "level": o.level,
             "power": o.power.now, "seeds_for_power": o.power.seeds, "detectable_difference": o.power.detectable,
             "iqm_a": o.iqm_a[0], "iqm_a_low": o.iqm_a[1], "iqm_a_high": o.iqm_a[2],
             "iqm_b": o.iqm_b[0], "iqm_b_low": o.iqm_b[1], "iqm_b_high": o.iqm_b[2],
             "p_improvement": o.p_improvement, "single_agent_a": o.single_a, "single_agent_b": o.single_b,
-            "verdict": o.verdict.value})
+            "declared": o.declared.value, "verdict": o.verdict.value})
     return pd.DataFrame(rows)
 
 
 def undecided(o: Outcome) -> bool:
-    return o.verdict in (Verdict.IN_DIRECTION, Verdict.INCONCLUSIVE)
+    return o.verdict in (Verdict.IN_DIRECTION, Verdict.INCONCLUSIVE, Verdict.EXPLORATORY)
 
 
 def format_claims(outcomes: list[Outcome]) -> str:
     """The claims as Markdown: the verdicts, the measures beside them, and each side's per-seed finals."""
     if not outcomes:
         return ""
-    head = ["claim", "the paper", "a", "b", "test", "a - b [interval at 1 - level]", "p", "Holm p", "level",
-            "verdict"]
+    head = ["claim", "the paper", "a", "b", "test", "a - b [interval at the claim's level]", "p", "Holm p", "level",
+            "declared", "verdict"]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for o in outcomes:
         c = o.claim
         shown_b = c.side_name(c.b, c.b_name)
         diff = "-" if not math.isfinite(o.difference) else (
-            f"{o.difference:+.2f}" + (f" [{o.low:+.2f}, {o.high:+.2f}] ({100 * (1 - o.level):.4g}%)"
+            f"{o.difference:+.2f}" + (f" [{o.low:+.2f}, {o.high:+.2f}] ({100 * o.confidence:.4g}%)"
                                       if math.isfinite(o.low) else ""))
         p = _p(o.p)
         if c.direction is Direction.SAME:
-            p += f"; within ±{c.margin:g}: {_p(o.p_equivalence)}"
+            p += f"; within ±{c.margin:g}: {_p(o.p_equivalence)}; beyond ±{c.margin:g}: {_p(o.p_outside)}"
         shown_level = f"{o.level:.3g}" + (f" ({o.looks} looks)" if o.looks > 1 else "")
         lines.append("| " + " | ".join([
             f"{c.name} (a {c.direction.value} b{', ' + c.metric if c.metric else ''})", c.paper,
             f"{c.side_name(c.a)}: {_mean(o.mean_a)} (n={len(o.a)})",
             f"{shown_b}: {_mean(o.mean_b)}" + ("" if isinstance(o.b, float) else f" (n={len(o.b)})"),
-            o.kind.value, diff, p, _p(o.p_adjusted), shown_level, f"**{o.verdict.value}**"]) + " |")
+            o.kind.value, diff, p, _p(o.p_adjusted), shown_level, o.declared.value,
+            f"**{o.verdict.value}**"]) + " |")
     lines += ["", f"Beside the test: each side's interquartile mean with its {MEASURE_CONFIDENCE:.0%} stratified "
                   f"bootstrap interval, the probability of improvement P(a > b), the single-agent solutions among "
                   f"each side's trials (one agent with at least twice the other's net pickups), and for each claim "

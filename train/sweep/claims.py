@@ -9,8 +9,10 @@ figures (``train.sweep.baselines``), or a constant (a true threshold, such as 0)
 The test (``claim_stats.t_test``, scipy's): Welch's two-sided t-test between configurations; against a baseline,
 the t-test of the per-seed differences, paired by seed (the baseline played the arm's own evaluation episodes,
 so the seed-to-seed spread they share cancels); against a threshold, the one-sample t-test; for ``~``, two
-one-sided tests (TOST) against ``-margin`` and ``+margin``. The interval of ``a - b`` is the test's, two-sided at
-the claim's level: ``1 - level``.
+one-sided tests (TOST) against ``-margin`` and ``+margin``, and the one-sided test that the difference lies beyond
+the margin. The interval of ``a - b`` is the test's, two-sided at the claim's level: ``1 - level``; for ``~``,
+``1 - 2 level``, the interval the two one-sided tests read (TOST at ``level`` shows equivalence exactly when it lies
+within the margin, and the test beyond the margin a difference exactly when it lies wholly outside).
 
 A file's claims are one family: read at 0.05 each, a file of 12 claims would call one reproduced wrongly far more
 often than 5% of the time. Each claim's p (``Outcome.decisive_p``) is adjusted by Holm's step-down method across the
@@ -21,8 +23,12 @@ The verdict, by one rule (``verdict``), at the claim's level:
   only** if it has the paper's sign without that (undecided: the report prints its power and the seeds it needs);
   **not reproduced** if it has the opposite sign and the adjusted p < level; **inconclusive** otherwise.
 * ``~``: **reproduced** if the difference lies within the margin and the adjusted TOST p < level; **in direction
-  only** if it lies within the margin without that; **not reproduced** if it lies outside and the adjusted
-  two-sided p < level; **inconclusive** otherwise.
+  only** if it lies within the margin without that; **not reproduced** if it lies outside and the adjusted p of
+  the test beyond the margin < level (the ``1 - 2 level`` interval wholly outside it); **inconclusive** otherwise.
+
+A claim declared, or changed, after trials of its configurations had finished (``train.sweep.declared``) is held as
+**exploratory**, whatever its test says: its figures are printed, and it is never called reproduced (nor not
+reproduced). It stays in the family, so it makes the other claims' adjusted p no smaller.
 
 A side with fewer than two finished seeds, or two sides without spread, gives no p-value and is inconclusive.
 
@@ -49,6 +55,7 @@ from train.sweep import claim_stats as st
 from train.sweep.baselines import baseline_finals
 from train.sweep.claim_spec import Baseline, Claim, Direction, matches
 from train.sweep.claim_stats import Power, Test, Comparison
+from train.sweep.declared import Declared, read_record, record_folder, status
 from train.sweep.looks import count_looks, read_history
 
 ALPHA = 0.05
@@ -60,6 +67,8 @@ class Verdict(str, Enum):
     IN_DIRECTION = "in direction only"
     NOT_REPRODUCED = "not reproduced"
     INCONCLUSIVE = "inconclusive"
+    EXPLORATORY = "exploratory"
+    """Declared or changed after trials of its configurations finished: printed, never decided."""
 
 
 @dataclass(frozen=True)
@@ -130,24 +139,31 @@ class Outcome:
     single_a: int | None = None
     """Single-agent solutions among side a's trials (None where the table lacks the agents' figures)."""
     single_b: int | None = None
+    declared: Declared = Declared.UNRECORDED
+    """Whether the claim was declared before the data (``train.sweep.declared``)."""
 
     difference = property(lambda self: self.test.difference)
     low = property(lambda self: self.test.low)
     high = property(lambda self: self.test.high)
     p = property(lambda self: self.test.p)
     p_equivalence = property(lambda self: self.test.p_equivalence)
+    p_outside = property(lambda self: self.test.p_outside)
 
     @property
     def level(self) -> float:
         return level(self.looks)
 
     @property
+    def confidence(self) -> float:
+        """The two-sided level of the printed interval (``confidence``)."""
+        return confidence(self.claim, self.looks)
+
+    @property
     def decisive_p(self) -> float:
         """The p the verdict reads before the family's adjustment: the two-sided p for ``>`` and ``<``; for ``~``,
-        the TOST p with the difference within the margin, the two-sided p outside it."""
-        if self.claim.direction is Direction.SAME and math.isfinite(self.difference) and (
-                abs(self.difference) <= self.claim.margin):
-            return self.p_equivalence
+        the TOST p with the difference within the margin, the p of the test beyond the margin outside it."""
+        if self.claim.direction is Direction.SAME and math.isfinite(self.difference):
+            return self.p_equivalence if abs(self.difference) <= self.claim.margin else self.p_outside
         return self.p
 
     @property
@@ -164,6 +180,12 @@ class Outcome:
 def level(looks: int = 1) -> float:
     """The significance level of each test of a claim tested ``looks`` times: ``ALPHA / looks`` (Bonferroni)."""
     return ALPHA / looks
+
+
+def confidence(claim: Claim, looks: int = 1) -> float:
+    """The interval's two-sided level for ``claim`` tested ``looks`` times: ``1 - level``, or ``1 - 2 level`` for
+    ``~`` (the interval of the two one-sided tests)."""
+    return 1 - (2 if claim.direction is Direction.SAME else 1) * level(looks)
 
 
 def verdict(direction: Direction, difference: float, p: float, margin: float = 0.0, alpha: float = ALPHA) -> Verdict:
@@ -185,7 +207,7 @@ def decide(claim: Claim, a: Side, b: Side | float, kind: Comparison, looks: int 
     values_b = b if constant else list(b.values)
     enough = len(a.values) >= 2 and (constant or len(b.values) >= 2)
     if enough:
-        test = st.t_test(kind, a.values, values_b, 1 - level(looks), claim.margin)
+        test = st.t_test(kind, a.values, values_b, confidence(claim, looks), claim.margin)
     else:
         nan = math.nan
         test = Test(float(np.mean(a.values) - np.mean(values_b)) if a.values and (constant or b.values) else nan,
@@ -202,10 +224,12 @@ def decide(claim: Claim, a: Side, b: Side | float, kind: Comparison, looks: int 
 
 
 def adjust(outcome: Outcome, p_adjusted: float) -> Outcome:
-    """``outcome`` with the family's adjusted p, and the verdict that reads it."""
+    """``outcome`` with the family's adjusted p, and the verdict that reads it (exploratory for a claim declared
+    after its data)."""
     c = outcome.claim
+    decided = verdict(c.direction, outcome.difference, p_adjusted, c.margin, outcome.level)
     return replace(outcome, p_adjusted=p_adjusted,
-                   verdict=verdict(c.direction, outcome.difference, p_adjusted, c.margin, outcome.level))
+                   verdict=Verdict.EXPLORATORY if outcome.declared is Declared.AFTER else decided)
 
 
 def sides(spec, claim: Claim, trials: pd.DataFrame, results) -> tuple[Side, Side | float, Comparison]:
@@ -226,15 +250,18 @@ def sides(spec, claim: Claim, trials: pd.DataFrame, results) -> tuple[Side, Side
 def evaluate(spec, trials: pd.DataFrame, history: pd.DataFrame | None = None) -> list[Outcome]:
     """Every claim of ``spec`` decided on the ``trials`` table (its ``final_<metric>`` columns) as one family: each
     claim's looks counted from the file and the record (``history``, by default the results folder's), its p
-    adjusted by Holm's method across the file's claims."""
+    adjusted by Holm's method across the file's claims, and each held as exploratory where the record of
+    declarations says it came after its data."""
     from train.sweep.results import results_folder
 
     results = results_folder(spec)
     history = read_history(results) if history is None else history
+    declarations = read_record(record_folder(spec))
     outcomes = []
     for claim in spec.claims:
         a, b, kind = sides(spec, claim, trials, results)
         seeds_b = () if isinstance(b, float) else b.seeds
-        outcomes.append(decide(claim, a, b, kind, count_looks(spec, claim, a.seeds, seeds_b, history)))
+        decided = decide(claim, a, b, kind, count_looks(spec, claim, a.seeds, seeds_b, history))
+        outcomes.append(replace(decided, declared=status(spec, claim, trials, declarations)))
     adjusted = st.holm([o.decisive_p for o in outcomes])
     return [adjust(o, p) for o, p in zip(outcomes, adjusted)]

@@ -19,6 +19,7 @@ import pandas as pd
 from train.sweep import claims as claim_rules
 from train.sweep.claim_table import format_claims
 from train.sweep.claim_table import table as claims_table
+from train.sweep.declared import DECLARED_FILE
 from train.sweep.looks import HISTORY_FILE, record
 from train.sweep.claim_spec import matches
 from train.sweep.results import collect, committed, publish, results_folder
@@ -174,13 +175,16 @@ def render(spec: SweepSpec, trials: pd.DataFrame, curves: pd.DataFrame, out: Pat
         "## Claims", "",
         f"Each side's values are its finished trials' finals (one per seed). The test: Welch's t-test between "
         f"configurations, paired by seed against a baseline evaluated on each seed's own evaluation episodes, "
-        f"one-sample against a threshold; for '~' also two one-sided tests within the margin. a - b is printed "
-        f"with the test's interval at the claim's level (1 - level, two-sided). The file's claims are one family: "
+        f"one-sample against a threshold; for '~' also two one-sided tests within the margin and the one-sided test "
+        f"beyond it. a - b is printed with the test's interval at the claim's level (1 - level, two-sided; for '~' "
+        f"1 - 2 level, the interval the one-sided tests read). The file's claims are one family: "
         f"each p is adjusted by Holm's method across them, and the verdict reads the adjusted p at the claim's "
         f"level, {claim_rules.ALPHA} divided by its looks (counted from the file's plan and the record in "
         f"{HISTORY_FILE}). Verdicts by one rule (train/sweep/claims.py, docs/SWEEPS.md): reproduced (the paper's "
         f"direction, adjusted p < level), in direction only (the paper's direction, not shown: undecided), not "
-        f"reproduced (the opposite, adjusted p < level), inconclusive otherwise.", "",
+        f"reproduced (the opposite, adjusted p < level), inconclusive otherwise. A claim declared or changed after "
+        f"trials of its configurations finished ({DECLARED_FILE}, written by sweep run) is exploratory: its "
+        f"figures are printed, its verdict is not given.", "",
         format_claims(outcomes), ""]
     text = "\n".join([
         f"# Sweep {spec.name}", "",

@@ -19,6 +19,7 @@ from pathlib import Path
 import ray
 from ray import tune
 
+from train.sweep.declared import declare
 from train.sweep.local import LOCAL_FILE, trial_packs
 from train.sweep.spec import SPEC_FILE, WORKDIR_FILE, SweepError, SweepSpec, grid, load_folder
 from train.sweep.trial import PACK, run_trial, trial_folder
@@ -192,6 +193,7 @@ def run_sweep(spec: SweepSpec, address: str | None = None, num_cpus: int | None 
     folder.mkdir(parents=True, exist_ok=True)
     (folder / SPEC_FILE).write_text(spec.text)
     (folder / WORKDIR_FILE).write_text(os.getcwd())
+    declare(spec, folder)  # each claim's digest, before the first trial starts (train/sweep/declared.py)
     concurrent = spec.resources.max_concurrent or None
     print(f"sweep {spec.name}: {spec.summary()} into {folder}", flush=True)
     kept = kept_trials(spec)
