@@ -44,8 +44,9 @@ class InferenceWorker:
 
     MAX_BACKOFF = 60.0
 
-    def __init__(self, target=None, backoff: float = 0.5):
+    def __init__(self, target=None, backoff: float = 0.5, clock=time.monotonic):
         self._target = target or serve  # what the process runs (a module-level function of its pipe's end)
+        self._clock = clock  # seconds, for the wait after failed starts (a test may give its own)
         self._lock = threading.Lock()
         self._process = None
         self._conn = None
@@ -71,13 +72,13 @@ class InferenceWorker:
             self.failed_starts = 0 if self._answered else self.failed_starts + 1
             doublings = min(self.failed_starts - 1, 30)  # past the cap anyway; a larger power would overflow
             wait = min(self.MAX_BACKOFF, self.backoff * 2 ** doublings) if self.failed_starts else 0.0
-            self._retry_at = time.monotonic() + wait
+            self._retry_at = self._clock() + wait
             log.error("the inference process ended (exit code %s); %s", self._process.exitcode,
                       f"it had not started: trying again in {wait:.1f} s" if wait else "starting a new one")
             self._process = self._conn = None
-        if time.monotonic() < self._retry_at:
+        if self._clock() < self._retry_at:
             raise InferenceLost(f"the inference process failed to start {self.failed_starts} time(s) in a row; next "
-                                f"try in {self._retry_at - time.monotonic():.1f} s")
+                                f"try in {self._retry_at - self._clock():.1f} s")
         ctx = multiprocessing.get_context("spawn")  # the server has threads: forking it would copy held locks
         parent, child = ctx.Pipe()
         self._process = ctx.Process(target=self._target, args=(child,), name="colorgrid-inference", daemon=True)
@@ -169,6 +170,11 @@ class RemotePolicy(Policy):
     def describe(self) -> dict:
         return dict(self.description)
 
+    def describe_row(self, row: int) -> dict:
+        if self.built_in != self.worker.generation:  # a restarted worker holds nothing of this row's game
+            return self.describe()
+        return self.worker.call("describe_row", self.key, int(row))
+
     def close(self) -> None:
         if self.built_in == self.worker.generation and not self.worker.closed:
             try:
@@ -209,6 +215,9 @@ def serve(conn) -> None:
                 key, inp, rows = args
                 out = policies[key].act(inp, rows=rows)
                 reply = (out.actions, out.goal_probs)
+            elif op == "describe_row":
+                key, row = args
+                reply = policies[key].describe_row(row)
             elif op == "ping":  # ready: imports done, serving
                 reply = None
             elif op == "drop":

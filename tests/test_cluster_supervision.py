@@ -8,7 +8,6 @@ import pickle
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -40,14 +39,15 @@ def test_a_child_that_cannot_be_started_again_is_tried_again_later_and_the_watch
     child.process.wait()
     child.wait_s = 0.01
     child.check()  # noticed: started again after its wait
+    assert "starting it again in 0.01 s" in capsys.readouterr().out
     child.argv = [str(ROOT / "no-such-program")]
-    time.sleep(0.05)
-    child.check()  # the start fails: said in one line, tried again after a longer wait
+    child.check(now=child.restart_at - 0.001)  # its wait is not over: nothing yet
+    assert capsys.readouterr().out == "" and child.restarts == 0
+    child.check(now=child.restart_at)  # the start fails: said in one line, tried again after a longer wait
     assert "b1 could not be started again" in capsys.readouterr().out
     assert child.restart_at is not None and child.wait_s == 0.04
     child.argv = [sys.executable, "-c", "pass"]
-    time.sleep(0.05)
-    child.check()
+    child.check(now=child.restart_at)
     assert "b1 started again (restart 2" in capsys.readouterr().out
     child.process.wait()
 
@@ -60,8 +60,7 @@ def test_a_backend_started_again_is_told_how_many_times_for_its_health_to_report
     child.process.wait()
     child.wait_s = 0.01
     child.check()  # noticed: started again after its wait
-    time.sleep(0.05)
-    child.check()
+    child.check(now=child.restart_at)
     child.process.wait()
     assert said.read_text() == "01", "0 at its first start, 1 once started again"
 

@@ -116,9 +116,10 @@ class Child:
     def alive(self) -> bool:
         return self.process is not None and self.process.poll() is None
 
-    def check(self) -> None:
-        """Start it again if it died and its wait is over (called every half second by the launcher)."""
-        now = time.monotonic()
+    def check(self, now: float | None = None) -> None:
+        """Start it again if it died and its wait is over (called every half second by the launcher); ``now``: the
+        time (``time.monotonic()``'s clock) a test gives it."""
+        now = time.monotonic() if now is None else now
         if self.process is None or self.alive:
             return
         if self.restart_at is None:
