@@ -82,18 +82,19 @@ def test_the_launchers_output_says_starts_restarts_and_the_stop_not_every_health
         ws = socket_to(cluster, cookies)
         ws.send(json.dumps({"type": "new_game", "study": {"participant": pid, "session": joined["session"]}}))
         receive(ws, "welcome")  # the practice: a turn-based game waiting on its player, on its backend
-        time.sleep(3)  # HAProxy checks each backend every second meanwhile
 
         other = next(b for b in cluster.health()["backends"] if b["name"] != home)
         os.kill(other["pid"], signal.SIGKILL)
-        wait_for_line(cluster, f"haproxy: {other['name']} is up again")  # started again, and checked
+        # started again, and up once two of HAProxy's checks (every second) have passed: checks that are not logged
+        wait_for_line(cluster, f"haproxy: {other['name']} is up again")
 
         # A stop while the game's backend cannot save it at once (the study's database is held): it takes a few
         # seconds, and HAProxy, told to stop, neither checks the backends meanwhile nor drops the game's socket.
         database = sqlite3.connect(cluster.folder / "study.sqlite", isolation_level=None, timeout=30)
         database.execute("BEGIN IMMEDIATE")
         cluster.process.send_signal(signal.SIGINT)
-        time.sleep(4)
+        wait_for_line(cluster, "stopping: the backends save their games")
+        time.sleep(4)  # the save held this long: twice HAProxy's two checks a second apart, were it still checking
         database.execute("ROLLBACK")
         database.close()
         assert receive(ws, "game_over", timeout=60)["reason"] == "server_shutdown"  # told, through the proxy
