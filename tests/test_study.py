@@ -417,8 +417,8 @@ def complete_fast_study(browser, url: str, pid: str, reload_in_trial: int | None
     expect(page.locator("#page-title")).to_have_text("Practice game")
     page.click("#play")
     expect(page.locator("#countdown")).to_have_text("3")  # real time: a visible 3-2-1 first
-    expect(page.locator("#page-title")).to_have_text("Practice game", timeout=30_000)  # back when it ends
-    expect(page.locator("#next")).to_be_visible(timeout=30_000)
+    expect(page.locator("#page-title")).to_have_text("Practice game")  # back when it ends
+    expect(page.locator("#next")).to_be_visible()
     page.click("#next")
     for trial in range(4):
         expect(page.locator("#page-title")).to_have_text(f"Game {trial + 1} of 4")
@@ -428,12 +428,12 @@ def complete_fast_study(browser, url: str, pid: str, reload_in_trial: int | None
         for i in range(4):
             if trial == reload_in_trial and i == 2:
                 page.reload()  # resumes the same game
-                expect(page.locator("#board")).to_be_visible(timeout=20_000)
+                expect(page.locator("#board")).to_be_visible()
                 expect(page.locator("#board")).to_have_attribute("data-step", "2")
                 page.locator("#board").focus()
             expect(page.locator("#board")).to_have_attribute("data-step", str(i))
             page.keyboard.press("ArrowLeft" if i % 2 else "ArrowUp")
-        expect(page.locator("#next")).to_be_visible(timeout=20_000)
+        expect(page.locator("#next")).to_be_visible()
         page.click("#next")
         page.locator("fieldset[data-id=helpful] input[value='6']").check()
         page.click("#next")

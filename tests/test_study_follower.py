@@ -109,12 +109,12 @@ def test_a_participant_plays_the_assistant_in_chromium_and_the_export_has_belief
         page.click("#next")
         expect(page.locator("#page-title")).to_have_text("Practice game")
         assert play_game(page, "^(red|green|blue)$") == 1  # the practice shows the goal: a control
-        expect(page.locator("#next")).to_be_visible(timeout=20_000)
+        expect(page.locator("#next")).to_be_visible()
         page.click("#next")
         for trial in range(4):
             expect(page.locator("#page-title")).to_have_text(f"Game {trial + 1} of 4")
             assert play_game(page, "^hidden from you$") in (0, 2)
-            expect(page.locator("#next")).to_be_visible(timeout=20_000)
+            expect(page.locator("#next")).to_be_visible()
             page.click("#next")
             page.locator("fieldset[data-id=sure] input[value='5']").check()
             page.locator("fieldset[data-id=readable] input[value='4']").check()

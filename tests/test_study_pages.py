@@ -133,8 +133,8 @@ def boxes(page) -> dict:
 def finish(page) -> None:
     """The last step of a game of 3, and back to its page."""
     page.keyboard.press("ArrowDown")
-    expect(page.locator("#game")).to_be_hidden(timeout=20_000)
-    expect(page.locator("#next")).to_be_visible(timeout=20_000)
+    expect(page.locator("#game")).to_be_hidden()
+    expect(page.locator("#next")).to_be_visible()
 
 
 def test_a_participant_sees_which_disc_is_theirs_a_quiet_practice_and_every_missing_answer(pages_server, browser):

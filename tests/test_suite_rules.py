@@ -36,7 +36,7 @@ def test_a_skipped_test_or_module_fails_the_run(tmp_path):
 def test_no_test_waits_a_fixed_time_or_asserts_one():
     """A wait stands for an event (``expect``, ``wait_for_function``, a message), never for a duration; and what a
     test asserts is counts and events, not how long something took."""
-    banned = re.compile(r"wait_for_" + r"timeout|elapsed <")
+    banned = re.compile("wait_for_" + "timeout|elapsed" + " <")  # spelt apart, so as not to find this line
     found = [f"{path.name}:{n}: {line.strip()}" for path in sorted((ROOT / "tests").glob("*.py"))
              for n, line in enumerate(path.read_text().splitlines(), 1) if banned.search(line)]
     assert found == []
