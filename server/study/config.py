@@ -87,6 +87,25 @@ class GameSettings:
     def label(self) -> str:
         return ", ".join(f"{k}={v}" for k, v in dataclasses.asdict(self).items())
 
+    def played(self) -> dict:
+        """This game's settings by field, None for those it did not have (``as_played``)."""
+        return self.as_played(dataclasses.asdict(self))
+
+    @staticmethod
+    def as_played(settings: dict) -> dict:
+        """A game's settings (every field, as ``dataclasses.asdict`` gives them: a game's record) with those it did
+        not have set to None, so that no default passes for a condition: in the follower seat the AI follower and
+        whether its belief was shown (no AI follower plays beside the participant); in a leader's seat the AI leader,
+        the goal's visibility and the probes (the follower seat's); turn-based, the clock's ``tick_hz``."""
+        out = dict(settings)
+        if out["seat"] == SeatKind.FOLLOWER.value:
+            out.update(follower=None, show_belief=None)
+        else:
+            out.update(leader=None, goal=None, probes=None)
+        if out["mode"] != "realtime":
+            out["tick_hz"] = None
+        return out
+
     def seat_settings(self) -> dict:
         """What a new game takes of the seat (``GameHub.new_game``): nothing more for a leader's; for the follower seat
         its AI leader, the goal's visibility and the probes."""

@@ -41,11 +41,13 @@ def _time(seconds) -> pd.Timestamp | None:
 
 
 def _condition(study: Study, index: int | None, settings: dict | None = None) -> dict:
-    """The ``condition*`` columns: a condition by index, or a game's own settings (practice: no index)."""
+    """The ``condition*`` columns: a condition by index, or a game's own settings (practice: no index); a setting
+    the game did not have is empty (``GameSettings.as_played``: no AI follower in the follower seat, no clock
+    turn-based)."""
     if settings is None:
-        settings = dataclasses.asdict(study.conditions[index]) if index is not None else {}
+        settings = study.conditions[index].played() if index is not None else {}
     elif settings:  # a game recorded before a setting existed played its default (the seat: a leader's)
-        settings = {**dataclasses.asdict(GameSettings()), **settings}
+        settings = GameSettings.as_played({**dataclasses.asdict(GameSettings()), **settings})
     return {"condition_index": index, "condition": f"C{index + 1}" if index is not None else None,
             **{f"condition_{k}": v for k, v in settings.items()}}
 

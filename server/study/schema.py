@@ -54,24 +54,27 @@ def _condition(study: Study, whose: str) -> list[Column]:
     labels = tuple(f"C{i + 1}" for i in range(len(study.conditions)))
     games = study.conditions + [study.practice_game(p) for p in study.pages if p.kind == "practice"]
     settings = {
-        "follower": Column("condition_follower", "category", "name", "the AI follower (the study's followers)",
+        "follower": Column("condition_follower", "category", "name",
+                           "the AI follower (the study's followers); empty in the follower seat, where none plays",
                            tuple(followers)),
-        "show_belief": Column("condition_show_belief", "boolean", "", "whether the follower's belief was shown"),
+        "show_belief": Column("condition_show_belief", "boolean", "",
+                              "whether the follower's belief was shown; empty in the follower seat"),
         "mode": Column("condition_mode", "category", "name", "`realtime` or `turn`", ("realtime", "turn")),
         "preset": Column("condition_preset", "category", "name", "the environment preset", tuple(PRESETS)),
         "horizon": Column("condition_horizon", "Int64", "steps", "steps in the game"),
-        "tick_hz": Column("condition_tick_hz", "float64", "steps/s", "steps a second in real time"),
+        "tick_hz": Column("condition_tick_hz", "float64", "steps/s", "steps a second in real time; empty turn-based"),
         "seat": Column("condition_seat", "category", "name", "the participant's seat: `leader` (they know the goal) or "
                                                              "`follower` (they assist an AI leader)",
                        tuple(s.value for s in SeatKind)),
         "leader": Column("condition_leader", "category", "name", "the AI leader of the follower seat (the study's "
-                                                                 "leaders; a leader's game names the default)",
+                                                                 "leaders); empty in a leader's seat",
                          tuple(sorted({g.leader for g in games}))),
         "goal": Column("condition_goal", "category", "name", "the follower seat: whether the goal was `hidden` from "
-                                                             "the participant or `shown`",
+                                                             "the participant or `shown`; empty in a leader's seat",
                        tuple(g.value for g in GoalView)),
         "probes": Column("condition_probes", "category", "plan", "the follower seat: when the game asked what they "
-                                                                 "believed (`none`, `steps:10,40`, `random:0.05`)",
+                                                                 "believed (`none`, `steps:10,40`, `random:0.05`); "
+                                                                 "empty in a leader's seat",
                          tuple(sorted({g.probes for g in games}))),
     }
     missing = {f.name for f in dataclasses.fields(GameSettings)} ^ set(settings)
