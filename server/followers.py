@@ -3,6 +3,7 @@ batched call; and what the play page calls each AI follower and AI leader, and w
 
 from __future__ import annotations
 
+import logging
 import re
 import time
 
@@ -16,7 +17,9 @@ from colorgrid.policies.base import AgentInput
 from colorgrid.policies.names import PolicyKind, read_name
 from colorgrid.replay import describe_agent
 from colorgrid.step_inputs import StepInputs
-from server.inference import InferenceWorker, RemotePolicy
+from server.inference import InferenceError, InferenceLost, InferenceWorker, RemotePolicy
+
+log = logging.getLogger("colorgrid.server")
 
 
 def is_scripted(name: str) -> bool:
@@ -238,9 +241,18 @@ class FollowerPool:
         out = self.policy.act(AgentInput.concat(inputs), rows=np.asarray(slots))
         return out.actions, out.goal_probs
 
-    def describe(self) -> dict:
-        """The replay's ``agents`` entry for the agent this pool plays (a checkpoint's file named)."""
-        return describe_agent(self.policy.describe(), self.name if self.name.endswith(".pt") else None)
+    def describe(self, slot: int | None = None) -> dict:
+        """The replay's ``agents`` entry for the agent this pool plays (a checkpoint's file named); with the ``slot`` of
+        a game, what that game alone had too (a population's member: ``Policy.describe_row``), asked before the slot is
+        given back. Should the inference process fail to say, the entry is the policy's own."""
+        description = self.policy.describe()
+        if slot is not None:
+            try:
+                description = self.policy.describe_row(slot)
+            except (InferenceLost, InferenceError, ValueError):
+                log.exception("follower %s could not describe slot %d; the replay names the policy only", self.name,
+                              slot)
+        return describe_agent(description, self.name if self.name.endswith(".pt") else None)
 
     def fallback(self, inputs: list[AgentInput], slots: list[int]) -> np.ndarray:
         return self.idle.act(AgentInput.concat(inputs), rows=np.asarray(slots)).actions

@@ -123,6 +123,11 @@ class Game:
         ``view`` when given)."""
         self.ai[agent] = AIPlayer(agent, pool, slot, view=view)
 
+    def describe_ai(self) -> dict[int, dict]:
+        """Each AI player's ``agents`` entry for this game's replay (``FollowerPool.describe`` of its slot): asked
+        before the slots are given back, while each still holds what this game had (a population's member)."""
+        return {agent: player.pool.describe(player.slot) for agent, player in self.ai.items()}
+
     def release_slots(self) -> None:
         """Give back the pool slots of this game's AI players."""
         for player in self.ai.values():

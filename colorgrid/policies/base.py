@@ -84,6 +84,11 @@ class Policy:
         """How replays and reports name this agent."""
         return {"policy": self.name}
 
+    def describe_row(self, row: int) -> dict:
+        """How the replay of the game in batch row ``row`` names this agent: ``describe()``, and where the policy plays
+        by parts, the part that game had (a population: the member drawn for it)."""
+        return self.describe()
+
     def state_dict(self) -> dict:
         """What changes while acting, as arrays and plain values, so that a resumed run continues exactly:
         the ``state_fields`` and the random generator's state (``rng``) if the policy has one."""

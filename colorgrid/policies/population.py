@@ -61,6 +61,10 @@ class PopulationPolicy(Policy):
         return {"policy": self.name, "population": self.source,
                 "members": {name: p.describe() for name, p in self.members.items()}}
 
+    def describe_row(self, row: int) -> dict:
+        """The population, and under ``member`` the member drawn for row ``row``'s episode (the one that played it)."""
+        return {**self.describe(), "member": self.names[int(self.member[row])]}
+
     def reset(self, config: EnvConfig, num_envs: int, agent_index: int, seed: int = 0) -> None:
         super().reset(config, num_envs, agent_index, seed)
         for i, policy in enumerate(self.members.values()):

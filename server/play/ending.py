@@ -75,10 +75,17 @@ class Finisher:
         if live.games.pop(game.game_id, None) is None and live.finishing.pop(game.game_id, None) is None:
             return
         game.finished = True
-        game.release_slots()
+        descriptions = None
         if game.actions:
+            try:  # before the slots are given back (on the saver thread: it may ask the inference process)
+                descriptions = await asyncio.get_running_loop().run_in_executor(self.saver, game.describe_ai)
+            except Exception:
+                live.stats["save_failures"] += 1
+                log.exception("could not describe the AI players of game %s (%s)", game.game_id, reason)
+        game.release_slots()
+        if descriptions is not None:
             try:
-                await self._save(game, reason)
+                await self._save(game, reason, descriptions)
             except Exception:
                 live.stats["save_failures"] += 1
                 log.exception("could not save game %s (%s)", game.game_id, reason)
@@ -90,10 +97,10 @@ class Finisher:
                 log.exception("a listener failed on the end of game %s", game.game_id)
         await live.send(game, game_over_message(game, reason, game.replay_id))
 
-    async def _save(self, game: Game, reason: Ending) -> None:
+    async def _save(self, game: Game, reason: Ending, descriptions: dict[int, dict]) -> None:
         stamp = time.strftime("%Y%m%dT%H%M%S", time.gmtime(game.created))
         replay_id = f"play-{stamp}-{game.game_id}"
-        replay = game.to_replay(reason, {agent: player.pool.describe() for agent, player in game.ai.items()})
+        replay = game.to_replay(reason, descriptions)
         # Written (atomically, fsynced) on a worker thread so saving never stalls the tick.
         path = Path(self.live.settings.replays_dir) / f"{replay_id}.replay.json"
         await asyncio.get_running_loop().run_in_executor(self.saver, save, replay, path)
