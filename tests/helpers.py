@@ -1,5 +1,6 @@
 """Shared test helpers."""
 
+import asyncio
 import time
 
 import numpy as np
@@ -77,3 +78,13 @@ def wait_until(condition, what: str, timeout_s: float = WAIT_S, every_s: float =
         assert time.monotonic() < deadline, f"timed out waiting for {what}"
         time.sleep(every_s)
     return value
+
+
+async def until(condition, timeout_s: float = WAIT_S) -> None:
+    """In an event loop: let its tasks run until ``condition()`` holds; fails after ``timeout_s`` (a bound for a loaded
+    machine, not a time any test expects)."""
+    async def poll():
+        while not condition():
+            await asyncio.sleep(0.001)
+
+    await asyncio.wait_for(poll(), timeout_s)

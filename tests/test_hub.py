@@ -10,7 +10,7 @@ from colorgrid.replay import load, verify
 from server.play import pools as hub_module
 from server.play.hub import GameHub
 from server.settings import ServerSettings
-from tests.helpers import Inbox
+from tests.helpers import Inbox, until
 
 
 def make_hub(tmp_path, **changes) -> GameHub:
@@ -62,9 +62,7 @@ def test_the_sweeper_outlives_an_exception_and_still_saves_abandoned_games(tmp_p
 
         hub.sweep = flaky
         hub._tasks = [asyncio.create_task(hub._sweep_loop())]
-        end = time.monotonic() + 60  # a bound for a loaded machine: the sweeper runs every second
-        while hub.games and time.monotonic() < end:
-            await asyncio.sleep(0.1)
+        await until(lambda: hub.stats["games_saved"] == 1)  # the sweeper runs every second
         await hub.stop()
         return hub, calls
 
@@ -138,10 +136,7 @@ def test_inference_runs_in_its_own_process_and_a_killed_one_costs_one_step_not_t
         for t in range(4):
             await hub.key(game, "ArrowRight", t, 0.0)
         os.kill(first, signal.SIGKILL)
-        for _ in range(100):  # until the process is gone for its parent too
-            if not hub.inference._process.is_alive():
-                break
-            await asyncio.sleep(0.05)
+        await until(lambda: not hub.inference._process.is_alive())  # gone for its parent too
         await hub.key(game, "ArrowLeft", 4, 0.0)  # finds it dead: the fallback move, and a new process starts
         assert hub.inference.generation == 2 and hub.inference._process.is_alive()  # started by that call
         # time passes while it loads (steps meanwhile would take the fallback move too): wait until it answers

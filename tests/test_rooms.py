@@ -17,7 +17,7 @@ from server.play.hub import GameHub, ServerFull
 from server.protocol import ROOM_CODE_ALPHABET, ROOM_CODE_LENGTH, ROOM_COUNTDOWN_S
 from server.settings import ServerSettings
 from tests.conftest import start_server, stop_server
-from tests.helpers import Inbox
+from tests.helpers import Inbox, until
 from tests.test_server import Client
 
 HORIZON = 12
@@ -238,15 +238,6 @@ def run(scenario):
     """``asyncio.run`` on a thread of its own (this module's chromium keeps an event loop on the main one)."""
     with ThreadPoolExecutor(1) as thread:
         return thread.submit(asyncio.run, scenario()).result()
-
-
-async def until(condition, timeout_s: float = 60.0) -> None:
-    """Let the hub's tasks run until ``condition()`` holds (a bound for a loaded machine, not an expected time)."""
-    async def poll():
-        while not condition():
-            await asyncio.sleep(0.001)
-
-    await asyncio.wait_for(poll(), timeout_s)
 
 
 async def room_game(hub, mode: str, horizon: int) -> tuple:
