@@ -171,9 +171,11 @@ def test_cli_trains_seeds_as_one_pack_and_resumes_them(tmp_path):
 
 def test_a_pack_of_one_is_the_trainer(tmp_path):
     """``Trainer.train`` runs through ``Pack``: one trial's placement is its own (the follower's update in its
-    process on two threads), and the pack makes no placement of its own."""
+    process on two threads), the pack makes no placement of its own, and ``on_iteration(row, saved)`` is called
+    after every iteration as before packs."""
     t = trainer(tmp_path, TRIALS["seed 0"])
-    pack = Pack([t])
-    assert pack.placement((0,)) is t.placement
-    pack.train()
-    assert pack._placement is None and t.iteration == 3
+    assert Pack([t]).placement((0,)) is t.placement
+    seen = []
+    t.train(on_iteration=lambda row, saved: seen.append((row["iteration"], saved is not None,
+                                                         sorted(t.placement._processes))))
+    assert seen == [(1, False, [1]), (2, True, [1]), (3, True, [1])]  # the follower (learner 1) in its process

@@ -122,7 +122,7 @@ class Trainer:
         This run alone is a ``Pack`` of one (``train.pack``)."""
         from train.pack import Pack
 
-        report = None if on_iteration is None else (lambda trial, row, saved: on_iteration(row, saved))
+        report = None if on_iteration is None else (lambda done: on_iteration(*done[0]))
         return Pack([self]).train(report, stop)[0]
 
     def start(self) -> None:

@@ -190,14 +190,15 @@ def run_pack(folder: str, pack: list[dict], deadline: float | None, waited: bool
         labels.append(f"trial [{spec.label(spec.values(params))}, seed={params['seed']}]")
     last_line = [0.0] * len(pack)
 
-    def report(k: int, row: dict, saved: Path | None) -> None:
-        now, trainer = time.time(), trainers[k]
-        if now - last_line[k] >= EVERY_S or trainer.finished:
-            last_line[k] = now
-            value = row.get(spec.metric)
-            shown = f" {spec.metric} {value:+.2f}" if isinstance(value, (int, float)) else ""
-            print(f"{labels[k]} step {trainer.step:,}/{trainer.config.end_step:,}{shown}, "
-                  f"{row.get('sps', 0):,.0f} steps/s", flush=True)
+    def report(done: dict[int, tuple[dict, Path | None]]) -> None:
+        for k, (row, _) in done.items():
+            now, trainer = time.time(), trainers[k]
+            if now - last_line[k] >= EVERY_S or trainer.finished:
+                last_line[k] = now
+                value = row.get(spec.metric)
+                shown = f" {spec.metric} {value:+.2f}" if isinstance(value, (int, float)) else ""
+                print(f"{labels[k]} step {trainer.step:,}/{trainer.config.end_step:,}{shown}, "
+                      f"{row.get('sps', 0):,.0f} steps/s", flush=True)
 
     Pack(trainers).train(on_iteration=report, stop=lambda: bool(asked) or (_STOP is not None and _STOP.is_set())
                          or (deadline is not None and time.time() >= deadline))
