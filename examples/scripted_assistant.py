@@ -10,6 +10,15 @@ paying pickup yet).
     colorgrid play --replays-dir recordings/scripted --leaders astar --leaders person:slip=0.1,notice_delay=3
     python examples/scripted_assistant.py --games 6 --leader astar --probes steps:20,40,60
     colorgrid replay rescore recordings/scripted --follower bayes-people ippo
+
+With ``--participants N`` it takes part in the study a ``colorgrid study run`` serves, as N participants
+(``stand-in-1``, ...) one after another: it consents, plays every game of the study in the follower seat, answers each
+question (a Likert scale's middle point, a choice's first option, no text), so that the study's export, and what is
+computed from it (``colorgrid study power``), can be shown on real files without human data:
+
+    colorgrid study run studies/human_follower.toml --replays-dir recordings/stand_in
+    python examples/scripted_assistant.py --participants 8
+    colorgrid study export studies/human_follower.toml --replays-dir recordings/stand_in --out stand_in_data
 """
 
 from __future__ import annotations
@@ -17,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import time
+import urllib.request
 
 from websockets.sync.client import connect
 
@@ -62,9 +72,14 @@ class StandIn:
 
 def play(url: str, leader: str, probes: str, horizon: int, mode: str = "turn", goal: str = "hidden") -> dict:
     """One turn-based game in the follower seat; returns its ``game_over``."""
+    return play_game(url, {"type": "new_game", "seat": "follower", "leader": leader, "probes": probes, "goal": goal,
+                           "mode": mode, "horizon": horizon})
+
+
+def play_game(url: str, new_game: dict) -> dict:
+    """The game ``new_game`` starts, played in the follower seat to its end; returns its ``game_over``."""
     with connect(url, open_timeout=20) as ws:
-        ws.send(json.dumps({"type": "new_game", "seat": "follower", "leader": leader, "probes": probes,
-                            "goal": goal, "mode": mode, "horizon": horizon}))
+        ws.send(json.dumps(new_game))
         me = None
         while True:
             msg = json.loads(ws.recv(timeout=60))
@@ -80,6 +95,38 @@ def play(url: str, leader: str, probes: str, horizon: int, mode: str = "turn", g
                 raise RuntimeError(f"the server refused: {msg}")
 
 
+def post(base: str, path: str, body: dict) -> dict:
+    request = urllib.request.Request(base + path, data=json.dumps(body).encode(), method="POST",
+                                     headers={"Content-Type": "application/json"})
+    with urllib.request.urlopen(request, timeout=60) as response:
+        return json.loads(response.read())
+
+
+def answer(question: dict):
+    """The stand-in's answer to a study's question: a Likert scale's middle point, a choice's first option, no text."""
+    return {"likert": (question["scale"] + 1) // 2, "choice": (question["options"] or [None])[0]}.get(question["kind"])
+
+
+def take_part(url: str, pid: str) -> int:
+    """Go through the study served at ``url`` (the play socket's URL) as participant ``pid``, from consent to its
+    last page; returns the games played."""
+    base = url.replace("ws://", "http://", 1).replace("wss://", "https://", 1).removesuffix("/ws/play")
+    joined = post(base, "/api/study/join", {"params": {"PROLIFIC_PID": pid, "STUDY_ID": "stand-in",
+                                                       "SESSION_ID": pid}})
+    who, view, games = {"pid": pid, "session": joined["session"]}, joined["view"], 0
+    while not view.get("finished") and view["kind"] != "debrief":
+        body = {**who, "step": view["step"]}
+        if view["kind"] == "consent":
+            body["agree"] = True
+        if view.get("game") and not view.get("done"):
+            play_game(url, {"type": "new_game", "study": {"participant": pid, "session": joined["session"]}})
+            games += 1
+        if view.get("questions"):
+            body["answers"] = {q["id"]: answer(q) for q in view["questions"]}
+        view = post(base, "/api/study/advance", body)
+    return games
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--url", default="ws://127.0.0.1:8000/ws/play")
@@ -87,7 +134,14 @@ def main() -> None:
     parser.add_argument("--leader", action="append", help="AI leader(s), played in turn (default: astar)")
     parser.add_argument("--probes", default="steps:20,40,60")
     parser.add_argument("--horizon", type=int, default=80)
+    parser.add_argument("--participants", type=int, help="take part in the study the server runs as this many "
+                                                          "participants instead (its games' settings are the study's)")
     args = parser.parse_args()
+    for i in range(args.participants or 0):
+        pid = f"stand-in-{i + 1}"
+        print(f"{pid}: {take_part(args.url, pid)} games")
+    if args.participants:
+        return
     leaders = args.leader or ["astar"]
     for i in range(args.games):
         over = play(args.url, leaders[i % len(leaders)], args.probes, args.horizon)

@@ -1,4 +1,5 @@
-"""``colorgrid study run STUDY_FILE`` and ``colorgrid study export STUDY_FILE --out DIR``."""
+"""``colorgrid study run STUDY_FILE``, ``colorgrid study export STUDY_FILE --out DIR`` and ``colorgrid study power
+STUDY_FILE --pilot DIR --measure M --difference D``."""
 
 from __future__ import annotations
 
@@ -65,6 +66,26 @@ def add_study_commands(sub) -> None:
     export.add_argument("--replays-dir", type=Path, help="the study's replays folder (default: recordings/STUDY_ID)")
     add_database_arguments(export)
     export.set_defaults(func=cmd_export)
+    power = commands.add_parser(
+        "power", help="the participants an arm needs for a given power, from a pilot export's spread",
+        description="How many participants an arm of the study needs to find a difference of --difference on "
+                    "--measure between the levels of --factor, with the study's design (within participants: a paired "
+                    "t-test on each participant's difference; between: a two-sample t-test), from the spread in a "
+                    "pilot's export (statsmodels' power functions). Example: colorgrid study power "
+                    "studies/human_follower.toml --pilot pilot_data --measure stated_accuracy --difference 0.05")
+    power.add_argument("study_file", type=study_path, help="the study file (or its shipped name)")
+    power.add_argument("--pilot", type=Path, required=True, metavar="EXPORT_DIR",
+                       help="a pilot's export (the folder `colorgrid study export --out` wrote)")
+    power.add_argument("--measure", required=True, help="a numeric column of the trials table (stated_accuracy, "
+                                                        "probe_brier, follower_net_pickups, ...)")
+    power.add_argument("--difference", type=float, required=True,
+                       help="the smallest difference between the levels worth finding, in the measure's units")
+    power.add_argument("--factor", help="the factor whose levels are compared (default: the study's first factor of "
+                                        "two levels or more)")
+    power.add_argument("--power", type=float, default=0.8, help="the power wanted (default 0.8)")
+    power.add_argument("--alpha", type=float, default=0.05, help="the two-sided significance level (default 0.05)")
+    power.add_argument("--json", type=Path, help="also write the figures as JSON")
+    power.set_defaults(func=cmd_power)
 
 
 def cmd_run(args: argparse.Namespace) -> int:
@@ -93,6 +114,21 @@ def cmd_run(args: argparse.Namespace) -> int:
               flush=True)
 
     return serve_or_launch(args, settings, folder, announce, setup)
+
+
+def cmd_power(args: argparse.Namespace) -> int:
+    import json
+
+    from server.study.power import Comparison, format_power, read_trials, sample_size
+
+    study = load_study(args.study_file)
+    comparison = Comparison(args.measure, args.difference, args.factor, args.power, args.alpha)
+    report = sample_size(study, read_trials(args.pilot), comparison)
+    print(format_power(report), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(report, indent=2, default=str))
+        print(f"wrote {args.json}")
+    return 0
 
 
 def cmd_export(args: argparse.Namespace) -> int:

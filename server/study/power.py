@@ -1,0 +1,182 @@
+"""``colorgrid study power``: how many participants an arm of a study needs, from a pilot's spread.
+
+A study compares the levels of a factor (``leader = ["astar", "person:..."]``) on a measure of its ``trials`` table
+(``stated_accuracy``, ``follower_net_pickups``, ...). Given the smallest difference worth finding on that measure, the
+pilot export's spread gives the effect size, and statsmodels' power functions the sample size, for the study's design:
+
+- **within participants** (``design.assignment = "within"``: every participant meets every condition): each
+  participant's difference between the two levels (their mean over the trials at one level minus their mean at the
+  other), the paired t-test (``TTestPower``) on ``d_z = difference / sd(differences)``. The participants needed are
+  spread over the arms (the orders), so that each order is used equally often: a multiple of the number of arms.
+- **between participants**: each participant's mean at their one level, the two-sample t-test (``TTestIndPower``,
+  equal groups) on Cohen's ``d = difference / pooled sd``; each level's group is spread over the arms (conditions)
+  that have that level.
+
+Both are two-sided at level ``alpha``. A factor of more than two levels is taken pair by pair; the study needs what
+its hardest pair needs. A pilot is a handful of participants: its spread is itself uncertain, and the numbers it gives
+are a plan, not a guarantee.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from colorgrid.enums import GameKind
+from colorgrid.extras import require
+from server.study.assign import arms
+from server.study.config import Study
+from server.study.schema import export_schema
+
+NUMERIC = ("int64", "Int64", "float64")
+"""The declared column types a measure may have."""
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """What a sample size is for: a factor's two levels, compared on a measure, with the smallest difference worth
+    finding, at a power and a significance level."""
+
+    measure: str
+    """A numeric column of the export's ``trials`` table (``stated_accuracy``, ``follower_net_pickups``, ...)."""
+    difference: float
+    """The smallest difference between the levels worth finding, in the measure's units (> 0)."""
+    factor: str | None = None
+    """The factor whose levels are compared (default: the study's first factor of two levels or more)."""
+    power: float = 0.8
+    """The chance of finding a true difference of that size (in (0, 1))."""
+    alpha: float = 0.05
+    """The two-sided significance level (in (0, 1))."""
+
+    def __post_init__(self):
+        if not math.isfinite(self.difference) or self.difference <= 0:
+            raise ValueError(f"--difference {self.difference:g} is invalid: a positive number, in the measure's units")
+        for name in ("power", "alpha"):
+            value = getattr(self, name)
+            if not 0 < value < 1:
+                raise ValueError(f"--{name} {value:g} is invalid: a number between 0 and 1")
+
+
+def measures(study: Study) -> list[str]:
+    """The ``trials`` columns a sample size can be computed for: the numeric ones, but the indices and counters of
+    the record (``arm``, ``trial_index``, ``attempt``, ...)."""
+    record = {"arm", "trial_index", "condition_index", "condition_horizon", "condition_tick_hz", "attempt",
+              "page_step"}
+    return [c.name for c in export_schema(study)["trials"].columns if c.type in NUMERIC and c.name not in record]
+
+
+def read_trials(folder: Path) -> pd.DataFrame:
+    """The counted trials (not the practice) of a study's export folder (``colorgrid study export --out``)."""
+    path = Path(folder) / "trials.parquet"
+    if not path.is_file():
+        raise FileNotFoundError(f"--pilot {folder}: no trials.parquet there; give the folder `colorgrid study export "
+                                "--out` wrote")
+    trials = pd.read_parquet(path)
+    return trials[trials.kind == GameKind.TRIAL.value]
+
+
+def factor_levels(study: Study, factor: str | None) -> tuple[str, list]:
+    """The factor compared and its levels, as the study file declares them."""
+    varied = [name for name, levels in study.factors.items() if len(levels) > 1]
+    if factor is None:
+        if not varied:
+            raise ValueError("the study has no factor of two levels or more: there is nothing to compare")
+        factor = varied[0]
+    if factor not in varied:
+        raise ValueError(f"--factor {factor!r} is invalid: a factor of the study with two levels or more, one of "
+                         f"{varied}")
+    return factor, list(study.factors[factor])
+
+
+def sample_size(study: Study, trials: pd.DataFrame, comparison: Comparison) -> dict:
+    """Participants needed, per pair of the factor's levels and for the study (the hardest pair), from the pilot's
+    ``trials`` (module docstring). Raises ``ValueError`` naming what is wrong with the measure, factor or pilot."""
+    require("study", "colorgrid study power", only=("statsmodels",))
+    from statsmodels.stats.power import TTestIndPower, TTestPower
+
+    allowed = measures(study)
+    if comparison.measure not in allowed:
+        raise ValueError(f"--measure {comparison.measure!r} is invalid: a numeric column of the trials table, one "
+                         f"of {allowed}")
+    factor, levels = factor_levels(study, comparison.factor)
+    within = study.design.assignment == "within"
+    column = f"condition_{factor}"
+    for name in (comparison.measure, column, "participant"):
+        if name not in trials.columns:
+            raise ValueError(f"the pilot's trials table has no column {name!r}: export the pilot with this study file "
+                             "(colorgrid study export)")
+    kept = trials[[column, "participant", comparison.measure]].dropna()
+    means = kept.groupby(["participant", column], observed=True)[comparison.measure].mean().unstack(column)
+    num_arms = len(arms(study))
+    pairs = []
+    for a, b in itertools.combinations(levels, 2):
+        if within:
+            both = means.reindex(columns=[a, b]).dropna()
+            spread = _spread(both[a] - both[b], f"{factor} {a!r} - {b!r}, within participants")
+            effect = comparison.difference / spread
+            total = math.ceil(TTestPower().solve_power(effect_size=effect, alpha=comparison.alpha,
+                                                       power=comparison.power, alternative="two-sided"))
+            per_arm = math.ceil(total / num_arms)
+            pairs.append({"levels": [a, b], "pilot_participants": len(both), "sd": spread, "effect_size": effect,
+                          "participants": per_arm * num_arms, "per_arm": per_arm, "needed": total})
+        else:
+            groups = [means[level].dropna() if level in means else pd.Series(dtype=float) for level in (a, b)]
+            sds = [_spread(g, f"{factor} = {level!r}, between participants") for g, level in zip(groups, (a, b))]
+            pooled = math.sqrt(((len(groups[0]) - 1) * sds[0] ** 2 + (len(groups[1]) - 1) * sds[1] ** 2)
+                               / (len(groups[0]) + len(groups[1]) - 2))
+            effect = comparison.difference / pooled
+            group = math.ceil(TTestIndPower().solve_power(effect_size=effect, alpha=comparison.alpha,
+                                                          power=comparison.power, ratio=1.0,
+                                                          alternative="two-sided"))
+            conditions = max(sum(getattr(c, factor) == level for c in study.conditions) for level in (a, b))
+            per_arm = math.ceil(group / conditions)
+            pairs.append({"levels": [a, b], "pilot_participants": int(sum(len(g) for g in groups)), "sd": pooled,
+                          "effect_size": effect, "per_group": group, "per_arm": per_arm,
+                          "participants": per_arm * num_arms, "needed": group})
+    hardest = max(pairs, key=lambda p: p["per_arm"])
+    return {"study": study.id, "design": study.design.assignment, "measure": comparison.measure, "factor": factor,
+            "difference": comparison.difference, "power": comparison.power, "alpha": comparison.alpha,
+            "arms": num_arms, "quota": study.design.quota, "pairs": pairs, "per_arm": hardest["per_arm"],
+            "participants": hardest["participants"]}
+
+
+def _spread(values: pd.Series, what: str) -> float:
+    values = np.asarray(values, dtype=np.float64)
+    if len(values) < 2:
+        raise ValueError(f"the pilot has {len(values)} participant(s) for {what}: a spread needs 2 or more")
+    sd = float(np.std(values, ddof=1))
+    if not sd > 0:
+        raise ValueError(f"the pilot's {len(values)} participants do not vary for {what} (sd 0): no effect size to "
+                         "plan on; pilot more participants or another measure")
+    return sd
+
+
+def format_power(report: dict) -> str:
+    """The sample size in words: per pair of levels, then what an arm of the study needs."""
+    within = report["design"] == "within"
+    lines = [f"{report['study']}: {report['measure']}, {report['factor']}'s levels compared "
+             f"({'within participants: paired t-test' if within else 'between participants: two-sample t-test'}, "
+             f"two-sided, alpha {report['alpha']:g}, power {report['power']:.0%}), to find a difference of "
+             f"{report['difference']:g}"]
+    for pair in report["pairs"]:
+        a, b = pair["levels"]
+        if within:
+            lines.append(f"  {a} vs {b}: sd of the per-participant differences {pair['sd']:.4g} over "
+                         f"{pair['pilot_participants']} pilot participants, d_z {pair['effect_size']:.3f}: "
+                         f"{pair['needed']} participants, {pair['per_arm']} per arm over {report['arms']} arm(s)")
+        else:
+            lines.append(f"  {a} vs {b}: pooled sd {pair['sd']:.4g} over {pair['pilot_participants']} pilot "
+                         f"participants, d {pair['effect_size']:.3f}: {pair['needed']} per level, "
+                         f"{pair['per_arm']} per arm")
+    lines.append(f"an arm needs {report['per_arm']} participants ({report['participants']} in all over "
+                 f"{report['arms']} arm(s))")
+    if report["quota"] is not None:
+        enough = "enough" if report["quota"] >= report["per_arm"] else "too few"
+        lines.append(f"the study's quota is {report['quota']} per arm ({report['quota'] * report['arms']} in all): "
+                     f"{enough}")
+    return "\n".join(lines)

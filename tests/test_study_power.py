@@ -1,0 +1,128 @@
+"""``colorgrid study power``: the participants an arm needs, checked against published tables (Cohen 1988, Table
+2.4.1, for two groups; G*Power's paired t-test for one group of differences), and its bad input in one line."""
+
+import json
+import subprocess
+import sys
+
+import pandas as pd
+import pytest
+
+from server.study.config import load_study
+from server.study.power import Comparison, sample_size
+from tests.conftest import ROOT
+
+WITHIN = ROOT / "studies" / "human_follower.toml"
+BETWEEN = """
+id = "two_followers"
+title = "Two followers"
+[factors]
+follower = ["copy", "bayes"]
+[defaults]
+mode = "turn"
+horizon = 3
+[design]
+assignment = "between"
+
+[[pages]]
+kind = "trials"
+"""
+LEADERS = ["astar", "person:slip=0.1,notice_delay=3"]
+
+
+def write_pilot(folder, rows: list[dict]):
+    folder.mkdir(parents=True, exist_ok=True)
+    pd.DataFrame(rows).to_parquet(folder / "trials.parquet")
+    return folder
+
+
+def within_pilot(folder):
+    """Six participants, each playing both leaders twice (and a practice game, not counted): their differences
+    between the leaders are 0.1, 0.3, 0.2, 0.0, 0.4 and 0.2 (sd 0.1414...)."""
+    rows = []
+    for i, diff in enumerate([0.1, 0.3, 0.2, 0.0, 0.4, 0.2]):
+        pid = f"p{i}"
+        rows.append({"participant": pid, "kind": "practice", "condition_leader": "astar", "stated_accuracy": 0.0})
+        for base in (0.5, 0.7):  # two trials a level: the participant's mean at each level is taken
+            rows.append({"participant": pid, "kind": "trial", "condition_leader": LEADERS[0],
+                         "stated_accuracy": base + diff, "probe_brier": None})  # no probes: no Brier score
+            rows.append({"participant": pid, "kind": "trial", "condition_leader": LEADERS[1], "stated_accuracy": base,
+                         "probe_brier": None})
+    return write_pilot(folder, rows)
+
+
+def between_pilot(folder):
+    rows = [{"participant": f"c{i}", "kind": "trial", "condition_follower": "copy", "follower_net_pickups": v}
+            for i, v in enumerate([1.0, 3.0, 2.0, 6.0])]
+    rows += [{"participant": f"b{i}", "kind": "trial", "condition_follower": "bayes", "follower_net_pickups": v}
+             for i, v in enumerate([5.0, 7.0, 4.0, 8.0])]
+    return write_pilot(folder, rows)
+
+
+@pytest.mark.parametrize("d, per_group", [(0.5, 64), (0.8, 26)])  # Cohen's 393 for d 0.2 is the normal
+# approximation's; the exact t-test (statsmodels, G*Power) gives 394 there, and agrees with his table here
+def test_between_participants_an_arm_needs_cohens_two_group_sample_size(d, per_group, tmp_path):
+    path = tmp_path / "between.toml"
+    path.write_text(BETWEEN)
+    study = load_study(path)
+    trials = pd.read_parquet(between_pilot(tmp_path / "pilot") / "trials.parquet")
+    pooled = ((trials.groupby("condition_follower").follower_net_pickups.var(ddof=1)).mean()) ** 0.5  # equal groups
+    report = sample_size(study, trials, Comparison("follower_net_pickups", d * pooled))
+    (pair,) = report["pairs"]
+    assert pair["effect_size"] == pytest.approx(d) and pair["sd"] == pytest.approx(pooled)
+    assert pair["per_group"] == per_group and report["per_arm"] == per_group  # one condition a level: an arm
+    assert report["participants"] == 2 * per_group
+
+
+def test_within_participants_the_paired_test_gives_g_powers_34_for_dz_one_half(tmp_path):
+    study = load_study(WITHIN)
+    trials = pd.read_parquet(within_pilot(tmp_path / "pilot") / "trials.parquet")
+    trials = trials[trials.kind == "trial"]
+    sd = pd.Series([0.1, 0.3, 0.2, 0.0, 0.4, 0.2]).std(ddof=1)
+    report = sample_size(study, trials, Comparison("stated_accuracy", 0.5 * sd, "leader"))
+    (pair,) = report["pairs"]
+    assert pair["sd"] == pytest.approx(sd) and pair["effect_size"] == pytest.approx(0.5)
+    assert pair["pilot_participants"] == 6 and pair["needed"] == 34  # G*Power, paired t-test, d_z 0.5: N = 34
+    assert report["arms"] == 4 and report["per_arm"] == 9 and report["participants"] == 36  # each order equally often
+
+
+def run(*args):
+    return subprocess.run([sys.executable, "-m", "colorgrid_apps", "study", "power", *map(str, args)],
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_the_command_prints_what_an_arm_needs_and_writes_json(tmp_path):
+    pilot = within_pilot(tmp_path / "pilot")
+    done = run(WITHIN, "--pilot", pilot, "--measure", "stated_accuracy", "--difference", 0.0707106781,
+               "--json", tmp_path / "power.json")
+    assert done.returncode == 0, done.stderr
+    assert "within participants: paired t-test" in done.stdout and "d_z 0.500" in done.stdout
+    assert "an arm needs 9 participants (36 in all over 4 arm(s))" in done.stdout
+    assert "the study's quota is 12 per arm (48 in all): enough" in done.stdout
+    report = json.loads((tmp_path / "power.json").read_text())
+    assert report["factor"] == "leader" and report["pairs"][0]["needed"] == 34
+
+
+@pytest.mark.parametrize("args, words", [
+    (["--measure", "stated_acuracy", "--difference", "0.1"], "--measure 'stated_acuracy' is invalid: a numeric column"),
+    (["--measure", "stated_accuracy", "--difference", "-0.1"], "--difference -0.1 is invalid: a positive number"),
+    (["--measure", "stated_accuracy", "--difference", "a lot"], "argument --difference: invalid float value"),
+    (["--measure", "stated_accuracy", "--difference", "0.1", "--power", "80"], "--power 80 is invalid"),
+    (["--measure", "stated_accuracy", "--difference", "0.1", "--factor", "preset"], "--factor 'preset' is invalid"),
+    (["--measure", "probe_brier", "--difference", "0.1"], "the pilot has 0 participant(s) for leader"),
+    (["--measure", "follower_net_pickups", "--difference", "1"], "the pilot's trials table has no column"),
+])
+def test_bad_input_is_one_line_and_exit_code_2(args, words, tmp_path):
+    done = run(WITHIN, "--pilot", within_pilot(tmp_path / "pilot"), *args)
+    assert done.returncode == 2 and done.stdout == "", done
+    assert len(done.stderr.strip().splitlines()) == 1 and words in done.stderr, done.stderr
+
+
+def test_a_pilot_folder_without_an_export_or_a_single_participant_is_refused_in_one_line(tmp_path):
+    done = run(WITHIN, "--pilot", tmp_path / "nowhere", "--measure", "stated_accuracy", "--difference", "0.1")
+    assert done.returncode == 2 and "no trials.parquet there" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1
+    one = write_pilot(tmp_path / "one", [{"participant": "p0", "kind": "trial", "condition_leader": level,
+                                          "stated_accuracy": 0.5} for level in LEADERS])
+    done = run(WITHIN, "--pilot", one, "--measure", "stated_accuracy", "--difference", "0.1")
+    assert done.returncode == 2 and "the pilot has 1 participant(s)" in done.stderr, done.stderr
