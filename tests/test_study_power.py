@@ -4,13 +4,16 @@
 import json
 import subprocess
 import sys
+import tomllib
 
 import pandas as pd
 import pytest
 
 from server.study.config import load_study
 from server.study.power import Comparison, sample_size
-from tests.conftest import ROOT
+from tests.conftest import ROOT, start_server, stop_server
+from tests.test_examples import example
+from tests.test_study import TOKEN, toml
 
 WITHIN = ROOT / "studies" / "human_follower.toml"
 BETWEEN = """
@@ -126,3 +129,36 @@ def test_a_pilot_folder_without_an_export_or_a_single_participant_is_refused_in_
                                           "stated_accuracy": 0.5} for level in LEADERS])
     done = run(WITHIN, "--pilot", one, "--measure", "stated_accuracy", "--difference", "0.1")
     assert done.returncode == 2 and "the pilot has 1 participant(s)" in done.stderr, done.stderr
+
+
+def test_the_documented_walk_through_on_the_scripted_stand_ins_export(tmp_path):
+    """docs/STUDIES.md's steps, on short games: the stand-in (a script, not a person) takes part in the study as three
+    participants, the study is exported, and the command plans on that export."""
+    data = tomllib.loads(WITHIN.read_text())
+    data["defaults"]["horizon"] = 20
+    data["factors"]["probes"] = ["none", "steps:5"]
+    for page in data["pages"]:
+        if page["kind"] == "practice":
+            page["game"].update(horizon=5, probes="steps:2")
+    path = tmp_path / "human_follower.toml"
+    path.write_text(toml(data))
+    server = start_server(tmp_path, command=("study", "run", str(path)), env={"COLORGRID_ADMIN_TOKEN": TOKEN})
+    try:
+        stand_in = example("scripted_assistant")
+        assert [stand_in.take_part(server.ws_url, f"stand-in-{i}") for i in range(3)] == [5, 5, 5]
+    finally:
+        stop_server(server)
+    out = tmp_path / "stand_in_data"
+    done = subprocess.run([sys.executable, "-m", "colorgrid_apps", "study", "export", str(path), "--replays-dir",
+                           str(server.replays_dir), "--out", str(out)], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr
+    trials = pd.read_parquet(out / "trials.parquet")
+    assert (trials.kind == "trial").sum() == 12 and trials.participant.nunique() == 3
+    done = run(path, "--pilot", out, "--measure", "team_score", "--difference", 2, "--json", tmp_path / "p.json")
+    assert done.returncode == 0, done.stderr
+    report = json.loads((tmp_path / "p.json").read_text())
+    (pair,) = report["pairs"]
+    mine = trials[trials.kind == "trial"].groupby(["participant", "condition_leader"], observed=True).team_score.mean()
+    differences = mine.unstack()[LEADERS[0]] - mine.unstack()[LEADERS[1]]
+    assert pair["pilot_participants"] == 3 and pair["sd"] == pytest.approx(differences.std(ddof=1))
+    assert f"an arm needs {report['per_arm']} participants" in done.stdout and report["per_arm"] >= 1
