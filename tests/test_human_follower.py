@@ -178,7 +178,8 @@ def test_rescore_reports_practice_and_goal_shown_games_apart_never_pooled_with_t
     assert [g["game"].rsplit("/", 1)[1] for g in report["games"]] == ["hidden.replay.json"]
     apart = report["set_apart"]
     assert set(apart) == {"practice", "goal_shown"}
-    assert apart["practice"]["measures"]["person"]["games"] == 2 and apart["goal_shown"]["measures"]["person"]["games"] == 1
+    assert apart["practice"]["measures"]["person"]["games"] == 2
+    assert apart["goal_shown"]["measures"]["person"]["games"] == 1
     assert apart["practice"]["measures"]["person"]["probe_accuracy"] == 1.0
     text = done.stdout
     assert "1 recorded game(s) with a person in the follower seat, the goal hidden" in text
