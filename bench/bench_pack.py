@@ -24,10 +24,19 @@ from bench_train import flops_per_env_step, matmul_rate, measure  # noqa: E402
 from common import machine  # noqa: E402
 
 
-def one(args: tuple[int, int, int, int]) -> float:
-    """One process's pack of ``K`` trials at ``T`` threads (seeds offset by the process): its env-steps/s."""
-    pack, threads, iterations, _ = args
-    return measure("fast", iterations, threads, "cpu", 16, pack)["sps"]
+_BARRIER = None
+"""The layout's processes meet here after their warm-up (``share_barrier``), so that they are measured together."""
+
+
+def share_barrier(barrier) -> None:
+    global _BARRIER
+    _BARRIER = barrier
+
+
+def one(args: tuple[int, int, int]) -> float:
+    """One process's pack of ``K`` trials at ``T`` threads: its env-steps/s while the layout's others run."""
+    pack, threads, iterations = args
+    return measure("fast", iterations, threads, "cpu", 16, pack, after_warmup=_BARRIER.wait)["sps"]
 
 
 def layout(text: str) -> tuple[int, int, int]:
@@ -50,8 +59,9 @@ def main() -> None:
     for _ in range(args.repeats):
         for processes, pack, threads in args.layouts:
             # (not a multiprocessing.Pool: its daemonic workers may not fork a learner's update process)
-            with ProcessPoolExecutor(processes, mp_context=context) as pool:
-                rates = list(pool.map(one, [(pack, threads, args.iterations, p) for p in range(processes)]))
+            with ProcessPoolExecutor(processes, mp_context=context, initializer=share_barrier,
+                                     initargs=(context.Barrier(processes),)) as pool:
+                rates = list(pool.map(one, [(pack, threads, args.iterations)] * processes))
             runs[processes, pack, threads].append(sum(rates))
     print(f"{'processes':>9} {'pack':>4} {'threads':>7} {'env-steps/s (runs)':>40} {'median':>8} {'share':>6}")
     for (processes, pack, threads), rates in runs.items():

@@ -27,6 +27,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Callable
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from common import machine  # noqa: E402
@@ -57,7 +58,7 @@ def setup_config(name: str, num_envs: int, **settings) -> dict:
 
 
 def measure(name: str, iterations: int, threads: int, device: str, num_envs: int = 16, pack: int = 1,
-            mode: str = "auto") -> dict:
+            mode: str = "auto", after_warmup: Callable[[], object] | None = None) -> dict:
     """Median figures of ``iterations`` PPO iterations (after one warm-up) of setup ``name``: one trial, or a pack
     of ``pack`` trials (seeds 0..pack-1) trained as one, whose env-steps/s count every trial's steps."""
     configs = [from_dict(setup_config(name, num_envs, threads=threads, device=device, eval_every=0,
@@ -73,6 +74,8 @@ def measure(name: str, iterations: int, threads: int, device: str, num_envs: int
         for i in range(iterations + 1):
             c, w = cpu_seconds(), time.perf_counter()
             rows = together.train_iteration()
+            if i == 0 and after_warmup is not None:
+                after_warmup()
             if i:  # the first iteration warms caches and allocators
                 walls.append(time.perf_counter() - w)
                 cpus.append(cpu_seconds() - c)

@@ -23,9 +23,12 @@ TRIALS = {
     "seed 0": {"seed": 0},
     "seed 1, kappa 0, annealed": {"seed": 1, "follower": {"aux_coef": 0.0},
                                   "schedule": {"penalty_start": 0, "penalty_end": 128}},
-    "seed 2, lr, target KL, own reward": {"seed": 2, "ppo": {"lr": 3e-4, "target_kl": 1e-9},
-                                          "follower": {"train_reward": "own", "wrong_weight": 2.0}},
-    "seed 3, beside A*, fewer steps": {"seed": 3, "leader": {"policy": "astar"}, "total_steps": 2 * 64},
+    "seed 2, lr, target KL, own reward, PPO's values": {
+        "seed": 2, "follower": {"train_reward": "own", "wrong_weight": 2.0},
+        "ppo": {"lr": 3e-4, "target_kl": 1e-9, "gamma": 0.97, "gae_lambda": 0.9, "clip_coef": 0.1, "ent_coef": 0.02,
+                "vf_coef": 0.4, "max_grad_norm": 1.0}},
+    "seed 3, beside A*, a teacher's belief, fewer steps": {"seed": 3, "leader": {"policy": "astar"},
+                                                            "follower": {"aux_target": "bayes"}, "total_steps": 2 * 64},
     "seed 4, a memory": {"seed": 4, "follower": {"net": {"lstm": True, "extra_inputs": True}}},
     "seed 5, a memory, kappa 0": {"seed": 5, "follower": {"net": {"lstm": True, "extra_inputs": True},
                                                           "aux_coef": 0.0}},
@@ -138,8 +141,8 @@ def test_a_packed_run_stopped_and_resumed_continues_bit_for_bit(tmp_path, mode):
 
 
 def test_trials_of_other_shapes_cannot_share_a_pack(tmp_path):
-    with pytest.raises(ValueError, match=r"^trial 1 \(seed 1\) cannot share a pack with trial 0 \(seed 0\): .*"
-                                         r"num_envs"):
+    with pytest.raises(ValueError, match=r"^trial 1 of the pack has ppo.num_envs=8 where trial 0 has 4: a pack's "
+                                         r"trials share"):
         Pack([trainer(tmp_path / "a", {"seed": 0}), trainer(tmp_path / "b", {"seed": 1, "ppo": {"num_envs": 8}})])
 
 
@@ -161,7 +164,7 @@ def test_cli_trains_seeds_as_one_pack_and_resumes_them(tmp_path):
     assert resumed.returncode == 0, resumed.stderr
     assert f"resuming {run} at step 64, 64, 64" in resumed.stdout
     assert resumed.stdout.count("done at step 128") == 3
-    for text in ("3-1", "a,b", "-2"):
+    for text in ("3-1", "a,b", "-2", "", "0-99999"):
         bad = subprocess.run([*cli, "--seeds", text, "--print-config"], capture_output=True, text=True, timeout=120)
         assert bad.returncode == 2
         assert bad.stderr.strip().splitlines() == [

@@ -79,7 +79,7 @@ def test_tiny_sweep_writes_tables_and_report(tmp_path):
 
 
 def test_a_packed_sweep_on_ray_keeps_what_an_unpacked_one_does(tmp_path, capsys):
-    """``[resources] pack = 3`` on Ray Tune: two Tune trials train the four trials (a pack of three, a pack of one),
+    """``[resources] pack = 3`` on Ray Tune: two Tune trials train the four trials (two packs of two),
     each trial in a folder of its own with a checkpoint; the tables are those of the trials trained alone."""
     params = '[params]\n"ppo.lr" = [1e-4, 1e-3]'
     alone = sweep_file(tmp_path, "alone", params)
@@ -88,7 +88,8 @@ def test_a_packed_sweep_on_ray_keeps_what_an_unpacked_one_does(tmp_path, capsys)
     capsys.readouterr()
     assert run_sweep(load_sweep(packed, out=tmp_path / "p")) == 0
     out = capsys.readouterr().out
-    assert "ended [pack of 3: ppo.lr=0.0001, seed=0; ppo.lr=0.001, seed=0; ppo.lr=0.0001, seed=1]" in out, out
+    assert "ended [pack of 2: ppo.lr=0.0001, seed=0; ppo.lr=0.001, seed=0]" in out, out
+    assert "ended [pack of 2: ppo.lr=0.0001, seed=1; ppo.lr=0.001, seed=1]" in out, out
     assert "4 of 4 trials ran to the end" in out, out
     trials_a, curves_a = read_tables(tmp_path / "a")
     trials_p, curves_p = read_tables(tmp_path / "p")
@@ -100,6 +101,9 @@ def test_a_packed_sweep_on_ray_keeps_what_an_unpacked_one_does(tmp_path, capsys)
     for trial in trials_p["trial"]:  # each trial's own folder, run and checkpoint, beside its pack's Tune trial
         assert (tmp_path / "p" / trial / "run" / "checkpoints" / "latest.pt").exists()
         assert "pack" not in json.loads((tmp_path / "p" / trial / "params.json").read_text())
+    mine = curves_p.sort_values("step")  # the node and threads of each step, as an unpacked Ray trial's
+    assert (mine["torch_threads"] == 1).all() and (mine["numba_threads"] == 1).all()
+    assert (trials_p["node"].str.len() > 10).all()
     with pytest.raises(ValueError, match=r"^\[resources\] pack = 3 with \[scheduler\] kind = 'asha': "):
         run_sweep(load_sweep(sweep_file(tmp_path, "asha", params, tables="pack = 3\n[scheduler]\nkind = 'asha'"),
                              out=tmp_path / "asha"))

@@ -143,7 +143,7 @@ def test_stop_after_ends_every_trial_and_starts_no_other(tmp_path):
 
 
 def test_a_packed_sweep_keeps_what_an_unpacked_one_does(tmp_path):
-    """``[resources] pack = 3``: the four trials train as a pack of three and a pack of one, in two processes, and
+    """``[resources] pack = 3``: the four trials train as two packs of two, in two processes, and
     the tables hold every figure the same as when each trial trains alone (bit for bit on a CPU)."""
     (tmp_path / "alone").mkdir()
     (tmp_path / "packed").mkdir()

@@ -36,7 +36,7 @@ from train.checkpoint import agent_entry, save_checkpoint
 from train.config import DEVICES, NetConfig
 from train.inputs import step_tensors
 from train.nets import ActorCritic
-from train.trainer import device_name, pick_device
+from train.placement import device_name, pick_device
 
 SHAPE_FIELDS = ("height", "width", "num_colors", "allow_stay")
 """The ``EnvConfig`` fields a network's input and output shapes depend on: one run's episodes must agree."""

@@ -107,6 +107,10 @@ def resumed_config(run_dir: Path, overrides: list[str]) -> TrainConfig:
         raise ValueError(f"{saved}{' with the --set overrides' if overrides else ''}: {err}") from None
 
 
+MAX_SEEDS = 4096
+"""The most seeds ``--seeds`` trains as one pack (as a sweep's ``[resources] pack``)."""
+
+
 def parse_seeds(text: str) -> list[int]:
     """``--seeds``: ``0-7``, ``0,3,5`` or ``0-3,8`` as a sorted list of distinct seeds."""
     seeds = set()
@@ -116,10 +120,12 @@ def parse_seeds(text: str) -> list[int]:
             first, last = int(low), int(high if dash else low)
         except ValueError:
             first, last = 0, -1
-        if not 0 <= first <= last:
+        if not 0 <= first <= last or last - first >= MAX_SEEDS:
             raise ValueError(f"--seeds {text!r}: give seeds as a range 0-7, a list 0,3,5, or both 0-3,8 (whole "
                              f"numbers >= 0, each range low-high with low <= high)")
         seeds.update(range(first, last + 1))
+    if len(seeds) > MAX_SEEDS:
+        raise ValueError(f"--seeds {text!r} names {len(seeds)} seeds; a pack trains at most {MAX_SEEDS}")
     return sorted(seeds)
 
 
@@ -132,7 +138,7 @@ def seed_runs(run_dir: Path) -> list[Path]:
 def cmd_train(args: argparse.Namespace) -> int:
     if args.resume:
         run_dir = Path(args.resume)
-        if args.seeds:
+        if args.seeds is not None:
             raise ValueError("--seeds starts runs; --resume continues them with the seeds they were started with: "
                              "give one or the other")
         runs = seed_runs(run_dir) or [run_dir]
@@ -140,7 +146,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     else:
         config = resolve_config(args)
         run_dir = Path(args.out or f"runs/{Path(args.preset).stem}-{time.strftime('%Y%m%d-%H%M%S')}")
-        if args.seeds:
+        if args.seeds is not None:
             seeds = parse_seeds(args.seeds)
             configs = [resolve(config.to_dict(), overrides=[f"seed={seed}"]) for seed in seeds]
             runs = [run_dir / f"seed_{seed}" for seed in seeds]

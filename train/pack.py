@@ -36,9 +36,41 @@ from contextlib import ExitStack, suppress
 from pathlib import Path
 from typing import Callable
 
+from typing import Generator, Protocol
+
+import torch
+
+from train.config import TrainConfig
+from train.learner import Learner
+from train.metrics import MetricsLog
 from train.packing import check_packable
-from train.placement import Placement
-from train.trainer import Trainer
+from train.placement import PACK_MODES, Placement
+
+
+class Trainer(Protocol):
+    """What a pack trains: a ``train.trainer.Trainer`` (named here by what the pack asks of it, so that the trainer
+    may run itself as a pack of one without an import circle)."""
+
+    config: TrainConfig
+    learners: dict[int, Learner]
+    placement: Placement
+    run_dir: Path
+    device: torch.device
+    progress: bool
+    step: int
+    log: MetricsLog | None
+
+    @property
+    def finished(self) -> bool: ...
+    def start(self) -> None: ...
+    def begin_iteration(self) -> None: ...
+    def rollout(self) -> Generator[Callable[[Learner], dict], dict, tuple[dict, dict]]: ...
+    def collect_rollout(self) -> tuple[dict, dict]: ...
+    def update_inputs(self) -> dict[int, dict]: ...
+    def end_iteration(self, episodes: dict, accuracy: dict, results: dict[int, dict], t0: float, t1: float,
+                      t2: float) -> dict: ...
+    def after_iteration(self, row: dict, stopping: bool) -> Path | None: ...
+    def close(self) -> None: ...
 
 
 class Pack:
@@ -48,6 +80,8 @@ class Pack:
         """``mode``: how the learners of a pack of two or more act and update (``train.placement.PACK_MODES``)."""
         if not trainers:
             raise ValueError("a pack needs at least one trial")
+        if mode not in PACK_MODES:
+            raise ValueError(f"pack mode {mode!r}: one of {', '.join(PACK_MODES)}")
         check_packable([t.config for t in trainers])
         self.trainers, self.mode = trainers, mode
         self._placement: Placement | None = None
@@ -62,6 +96,8 @@ class Pack:
         if members != self._members:
             if self._placement is not None:
                 self._placement.close()
+            for k in members:  # (a trial's own threads and processes end, its optimizers' states brought back)
+                self.trainers[k].placement.close()
             first = self.trainers[members[0]]
             learners = {(k, i): lr for k in members for i, lr in self.trainers[k].learners.items()}
             self._placement, self._members = Placement(learners, first.device, False, packed=True,
@@ -149,13 +185,16 @@ class Pack:
         outcomes: list = [None] * len(members)
         with placement.acting() as act:
             asks = [next(r) for r in rollouts]
-            while outcomes[0] is None:
+            while any(outcome is None for outcome in outcomes):
                 acted = act(lambda lr: asks[owner[id(lr)]](lr))
                 for n, (k, rollout) in enumerate(zip(members, rollouts)):
                     try:
                         asks[n] = rollout.send({i: acted[(k, i)] for i in self.trainers[k].learners})
                     except StopIteration as done:
                         outcomes[n] = done.value
+                    except Exception as error:
+                        error.add_note(f"in the pack's trial {k} ({self.trainers[k].run_dir})")
+                        raise
         return outcomes
 
     def close(self) -> None:

@@ -1,7 +1,7 @@
 """Where the learners run: one after the other, side by side on threads, their updates in forked processes, or
 their acting through one stacked batch. The trainer says *what* runs; a ``Placement`` decides *where*.
 
-A ``Placement`` serves one trainer's learners for the whole run:
+A ``Placement`` serves one trainer's learners for the whole run (or a pack's: below):
 
 - ``acting()``: for one rollout, a function that makes every learner act on its inputs
   (``act(inputs_of) -> {key: (actions, goal_probs)}``), on threads (``side_by_side``), or through
@@ -11,7 +11,7 @@ A ``Placement`` serves one trainer's learners for the whole run:
 - ``sync_optimizers()``: each learner's optimizer state brought back from the process it updates in
   (for a checkpoint); ``close()``: the threads and processes ended (the next update starts them again).
 
-Every placement gives the same results bit for bit: the learners share nothing (own model, optimizer,
+Every placement of one trainer gives the same results bit for bit: the learners share nothing (own model, optimizer,
 buffers, random generator), and each one's work runs at one torch thread count whatever runs beside it
 (``tests/test_train.py`` checks; docs/TRAINING.md).
 
@@ -19,7 +19,8 @@ A pack of trials (``train.pack``) has one ``packed`` placement over all its tria
 ``(trial, learner key)``: each group of learners whose networks stack acts as one ``StackedActing``, and
 the learners update each at one thread spread over the threads (a CPU) or, grouped by network, as one
 batched program (``train.packed_update``; a GPU). On a CPU a trial in a pack computes what it computes
-alone, bit for bit, when its learners act stacked alone too (``tests/test_pack.py``).
+alone, bit for bit, when its learners act stacked and update at one thread alone too; with ``vmap``, to
+float rounding (``tests/test_pack.py``; docs/TRAINING.md).
 """
 
 from __future__ import annotations
@@ -47,6 +48,23 @@ PACK_MODES = {"auto": "stacked on a CPU, vmap on any other device",
 """How a pack's learners act and update (``Placement(pack_mode=...)``, ``Pack(mode=...)``)."""
 Acted = dict[Hashable, tuple[np.ndarray, np.ndarray]]
 """Each learner's sampled actions ``[rows]`` and goal probabilities ``[rows, C]``, by learner key."""
+
+
+def pick_device(name: str) -> torch.device:
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if name == "cuda" and not torch.cuda.is_available():
+        raise ValueError("device='cuda' but no CUDA device is available; use 'auto' or 'cpu'")
+    return torch.device(name)
+
+
+def device_name(device: torch.device) -> str:
+    """What trained: the GPU's name, or the CPU's with its thread count."""
+    if device.type == "cuda":
+        return torch.cuda.get_device_name(device)
+    from colorgrid.machine import cpu_name
+
+    return f"{cpu_name()} ({torch.get_num_threads()} torch threads)"
 
 
 def side_by_side(learners: dict[int, Learner], work: Callable[[Learner], R],

@@ -32,26 +32,9 @@ from train.learner import Learner
 from train.memory import keep_freed_memory
 from train.metrics import MetricsLog, episode_columns, evaluation_row
 from train.nets import ActorCritic
-from train.placement import Placement
+from train.placement import Placement, device_name, pick_device
 from train.policy import NetPolicy
 from train.warm_start import warm_start
-
-
-def pick_device(name: str) -> torch.device:
-    if name == "auto":
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if name == "cuda" and not torch.cuda.is_available():
-        raise ValueError("device='cuda' but no CUDA device is available; use 'auto' or 'cpu'")
-    return torch.device(name)
-
-
-def device_name(device: torch.device) -> str:
-    """What trained: the GPU's name, or the CPU's with its thread count."""
-    if device.type == "cuda":
-        return torch.cuda.get_device_name(device)
-    from colorgrid.machine import cpu_name
-
-    return f"{cpu_name()} ({torch.get_num_threads()} torch threads)"
 
 
 class Trainer:

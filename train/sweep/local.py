@@ -69,7 +69,7 @@ def run_local(spec: SweepSpec, processes: int, stop_after: float | None = None) 
     kept = committed_keys(spec, folder)
     todo, skipped = [], 0
     for params in grid(spec):
-        if (spec.label(spec.values(params)), int(params["seed"])) in kept:
+        if spec.key(params) in kept:
             skipped += 1
         elif not finished(spec, folder / local_name(spec, params), params):
             todo.append(params)
@@ -167,27 +167,15 @@ def run_pack(folder: str, pack: list[dict], deadline: float | None, waited: bool
     if waited and ((_STOP is not None and _STOP.is_set()) or (deadline is not None and time.time() >= deadline)):
         return
     from train.pack import Pack
-    from train.sweep.trial import limit_threads, trial_config
-    from train.trainer import Trainer
+    from train.sweep.trial import trial_trainer
 
     asked = []
     signal.signal(signal.SIGTERM, lambda *_: asked.append(True))
     spec = load_folder(Path(folder))
     workdir = Path(folder) / WORKDIR_FILE
     os.chdir(workdir.read_text().strip())  # paths in the sweep file read as where it was started
-    trainers, labels = [], []
-    for params in pack:
-        trial_dir = Path(folder) / local_name(spec, params)
-        trial_dir.mkdir(exist_ok=True)
-        (trial_dir / "params.json").write_text(json.dumps(params))
-        config = trial_config(spec, params)
-        limit_threads(config.threads)
-        trainer = Trainer(config, trial_dir / RUN_FOLDER, progress=False, tensorboard=False, keep_steps=False)
-        latest = trial_dir / RUN_FOLDER / "checkpoints" / "latest.pt"
-        if latest.exists():
-            trainer.restore(latest)
-        trainers.append(trainer)
-        labels.append(f"trial [{spec.label(spec.values(params))}, seed={params['seed']}]")
+    trainers = [trial_trainer(spec, params, Path(folder) / local_name(spec, params)) for params in pack]
+    labels = [f"trial [{spec.label(spec.values(params))}, seed={params['seed']}]" for params in pack]
     last_line = [0.0] * len(pack)
 
     def report(done: dict[int, tuple[dict, Path | None]]) -> None:

@@ -116,7 +116,7 @@ def committed(spec: SweepSpec, folder: Path | None = None) -> tuple[pd.DataFrame
 
 def trial_keys(spec: SweepSpec) -> set[tuple[str, int]]:
     """(configuration, seed) of every trial the sweep file gives (the random parameters' draws included)."""
-    return {(spec.label(spec.values(params)), int(params["seed"])) for params in grid(spec)}
+    return {spec.key(params) for params in grid(spec)}
 
 
 def committed_keys(spec: SweepSpec, folder: Path | None = None) -> set[tuple[str, int]]:

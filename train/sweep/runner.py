@@ -118,8 +118,9 @@ def param_space(spec: SweepSpec, kept: frozenset = frozenset()) -> dict:
     With ``[resources] pack`` above 1, the one axis is the packs (``pack``): the trials not ``kept``, in packs
     of trials whose shapes agree (``train.sweep.local.trial_packs``), each a Tune trial."""
     if spec.resources.pack > 1:
-        todo = [params for params in grid(spec) if (spec.label(spec.values(params)), int(params["seed"])) not in kept]
-        return {PACK: tune.grid_search(trial_packs(spec, todo))}
+        packs = trial_packs(spec, [params for params in grid(spec) if spec.key(params) not in kept])
+        if packs:  # (every trial kept: the grid below, whose trials end at once as kept)
+            return {PACK: tune.grid_search(packs)}
     space = {"seed": tune.grid_search(list(spec.all_seeds))}
     for param in spec.params:
         if not param.random:
@@ -228,7 +229,7 @@ def finish(tuner, spec: SweepSpec, folder: Path) -> int:
 
     grid = tuner.fit()
     trials, _ = collect(folder)
-    ended = ended_trials(folder, spec) + (len(trial_keys_kept(spec, folder)) if spec.resources.pack > 1 else 0)
+    ended = ended_trials(folder, spec)
     done = int(trials["finished"].sum()) if len(trials) else 0
     early = ended - done - grid.num_errors  # ended on disk without reaching the end: the scheduler stopped them
     print(f"sweep {folder.name}: {done} of {spec.num_trials()} trials ran to the end"
@@ -248,17 +249,16 @@ def ended_trials(folder: Path, spec: SweepSpec) -> int:
     """Trials of the sweep that the experiment state saved on disk counts as ended (finished, stopped by the
     scheduler or failed); not Tune's trials of a ``[[more_seeds]]`` seed their configuration does not take, which
     end at once. After Ctrl+C Tune saves the state before it stops the running trials, so those count as not
-    ended there, and ``Tuner.restore`` continues them."""
-    analysis = tune.ExperimentAnalysis(str(folder))
-    return sum(sum(map(spec.wants, t.config[PACK])) if PACK in t.config else spec.wants(t.config)
-               for t in analysis.trials if t.status in ("TERMINATED", "ERROR"))
-
-
-def trial_keys_kept(spec: SweepSpec, folder: Path) -> set:
-    """The sweep's trials its results folder keeps (a packed sweep trains none of them: no Tune trial counts them)."""
+    ended there, and ``Tuner.restore`` continues them. A pack's trials count one by one, with the trials kept in
+    the results folder (a packed sweep makes no Tune trial of them)."""
     from train.sweep.results import committed_keys
 
-    return committed_keys(spec, folder)
+    analysis = tune.ExperimentAnalysis(str(folder))
+    ended = [t.config for t in analysis.trials if t.status in ("TERMINATED", "ERROR")]
+    if not any(PACK in config for config in ended):
+        return sum(map(spec.wants, ended))
+    keys = {spec.key(params) for config in ended for params in config.get(PACK, [config]) if spec.wants(params)}
+    return len(keys | committed_keys(spec, folder))
 
 
 def first_line(error: BaseException) -> str:

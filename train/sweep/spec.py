@@ -159,6 +159,10 @@ class SweepSpec:
         extra = (s for more in self.more_seeds if matches(more.where, values) for s in more.seeds)
         return tuple(dict.fromkeys((*self.seeds, *extra)))
 
+    def key(self, params: dict) -> tuple[str, int]:
+        """What identifies a trial across folders and machines: its configuration's label and its seed."""
+        return self.label(self.values(params)), int(params["seed"])
+
     def wants(self, params: dict) -> bool:
         """Whether the sweep trains this trial (a seed of ``all_seeds`` only some configurations take)."""
         return int(params["seed"]) in self.seeds_for(self.values(params))

@@ -55,7 +55,7 @@ def run_trial(params: dict, spec: SweepSpec, workdir: str, kept: frozenset = fro
     if not spec.wants(params):  # Tune's grid crosses every seed with every configuration; [[more_seeds]] does not
         tune.report({spec.metric: math.nan, "step": 0, "total_steps": 0, "skipped": 1.0})
         return
-    if (spec.label(spec.values(params)), int(params["seed"])) in kept:
+    if spec.key(params) in kept:
         total = config.end_step
         tune.report({spec.metric: math.nan, "step": total, "total_steps": total, "kept": 1.0})
         return
@@ -88,8 +88,9 @@ def run_trial(params: dict, spec: SweepSpec, workdir: str, kept: frozenset = fro
 
 def run_pack_trial(pack: list[dict], spec: SweepSpec, kept: frozenset = frozenset()) -> None:
     """A Tune trial that trains a pack of the sweep's trials as one (``[resources] pack``; ``train.pack``). Each
-    trial of the pack has a folder of its own beside the Tune trial's (``TUNE_TRIAL_k``: its ``params.json`` and
-    run, as an unpacked trial's), so that the tables, reports and kept results read it as any trial; Tune sees the
+    trial of the pack has a folder of its own beside the Tune trial's (``trial_ID_k``: its ``params.json``, run and
+    a ``result.json`` of the node and thread counts, as an unpacked trial's), so that the tables, reports and kept
+    results read it as any trial; Tune sees the
     pack: each report holds the mean of the trials' metric, and its checkpoint every trial's ``latest.pt``
     (``k/latest.pt``), from which a restarted pack continues each trial exactly. A trial kept in the sweep's
     results folder since the pack was made is not trained."""
@@ -98,20 +99,13 @@ def run_pack_trial(pack: list[dict], spec: SweepSpec, kept: frozenset = frozense
 
     from ray import tune
 
+    import ray
+
     from train.pack import Pack
-    from train.trainer import Trainer
 
     base = Path(spec.out) / trial_folder(tune.get_context().get_trial_id())
-    members = {k: params for k, params in enumerate(pack)
-               if (spec.label(spec.values(params)), int(params["seed"])) not in kept}
-    trainers = {}
-    for k, params in members.items():
-        folder = Path(f"{base}_{k}")
-        folder.mkdir(parents=True, exist_ok=True)
-        (folder / "params.json").write_text(json.dumps(params))
-        config = trial_config(spec, params)
-        limit_threads(config.threads)
-        trainers[k] = Trainer(config, folder / RUN_FOLDER, progress=False, tensorboard=False, keep_steps=False)
+    trainers = {k: trial_trainer(spec, params, Path(f"{base}_{k}"), restore=False) for k, params in enumerate(pack)
+                if spec.key(params) not in kept}
     if not trainers:
         tune.report({spec.metric: math.nan, "step": 0, "total_steps": 0, "kept": 1.0})
         return
@@ -124,7 +118,12 @@ def run_pack_trial(pack: list[dict], spec: SweepSpec, kept: frozenset = frozense
     order = list(trainers)  # the pack's trial index -> the pack member's
     threads = thread_counts()
 
+    node = ray.get_runtime_context().get_node_id()
+
     def report(done: dict[int, tuple[dict, Path | None]]) -> None:
+        for k in done:  # what only Tune's reports hold of an unpacked trial, in each trial's own result.json
+            with open(trainers[k].run_dir.parent / "result.json", "a") as log:
+                log.write(json.dumps({"step": trainers[k].step, "node_id": node, **threads}) + "\n")
         values = [row.get(spec.metric, math.nan) for row, _ in done.values()]
         metrics = {spec.metric: float(np.nanmean(values)) if not np.isnan(values).all() else math.nan,
                    "step": min(t.step for t in trainers.values()),
@@ -141,6 +140,22 @@ def run_pack_trial(pack: list[dict], spec: SweepSpec, kept: frozenset = frozense
             tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(folder))
 
     Pack([trainers[k] for k in order]).train(on_iteration=lambda done: report({order[i]: v for i, v in done.items()}))
+
+
+def trial_trainer(spec: SweepSpec, params: dict, folder: Path, restore: bool = True):
+    """The ``Trainer`` of the sweep's trial ``params`` in ``folder`` (made, with its ``params.json``; the trial's
+    threads set), continued from its checkpoint there when ``restore`` and it has one."""
+    from train.trainer import Trainer
+
+    folder.mkdir(parents=True, exist_ok=True)
+    (folder / "params.json").write_text(json.dumps(params))
+    config = trial_config(spec, params)
+    limit_threads(config.threads)
+    trainer = Trainer(config, folder / RUN_FOLDER, progress=False, tensorboard=False, keep_steps=False)
+    latest = folder / RUN_FOLDER / "checkpoints" / "latest.pt"
+    if restore and latest.exists():
+        trainer.restore(latest)
+    return trainer
 
 
 def limit_threads(threads: int) -> None:
