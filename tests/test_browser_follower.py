@@ -128,6 +128,8 @@ def test_a_realtime_game_in_the_follower_seat_asks_without_stopping_the_clock(se
     page.click(".probe-color[data-color='1']")
     page.click("#probe-answer")
     expect(page.locator("#probe")).to_be_hidden()
+    answered = int(board.get_attribute("data-step"))  # the answer is a statement from the next recorded step on
+    page.wait_for_function("s => +document.querySelector('#board').dataset.step >= s", arg=answered + 2)
     page.click("#quit")
     expect(page.locator("#over")).to_be_visible()
     replay = replay_of(page, seat_server)

@@ -9,6 +9,7 @@ import sys
 import pytest
 import torch
 
+from train.cli import main as train_main
 from train.config import from_dict, merge
 from train.pack import Pack
 from train.trainer import Trainer
@@ -164,12 +165,18 @@ def test_cli_trains_seeds_as_one_pack_and_resumes_them(tmp_path):
     assert resumed.returncode == 0, resumed.stderr
     assert f"resuming {run} at step 64, 64, 64" in resumed.stdout
     assert resumed.stdout.count("done at step 128") == 3
-    for text in ("3-1", "a,b", "-2", "", "0-99999"):
-        bad = subprocess.run([*cli, "--seeds", text, "--print-config"], capture_output=True, text=True, timeout=120)
-        assert bad.returncode == 2
-        assert bad.stderr.strip().splitlines() == [
-            f"colorgrid train: error: --seeds {text!r}: give seeds as a range 0-7, a list 0,3,5, or both 0-3,8 "
-            f"(whole numbers >= 0, each range low-high with low <= high)"]
+    bad = subprocess.run([*cli, "--seeds", "3-1", "--print-config"], capture_output=True, text=True, timeout=120)
+    assert bad.returncode == 2 and bad.stderr.strip().splitlines() == [
+        "colorgrid train: error: --seeds '3-1': give seeds as a range 0-7, a list 0,3,5, or both 0-3,8 (whole numbers "
+        ">= 0, each range low-high with low <= high)"]
+
+
+@pytest.mark.parametrize("text", ["3-1", "a,b", "-2", "", "0-99999"])
+def test_bad_seeds_get_one_line_and_exit_code_2(text, capsys):
+    assert train_main(["--seeds", text, "--print-config"]) == 2
+    assert capsys.readouterr().err.strip().splitlines() == [
+        f"colorgrid train: error: --seeds {text!r}: give seeds as a range 0-7, a list 0,3,5, or both 0-3,8 "
+        f"(whole numbers >= 0, each range low-high with low <= high)"]
 
 
 def test_a_pack_of_one_is_the_trainer(tmp_path):
