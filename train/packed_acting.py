@@ -18,7 +18,7 @@ from torch.func import functional_call, vmap
 
 from train.learner import _SIDE, Learner, sample_from
 from train.nets import recurrence_by_steps
-from train.packed_update import can_pack_update
+from train.packed_update import can_pack_update, stacked_weights
 
 
 class PackedActing:
@@ -43,9 +43,7 @@ class PackedActing:
     @torch.no_grad()
     def refresh(self) -> None:
         """Stack the learners' current weights, ``[L, ...]`` each."""
-        self.params = {name: torch.stack([p.detach() for p in group])
-                       for (name, _), group in zip(self.template.named_parameters(),
-                                                   zip(*(lr.parameters for lr in self.learners)))}
+        self.params = stacked_weights(self.learners)
 
     @torch.inference_mode()
     def act(self, inputs: list[dict[str, torch.Tensor]]) -> list[tuple[np.ndarray, np.ndarray]]:

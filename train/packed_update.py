@@ -47,6 +47,13 @@ def can_pack_update(learners: list[Learner]) -> bool:
                     for lr in learners))
 
 
+def stacked_weights(learners: list[Learner]) -> dict[str, torch.Tensor]:
+    """The learners' current weights by parameter name, each ``[L, ...]`` (detached copies, in learner order)."""
+    names = [name for name, _ in learners[0].model.named_parameters()]
+    return {name: torch.stack([p.detach() for p in group])
+            for name, group in zip(names, zip(*(lr.parameters for lr in learners)))}
+
+
 class PackedUpdate:
     """The PPO update of ``learners`` (``can_pack_update``) as one program; see the module docstring."""
 
@@ -155,8 +162,7 @@ class PackedUpdate:
                    ) -> dict[str, torch.Tensor]:
         """One minibatch of every learner in ``learners`` (the active ones, in the order of ``view``'s and ``mb``'s
         first axis): one batched loss, forward and backward, then each one's clip and Adam step."""
-        stacked = {name: torch.stack([p.detach() for p in group]).requires_grad_()
-                   for name, group in zip(self.names, zip(*(lr.parameters for lr in learners)))}
+        stacked = {name: w.requires_grad_() for name, w in stacked_weights(learners).items()}
         loss, stats = self._step(stacked, view, mb, w, state)
         loss.sum().backward()  # the learners share nothing: each one's gradient is its own loss's
         for j, learner in enumerate(learners):
