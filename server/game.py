@@ -81,6 +81,7 @@ class Game:
         self.deadline_misses: list[int] = []
         self.finished = False
         self.replay_id: str | None = None
+        self.stated_record: dict | None = None  # the follower seat, once saved: game_over's `stated`
         self.last_events: list[dict] = []
         self.page_events = CappedLog(MAX_PAGE_EVENTS)  # the pages' focus and visibility changes
 

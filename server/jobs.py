@@ -114,6 +114,27 @@ def branch_file(path: str, out: str, step: int, follower: str, parent_id: str, m
     return None
 
 
+def people_file(path: str, follower: str, out: str, max_bytes: int) -> str | None:
+    """Write each person in a follower seat of the replay at ``path`` beside ``follower`` watching their seat
+    (``colorgrid.replay.human_follower.person_and_follower``) as JSON to ``out``; returns the problem if there is
+    nothing to write (a file that does not load, a game without a person in a follower seat)."""
+    from colorgrid.files import atomic_path
+    from colorgrid.replay import ReplayError, load
+    from colorgrid.replay.human_follower import person_and_follower
+
+    try:
+        seats = person_and_follower(load(path, max_bytes=max_bytes), follower)
+    except (ReplayError, ValueError) as err:  # a file that does not load, a frames replay
+        return getattr(err, "problem", None) or str(err)
+    except OSError as err:  # a follower's checkpoint gone
+        return f"cannot be read: {err.strerror or err}"
+    if not seats:
+        return "no person played a follower seat in this game (their stated beliefs are what it measures)"
+    with atomic_path(out) as tmp:
+        tmp.write_text(json.dumps({"follower": follower, "seats": seats}, separators=(",", ":"), allow_nan=False))
+    return None
+
+
 def _ready() -> bool:
     return True
 
@@ -162,6 +183,13 @@ class ReplayJobs:
         """The timeline's JSON file, from the cache or made now."""
         out = self.cache_dir / f"{replay_id}-{mtime:.6f}.timeline.json"
         return await self._cached(out, lambda: self.run(timeline_file, str(path), replay_id, str(out), max_bytes))
+
+    async def people(self, path: Path, replay_id: str, mtime: float, follower: str, follower_part: str,
+                     max_bytes: int) -> Path:
+        """The person-and-AI JSON file of a follower-seat replay beside ``follower`` (``people_file``), from the cache
+        or made now; ``ValueError`` with the problem. ``follower_part``: the follower's name as part of a file name."""
+        out = self.cache_dir / f"{replay_id}-{mtime:.6f}.people-{follower_part}.json"
+        return await self._cached(out, lambda: self.run(people_file, str(path), follower, str(out), max_bytes))
 
     async def once(self, out: Path, make, done=None):
         """What ``make()`` returns, the job that writes ``out``: at most one job per file, however many requests

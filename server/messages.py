@@ -179,6 +179,30 @@ class State(_Outgoing):
         return self
 
 
+class ScoredProbe(_Outgoing):
+    """A probe answer beside the goal on screen when it arrived."""
+
+    step: int
+    color: int
+    confidence: float
+    goal: int
+    response_ms: float | None
+
+
+class StatedRecord(_Outgoing):
+    """What the person in the follower seat said beside the goal's history, and how well it read the goal."""
+
+    goal: list[int] = Field(description="the goal at each step (when its moves were made)")
+    stated: list[int | None] = Field(description="the color the person had said at each step, or null")
+    probes: list[ScoredProbe] = Field(description="the answered probes, each with the goal it is scored against")
+    steps: int
+    stated_steps: int
+    accuracy: float | None = Field(description="the share of the stated steps whose stated color was the goal")
+    probes_asked: int
+    probes_answered: int
+    probe_accuracy: float | None
+
+
 class GameOver(_Outgoing):
     """The game ended (the connection closes after it)."""
 
@@ -190,6 +214,10 @@ class GameOver(_Outgoing):
     replay_id: str | None
     steps: int
     scores: dict[str, float]
+    stated: StatedRecord | None = Field(None, description="the follower seat, once the game is saved: the goal at "
+                                                          "each step, the stated color at each step, the answered "
+                                                          "probes and their accuracy (`colorgrid.replay."
+                                                          "human_follower`'s measures)")
 
 
 class RoomMessage(_Outgoing):

@@ -124,6 +124,14 @@ def watch(replay: Replay, follower: str, agent: int, seed: int | None = None) ->
     return beliefs
 
 
+def open_loop_pickups(parent: Replay, follower: str, seed: int | None = None,
+                      parent_name: str | None = None) -> tuple[int, int]:
+    """The net and wrong pickups of ``follower`` playing the follower seat of the 1:1 game ``parent`` from its first
+    step, beside the recorded leader's moves (``branch`` at step 0): what ``rescore`` counts for each game."""
+    final = branch(parent, 0, follower, seed=seed, parent_name=parent_name).final()
+    return final["follower_goal_pickups"] - final["follower_wrong_pickups"], final["follower_wrong_pickups"]
+
+
 def rescore(files: list[Path], followers: list[str], seed: int | None = None) -> dict:
     """Every recorded leader's moves replayed with each follower (``branch`` at step 0): per-follower means
     and paired differences against the first follower, with 95% intervals over games."""
@@ -140,10 +148,9 @@ def rescore(files: list[Path], followers: list[str], seed: int | None = None) ->
             continue
         used.append(str(path))
         for follower in followers:
-            b = branch(parent, 0, follower, seed=seed, parent_name=str(path))
-            final = b.final()
-            nets[follower].append(final["follower_goal_pickups"] - final["follower_wrong_pickups"])
-            wrongs[follower].append(final["follower_wrong_pickups"])
+            net, wrong = open_loop_pickups(parent, follower, seed, str(path))
+            nets[follower].append(net)
+            wrongs[follower].append(wrong)
     if not used:
         raise ValueError("no actions replays to rescore")
     base = followers[0]

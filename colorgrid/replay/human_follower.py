@@ -133,6 +133,32 @@ def follower_measures(replay: Replay, agent: str, beliefs: list[list[float]]) ->
     }
 
 
+def watched(replay: Replay, agent: str, follower: str, seed: int | None = None) -> tuple[list | None, dict | None]:
+    """The beliefs ``[T][C]`` ``follower`` forms watching ``agent``'s seat (``branch.watch``) and its
+    ``follower_measures`` on them; (None, None) for a follower that forms no belief."""
+    from colorgrid.replay.branch import watch
+
+    beliefs = watch(replay, follower, replay.config.agent_names.index(agent), seed)
+    return beliefs, None if beliefs is None else follower_measures(replay, agent, beliefs)
+
+
+def person_and_follower(replay: Replay, follower: str, seed: int | None = None) -> dict:
+    """One game's figures of each person in a follower seat beside ``follower`` (the replay page's "person and AI"
+    panel; per game what ``human_follower_report`` pools), by the person's agent name: ``person`` (``person_measures``),
+    ``follower`` (``follower_measures`` watching the seat, or None for a follower without beliefs), ``beliefs`` (its
+    ``[T][C]``), and in 1:1 games the follower's ``net_pickups`` and ``wrong_pickups`` in the seat
+    (``branch.open_loop_pickups``, as rescore counts them; None in other teams)."""
+    from colorgrid.replay.branch import open_loop_pickups
+
+    out = {}
+    for agent in human_followers(replay):
+        beliefs, measures = watched(replay, agent, follower, seed)
+        pickups = open_loop_pickups(replay, follower, seed) if replay.config.one_to_one else (None, None)
+        out[agent] = {"person": person_measures(replay, agent), "follower": measures, "beliefs": beliefs,
+                      "net_pickups": pickups[0], "wrong_pickups": pickups[1], "set_apart": set_apart(replay)}
+    return out
+
+
 def _mean(values: list) -> float | None:
     return float(np.mean(values)) if values else None
 
@@ -145,21 +171,17 @@ def human_follower_report(files: list[Path], followers: list[str], seed: int | N
     ``set_apart`` (``SET_APART``'s keys; ``games`` may then be empty). ``pickups``: ``rescore``'s report, whose
     per-game net pickups of each follower (1:1 games) are set beside the person's. None when no game had a person in
     a follower seat."""
-    from colorgrid.replay.branch import watch
-
     games, apart = [], {kind: [] for kind in SET_APART}
     for path in files:
         replay = load(path)
         if replay.kind != "actions" or "branch_of" in replay.meta:
             continue
         for agent in human_followers(replay):
-            index = replay.config.agent_names.index(agent)
             entry = {"game": str(path), "agent": agent, "leader": _leaders(replay),
                      "goal_view": replay.meta.get("goal_view"), "mode": replay.meta.get("mode"),
                      "set_apart": set_apart(replay), PERSON: person_measures(replay, agent), "followers": {}}
             for follower in followers:
-                beliefs = watch(replay, follower, index, seed)
-                entry["followers"][follower] = None if beliefs is None else follower_measures(replay, agent, beliefs)
+                entry["followers"][follower] = watched(replay, agent, follower, seed)[1]
             (games if entry["set_apart"] is None else apart[entry["set_apart"]]).append(entry)
     if not games and not any(apart.values()):
         return None

@@ -4,6 +4,10 @@ The web replay player (``/api/replays/{id}/timeline``) and the 3D viewer both re
 ``look``, the colors and agents to draw them in: ``colorgrid.render.look``);
 a replay that fails verification comes back with ``verified: false`` and its problem,
 and no boards, so that nothing plays a trajectory the rules would not produce.
+
+A game with a person in a follower seat adds what the person said (``stated_beliefs``: each step's stated color,
+``belief_events``, ``probes``) and their measures (``person_measures``: ``colorgrid.replay.human_follower``'s, per
+agent); a timeline without one has none of these fields.
 """
 
 from __future__ import annotations
@@ -13,6 +17,7 @@ import bisect
 from colorgrid.config import COLOR_NAMES
 from colorgrid.render import look
 from colorgrid.replay.format import Replay
+from colorgrid.replay.human_follower import human_followers, person_measures
 from colorgrid.replay.simulate import encode_blocks, replay_states, verify
 
 
@@ -50,6 +55,10 @@ def timeline(replay: Replay, path=None) -> dict:
     out.update({"boards": boards, "goal": replay.goal, "actions": replay.actions, "goal_probs": replay.goal_probs,
                 "events": events, "key_events": reaction_times(replay.key_events or [],
                                                                replay.meta.get("state_sent_ms"))})
+    if replay.stated_beliefs:  # a person in a follower seat: what they said, and how well it read the goal
+        out.update({"stated_beliefs": replay.stated_beliefs, "belief_events": replay.belief_events or [],
+                    "probes": replay.probes or [],
+                    "person_measures": {name: person_measures(replay, name) for name in human_followers(replay)}})
     return out
 
 

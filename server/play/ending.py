@@ -11,7 +11,8 @@ from pathlib import Path
 from typing import Protocol
 
 from colorgrid.enums import Ending
-from colorgrid.replay import save
+from colorgrid.replay import Replay, save
+from colorgrid.replay.human_follower import person_measures, scored_probes
 from colorgrid.roles import scores
 from server.game import Game
 from server.play.live import Live
@@ -34,10 +35,24 @@ class GameListener(Protocol):
 
 
 def game_over_message(game: Game, reason: Ending, replay_id: str | None) -> dict:
-    """The ``game_over`` that tells a person the game ended (for them, with reason ``left``)."""
+    """The ``game_over`` that tells a person the game ended (for them, with reason ``left``); in the follower seat,
+    once saved, with what the person said beside the goal's history (``stated``)."""
     s = game.env.state
-    return {"type": "game_over", "reason": reason, "replay_id": replay_id, "steps": int(s.t[0]),
-            "scores": scores(s, game.env.config)}
+    message = {"type": "game_over", "reason": reason, "replay_id": replay_id, "steps": int(s.t[0]),
+               "scores": scores(s, game.env.config)}
+    if game.stated_record is not None:
+        message["stated"] = game.stated_record
+    return message
+
+
+def stated_record(replay: Replay, agent: str) -> dict:
+    """The ``game_over``'s ``stated`` of the person in ``agent``'s follower seat: the goal and the stated color at each
+    step, the scored probes, and the person's measures (``person_measures``: the same as rescore's)."""
+    m = person_measures(replay, agent)
+    return {"goal": list(replay.goal), "stated": list(replay.stated_beliefs[agent]),
+            "probes": scored_probes(replay, agent),
+            **{name: m[name] for name in ("steps", "stated_steps", "accuracy", "probes_asked", "probes_answered",
+                                          "probe_accuracy")}}
 
 
 class Finisher:
@@ -105,6 +120,8 @@ class Finisher:
         path = Path(self.live.settings.replays_dir) / f"{replay_id}.replay.json"
         await asyncio.get_running_loop().run_in_executor(self.saver, save, replay, path)
         game.replay_id = replay_id
+        if game.stated is not None:
+            game.stated_record = stated_record(replay, game.stated.agent)
         self.live.stats["games_saved"] += 1
 
     def cancel_waits(self) -> None:

@@ -1,5 +1,5 @@
-"""The replay API: the list of recorded and released replays, one replay's file and timeline, GIF/MP4 exports
-and what-if branches. The work runs in this process's replay workers (``server.jobs``); busy ones answer 503
+"""The replay API: the list of recorded and released replays, one replay's file and timeline, GIF/MP4 exports,
+what-if branches and a follower-seat game's person beside an AI follower. The work runs in this process's replay workers (``server.jobs``); busy ones answer 503
 with ``Retry-After``."""
 
 from __future__ import annotations
@@ -97,6 +97,24 @@ async def replay_timeline(replay_id: str, backend: CurrentBackend):
         return {"id": replay_id, "verified": False, "problem": entry.problem}
     return FileResponse(await library.jobs.timeline(entry.path, replay_id, entry.mtime, library.max_bytes),
                         media_type="application/json")
+
+
+@router.get("/api/replays/{replay_id}/people", responses={400: {}, 404: {}, 422: {}, 503: {}})
+async def replay_people(replay_id: str, backend: CurrentBackend, follower: str = Query(max_length=200)):
+    """Each person in a follower seat of the replay beside ``follower`` (one of /api/options' followers) watching
+    their seat: both sides' measures for this game (those ``colorgrid replay rescore`` pools) and the follower's
+    beliefs at every step (``colorgrid.replay.human_follower.person_and_follower``); 422 for a game without a person
+    in a follower seat."""
+    library, choices = backend.replays, backend.settings.follower_choices
+    entry = await usable(library, replay_id, f"replay {replay_id!r} cannot be measured")
+    if follower not in choices:  # names only: a path from the web would read files
+        raise HTTPException(400, f"follower must be one of {list(choices)}, got {follower!r}")
+    try:
+        out = await library.jobs.people(entry.path, replay_id, entry.mtime, follower, file_part(follower),
+                                        library.max_bytes)
+    except ValueError as err:
+        raise HTTPException(422, f"replay {replay_id!r} cannot be measured: {err}") from None
+    return FileResponse(out, media_type="application/json")
 
 
 @router.get("/api/replays/{replay_id}/export", responses={404: {}, 422: {}, 503: {}})
