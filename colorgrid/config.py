@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, ClassVar
+from typing import Any
 
-from colorgrid.configkit import (check_bool, check_choice, check_int, check_number, check_strings, fail, from_dict,
-                                 to_dict)
+from colorgrid.configkit import (ConfigBase, check_bool, check_choice, check_int, check_number, check_strings, fail,
+                                 from_dict, to_dict)
 
 ENV_ID = "colorgrid_v0"
 """Versioned id of the 1:1 team (one leader, one follower): bumped whenever its dynamics, rewards or
@@ -35,15 +35,15 @@ PAPER_SWITCH_PROB = 2.0 / 3.0 * 1.0 / 32.0
 
 
 @dataclass(frozen=True)
-class EnvConfig:
+class EnvConfig(ConfigBase):
     """Every knob of the ColorGrid rules (see ``docs/ENV_CARD.md``).
 
     Invalid values raise ``ValueError`` naming the field, the value and what is
     allowed. Use ``dataclasses.replace`` or :meth:`replace` to derive variants.
     """
 
-    ERROR_STYLE: ClassVar[str] = "EnvConfig.{name} must be {allowed}, got {value!r}"
-    CONFIG_NAME: ClassVar[str] = "EnvConfig"
+    ERROR_STYLE = "EnvConfig.{name} must be {allowed}, got {value!r}"
+    CONFIG_NAME = "EnvConfig"
 
     height: int = 32
     """Grid rows (4..1024)."""

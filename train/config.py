@@ -15,11 +15,10 @@ import math
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import ClassVar
 
 from colorgrid import configkit
 from colorgrid.config import ROLES, EnvConfig
-from colorgrid.configkit import (ConfigError, Presets, check_bool, check_choice, check_int, check_number,
+from colorgrid.configkit import (ConfigBase, ConfigError, Presets, check_bool, check_choice, check_int, check_number,
                                  check_strings, fail, merge, override_dict)
 from colorgrid.policies.names import policy_names, read_name
 
@@ -262,10 +261,10 @@ class ScheduleConfig:
 
 
 @dataclass(frozen=True)
-class TrainConfig:
+class TrainConfig(ConfigBase):
     """One training run."""
 
-    NOTES: ClassVar[tuple[str, ...]] = ("description",)
+    NOTES = ("description",)
     """Keys a preset or config file may hold for people, not settings (``configkit.from_dict`` drops them)."""
 
     env: EnvConfig = field(default_factory=EnvConfig)

@@ -10,9 +10,9 @@ the paper's figures and claims against the parameters) is checked by ``train.swe
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import Any
 
-from colorgrid.configkit import (FIELD_FIRST, ConfigError, check_choice, check_int, check_number, fail, is_int,
+from colorgrid.configkit import (ConfigBase, ConfigError, check_choice, check_int, check_number, fail, is_int,
                                  is_number)
 
 GRID_KINDS = ("grid", "options")
@@ -34,11 +34,10 @@ def refuse(owner, name: str, allowed: str) -> None:
     fail(owner, name, allowed, value=written(getattr(owner, name)))
 
 
-class Table:
-    """What every table of the sweep file shares: how its errors read."""
+class Table(ConfigBase):
+    """What every table of the sweep file shares: how its errors read (the field first, as ``ConfigBase``'s)."""
 
-    ERROR_STYLE: ClassVar[str] = FIELD_FIRST
-    UNKNOWN_STYLE: ClassVar[str] = "{where}: unknown field {first!r}; allowed: {allowed}"
+    UNKNOWN_STYLE = "{where}: unknown field {first!r}; allowed: {allowed}"
 
 
 @dataclass(frozen=True)
