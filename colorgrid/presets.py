@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from colorgrid import configkit
 from colorgrid.config import EnvConfig
 
 PRESETS: dict[str, dict] = {
@@ -16,8 +17,8 @@ PRESETS: dict[str, dict] = {
 
 
 def env_config(preset: str = "default", **changes) -> EnvConfig:
-    """The preset's ``EnvConfig`` with ``changes`` on top; a clear error for an unknown preset."""
+    """The preset's ``EnvConfig`` with ``changes`` on top, resolved as every config is (``configkit.resolve``: the
+    preset's layer, then the changes'); a clear error for an unknown preset."""
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
-    data = {**PRESETS[preset], **changes}
-    return EnvConfig().replace(**data) if data else EnvConfig()
+    return configkit.resolve(EnvConfig, PRESETS[preset], changes)

@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from colorgrid.config import EnvConfig
-from colorgrid.configkit import apply_overrides
+from colorgrid.configkit import resolve_data
 from colorgrid.files import JSONFileError, read_json_object
 from colorgrid.presets import PRESETS, env_config
 
@@ -25,25 +25,22 @@ def add_config_arguments(parser: argparse.ArgumentParser) -> None:
                             "also works here)")
 
 
-def parse_overrides(items: list[str]) -> dict:
-    """``["env.a=1", "env.b=true"]`` -> ``{"a": 1, "b": True}``: EnvConfig fields, values parsed as JSON when they
-    can be (the same parser as the trainer's ``--set``; ``env.distance_penalty_agents=leader,follower`` gives a
-    tuple). A key without ``env.`` (``a=1``, as these commands took it before) is read as ``env.a``: only env
-    settings are set here, so it names nothing else."""
-    return apply_overrides({}, items, EnvConfig, section=ENV_SECTION, example="env.goal_reward=4")
-
-
 def config_changes(args: argparse.Namespace) -> dict:
-    """The EnvConfig fields that ``--config`` and ``--set`` give (``--set`` last), on top of ``--preset``."""
-    changes = {}
+    """The EnvConfig fields that ``--config`` and ``--set`` give (``--set`` last), to go on top of ``--preset``:
+    the layers ``configkit.resolve_data`` stacks, as every config's. ``--set`` values are parsed as JSON when they
+    can be (the trainer's parser; ``env.distance_penalty_agents=leader,follower`` gives a tuple), and a key without
+    ``env.`` (``a=1``, as these commands took it before) is read as ``env.a``: only env settings are set here, so it
+    names nothing else."""
+    file = {}
     if args.config is not None:
         try:
-            changes.update(read_json_object(args.config, "a JSON object of EnvConfig fields"))
+            file = read_json_object(args.config, "a JSON object of EnvConfig fields")
         except JSONFileError as err:
             raise ValueError(f"--config {err}") from None
-    changes.update(parse_overrides(args.set))
-    return changes
+    return resolve_data(file, overrides=args.set, cls=EnvConfig, section=ENV_SECTION, example="env.goal_reward=4")
 
 
 def config_from_args(args: argparse.Namespace) -> EnvConfig:
+    """The ``EnvConfig`` of ``--preset``, ``--config`` and ``--set`` (``colorgrid.presets.env_config``, which resolves
+    it)."""
     return env_config(args.preset, **config_changes(args))

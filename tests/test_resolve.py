@@ -72,3 +72,27 @@ def test_the_train_command_the_sweep_file_and_the_study_file_resolve_through_it(
     assert set(resolved) == {TrainConfig} and len(resolved) > 2  # the base, then each trial's config
     load_study(ROOT / "studies" / "belief_display.toml")
     assert resolved[-1] is Study
+
+
+def test_the_env_s_presets_and_command_line_resolve_through_it(monkeypatch, tmp_path):
+    """``--preset``, ``--config`` and ``--set env.KEY=VALUE`` of eval, demo and replay import: the preset's layer,
+    then the file's, then the overrides, built by ``configkit.resolve`` as the training config is."""
+    from colorgrid.config import EnvConfig
+    from colorgrid_apps.cli_env import config_from_args
+
+    resolved = []
+    original = configkit.resolve
+
+    def spy(cls, *layers, **kwargs):
+        resolved.append((cls, layers))
+        return original(cls, *layers, **kwargs)
+
+    monkeypatch.setattr(configkit, "resolve", spy)
+    file = tmp_path / "env.json"
+    file.write_text(json.dumps({"horizon": 40, "goal_reward": 2.0}))
+    args = argparse.Namespace(preset="sparse", config=file, set=["env.goal_reward=4", "horizon=48"])
+    config = config_from_args(args)
+    assert (config.block_density, config.goal_reward, config.horizon) == (0.05, 4.0, 48)
+    assert resolved == [(EnvConfig, ({"block_density": 0.05}, {"horizon": 48, "goal_reward": 4}))]
+    with pytest.raises(ConfigError, match=r"^unknown EnvConfig field 'env.colour' in 'env.colour=1'; allowed: \["):
+        config_from_args(argparse.Namespace(preset="default", config=None, set=["env.colour=1"]))
