@@ -63,6 +63,8 @@ def run_team(config: EnvConfig, policies: Sequence[Policy], num_episodes: int, s
     seeds = env.state.seed.copy()
     for i, policy in enumerate(policies):
         policy.reset(config, B, i, seed=seed)
+    for policy in policies:
+        policy.see_team(policies)
     actions = np.zeros((T, B, A), dtype=np.int64)
     goal = np.zeros((T, B), dtype=np.int64)
     block_reward = np.zeros((T, B, A), dtype=np.float32)

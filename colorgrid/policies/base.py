@@ -77,6 +77,11 @@ class Policy:
     def act(self, inp: AgentInput, rows: np.ndarray | None = None) -> PolicyOutput:
         raise NotImplementedError
 
+    def see_team(self, policies: "list[Policy]") -> None:
+        """Told, after every ``reset`` of an evaluation, the policy of every agent (index order). Privileged, as
+        ``AgentInput.true_goal`` is: only a policy that stands for a bound reads it (``bayes-limit``, given its
+        leader's true model); the rest ignore it."""
+
     def _rows(self, rows: np.ndarray | None) -> np.ndarray:
         return np.arange(self.num_envs) if rows is None else np.asarray(rows)
 

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 from colorgrid.policies import registry
 from colorgrid.policies.bayes import BayesFollower, PeopleBayesFollower
+from colorgrid.policies.limit import LimitFollower
 from colorgrid.policies.people import PersonLeader
 from colorgrid.policies.scripted import AStarLeader, CopyFollower, IdleFollower, OracleFollower, RandomPolicy
 
@@ -30,10 +31,12 @@ SCRIPTED = {
     "oracle": OracleFollower,
     "bayes": BayesFollower,
     "bayes-people": PeopleBayesFollower,
+    "bayes-limit": LimitFollower,
     "person": PersonLeader,
 }
 """Scripted policies by name. ``astar`` and ``person`` need the goal (leaders); ``idle`` never collects.
-Those with parameters take them in the name: ``person:slip=0.1,notice_delay=3``, ``bayes:lapse=0.2``."""
+Those with parameters take them in the name: ``person:slip=0.1,notice_delay=3``, ``bayes:lapse=0.2``.
+``bayes-limit`` is given its leader's true model by the evaluation (``colorgrid.policies.limit``)."""
 
 POPULATION_PREFIX = "population:"
 """The prefix of a shipped population's name (``population:people#held_out``); a population file needs none."""

@@ -160,7 +160,14 @@ class PersonLeader(Seeker):
         return PolicyOutput(actions)
 
     def boltzmann(self, wanted, block_color, me, other, beta: float, claimed=None) -> np.ndarray:
-        """Moves drawn with probability proportional to exp(-beta * distance to a wanted block after the move).
+        """Moves drawn with probability proportional to exp(-beta * distance to a wanted block after the move)
+        (``boltzmann_probs``)."""
+        p = self.boltzmann_probs(wanted, block_color, me, other, beta, claimed)
+        u = self.rng.random((p.shape[0], 1))
+        return np.minimum((p.cumsum(axis=1) <= u).sum(axis=1), 3)
+
+    def boltzmann_probs(self, wanted, block_color, me, other, beta: float, claimed=None) -> np.ndarray:
+        """``[B, 4]``: the probability of each move, proportional to exp(-beta * distance to a wanted block after it).
 
         other: [B, K] the other agents' cells; claimed: [B, H, W] blocks lower-index leaders go for (left alone
         where an unclaimed wanted block is within reach), or None.
@@ -176,6 +183,4 @@ class PersonLeader(Seeker):
         logits = np.where(moves.any(axis=1, keepdims=True), logits, 0.0)  # boxed in: any move
         logits -= logits.max(axis=1, keepdims=True)
         p = np.exp(logits)
-        p /= p.sum(axis=1, keepdims=True)
-        u = self.rng.random((B, 1))
-        return np.minimum((p.cumsum(axis=1) <= u).sum(axis=1), 3)
+        return p / p.sum(axis=1, keepdims=True)
