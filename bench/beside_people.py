@@ -1,0 +1,256 @@
+"""Every follower beside the held-out people and beside A*, against the information limit (``bayes-limit``): the
+table and the picture of docs/ASSISTANT_RECIPE.md's "Beside people".
+
+    python bench/beside_people.py measure --episodes 100 --seed 0 --out runs/beside_people/beside_people.json
+    python bench/beside_people.py draw runs/beside_people/beside_people.json --png docs/images/beside_people.png
+
+``measure`` plays every follower beside A* and beside each member of ``population:people#held_out`` on the same
+episodes (env ``i`` seeded ``seed + i``) and keeps, per episode, the follower's net and wrong pickups, its belief
+accuracy and log-loss (docs/EVALUATION.md), the steps it took to catch each goal switch, and whether its belief
+named the goal at each step after a switch. ``draw`` reads that file and prints the table (markdown) and draws:
+
+- left: net pickups against wrong pickups beside the held-out people, each follower with its 95% intervals over
+  episodes (each episode its own seed; the six leaders' episodes pooled, 100 seeds each);
+- right: the share of goal switches whose new goal the follower's belief names, each step after the switch (95%
+  bands over switches), beside the held-out people.
+
+The gap to the limit is paired: a follower's figure minus ``bayes-limit``'s on the same episodes (mean and 95%
+interval of the per-episode differences); for the steps to catch a switch, the difference of the two means, its
+interval from the two intervals (their switches are the same, the catches each one's).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import multiprocessing
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from colorgrid import EnvConfig  # noqa: E402
+from colorgrid.evaluate import catch_lags  # noqa: E402
+from colorgrid.policies import make_policy  # noqa: E402
+from colorgrid.policies.population import load_population  # noqa: E402
+from colorgrid.rollout import run_episodes  # noqa: E402
+
+FOLLOWERS = ["copy", "bayes", "bayes-people", "bayes-limit", "ippo", "ippo-people", "ippo-cautious",
+             "checkpoints/follower_unannealed.pt"]
+"""Every shipped follower that plays the 1:1 team: the scripted ones, the limit, and each IPPO checkpoint of
+``checkpoints/`` (``follower_1L2F.pt`` and ``follower_2L1F.pt`` play other teams)."""
+LIMIT = "bayes-limit"
+HELD_OUT = "population:people#held_out"
+AFTER_SWITCH = 30
+"""Steps after a goal switch over which the right panel follows the belief."""
+
+
+def label(follower: str) -> str:
+    """A follower's name in the table and the picture (a checkpoint by its file's stem)."""
+    return Path(follower).stem.replace("follower_", "ippo-") if follower.endswith(".pt") else follower
+
+
+def cell(leader: str, follower: str, episodes: int, seed: int) -> dict:
+    """One leader beside one follower: per-episode figures (lists, JSON-ready)."""
+    try:
+        import torch
+
+        torch.set_num_threads(1)  # one process a cell
+    except ImportError:  # the scripted followers need no torch
+        pass
+    config = EnvConfig()
+    start = time.perf_counter()
+    batch = run_episodes(config, make_policy(leader, "leader"), make_policy(follower, "follower"), episodes, seed)
+    goal = batch.goal_pickup[:, :, 1].sum(axis=0)
+    wrong = batch.wrong_pickup[:, :, 1].sum(axis=0)
+    out = {"net": (goal - wrong).tolist(), "wrong": wrong.tolist(), "wall_seconds": None}
+    probs = batch.goal_probs[1]
+    if probs is not None:
+        right = probs.argmax(axis=2) == batch.goal  # [T, B]
+        truth = np.take_along_axis(probs, batch.goal[:, :, None], axis=2)[..., 0]
+        out["accuracy"] = right.mean(axis=0).tolist()
+        out["log_loss"] = (-np.log(np.clip(truth, 1e-6, 1.0))).mean(axis=0).tolist()
+        out["lags"] = catch_lags(right, batch.goal).tolist()
+        out["after_switch"] = after_switch(right, batch.goal, AFTER_SWITCH).tolist()
+    out["wall_seconds"] = time.perf_counter() - start
+    return out
+
+
+def after_switch(right: np.ndarray, goal: np.ndarray, steps: int) -> np.ndarray:
+    """``[2, steps + 1]``: over every goal switch, how many times the belief was right ``k`` steps after it (row 0)
+    and how many switches were still followed then (row 1: the new goal still held and the episode went on).
+
+    right, goal: ``[T, B]``; step ``t`` is the first with the new goal when ``goal[t] != goal[t - 1]``; ``k = 0``
+    is that step."""
+    T, B = goal.shape
+    counts = np.zeros((2, steps + 1), dtype=np.int64)
+    for t, e in zip(*np.nonzero(goal[1:] != goal[:-1])):
+        t += 1
+        for k in range(steps + 1):
+            if t + k >= T or goal[t + k, e] != goal[t, e]:
+                break
+            counts[0, k] += int(right[t + k, e])
+            counts[1, k] += 1
+    return counts
+
+
+def measure(followers: list[str], episodes: int, seed: int, workers: int) -> dict:
+    leaders = {"astar": "astar", **load_population(HELD_OUT.removeprefix("population:"))}
+    jobs = [(name, follower) for name in leaders for follower in followers]
+    start = time.perf_counter()
+    args = [(leaders[n], f, episodes, seed) for n, f in jobs]
+    if workers == 1:
+        results = [cell(*a) for a in args]
+    else:
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+            results = list(pool.map(cell, *zip(*args)))
+    cells = {name: {} for name in leaders}
+    for (name, follower), result in zip(jobs, results):
+        cells[name][follower] = result
+    return {"episodes": episodes, "seed": seed, "leaders": leaders, "held_out": [n for n in leaders if n != "astar"],
+            "followers": followers, "cells": cells, "wall_seconds": time.perf_counter() - start}
+
+
+def mean_ci(values) -> tuple[float, float]:
+    """Mean and the half-width of its 95% normal interval."""
+    values = np.asarray(values, dtype=np.float64)
+    half = 1.96 * values.std(ddof=1) / np.sqrt(values.size) if values.size > 1 else float("nan")
+    return float(values.mean()), float(half)
+
+
+def pooled(report: dict, leaders: list[str], follower: str, key: str) -> np.ndarray | None:
+    """The per-episode ``key`` of ``follower`` beside ``leaders``, in leader then seed order (None: no belief)."""
+    cells = [report["cells"][n][follower] for n in leaders]
+    if key not in cells[0]:
+        return None
+    return np.concatenate([np.asarray(c[key], dtype=np.float64) for c in cells])
+
+
+def summary(report: dict, leaders: list[str]) -> dict:
+    """Per follower beside ``leaders``: each measure's (mean, half-width), and its gap to the limit (paired)."""
+    out = {}
+    for follower in report["followers"]:
+        row = {}
+        for key in ("net", "wrong", "accuracy", "log_loss", "lags"):
+            values = pooled(report, leaders, follower, key)
+            row[key] = None if values is None else mean_ci(values)
+        gap = {}
+        if LIMIT in report["followers"] and follower != LIMIT:
+            for key in ("net", "wrong", "accuracy", "log_loss"):
+                mine, limit = pooled(report, leaders, follower, key), pooled(report, leaders, LIMIT, key)
+                gap[key] = None if mine is None else mean_ci(mine - limit)
+            limit_lag = row["lags"] is not None and summary_lag(report, leaders, LIMIT)
+            gap["lags"] = None if not limit_lag else (row["lags"][0] - limit_lag[0],
+                                                      float(np.hypot(row["lags"][1], limit_lag[1])))
+        row["gap"] = gap
+        out[follower] = row
+    return out
+
+
+def summary_lag(report: dict, leaders: list[str], follower: str) -> tuple[float, float]:
+    return mean_ci(pooled(report, leaders, follower, "lags"))
+
+
+def fmt(pair, form: str = "{:+.2f}", scale: float = 1.0) -> str:
+    if pair is None:
+        return "-"
+    mean, half = pair[0] * scale, pair[1] * scale
+    return f"{form.format(mean)} ± {form.format(half).lstrip('+')}"
+
+
+def table(report: dict, leaders: list[str]) -> str:
+    """The markdown table: each follower's measures beside ``leaders`` and its gap to the limit."""
+    rows = summary(report, leaders)
+    lines = ["| follower | net pickups | wrong pickups | belief accuracy | log-loss | steps to catch a switch "
+             "| gap to the limit: net | accuracy | log-loss | steps to catch |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+    for follower, row in rows.items():
+        gap = row["gap"]
+        lines.append(" | ".join([
+            f"| `{label(follower)}`", fmt(row["net"]), fmt(row["wrong"], "{:.2f}"),
+            fmt(row["accuracy"], "{:.1f}%", 100), fmt(row["log_loss"], "{:.3f}"), fmt(row["lags"], "{:.2f}"),
+            fmt(gap.get("net")) if gap else "(the limit)", fmt(gap.get("accuracy"), "{:+.1f}", 100) if gap else "",
+            fmt(gap.get("log_loss"), "{:+.3f}") if gap else "", fmt(gap.get("lags"), "{:+.2f}") if gap else ""]) + " |")
+    return "\n".join(lines)
+
+
+def draw(report: dict, png: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    leaders = report["held_out"]
+    rows = summary(report, leaders)
+    fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.8))
+    colors = plt.get_cmap("tab10")
+    for i, (follower, row) in enumerate(rows.items()):
+        (net, net_ci), (wrong, wrong_ci) = row["net"], row["wrong"]
+        marker = "*" if follower == LIMIT else ("s" if follower.startswith(("bayes", "copy")) else "o")
+        left.errorbar(wrong, net, xerr=wrong_ci, yerr=net_ci, fmt=marker, color=colors(i), capsize=3,
+                      markersize=11 if marker == "*" else 7, label=label(follower))
+        left.annotate(label(follower), (wrong, net), textcoords="offset points", xytext=(6, 5), fontsize=8)
+        if row["accuracy"] is None:
+            continue
+        counts = sum(np.asarray(report["cells"][n][follower]["after_switch"]) for n in leaders)
+        steps = np.arange(counts.shape[1])
+        share = counts[0] / np.maximum(counts[1], 1)
+        half = 1.96 * np.sqrt(share * (1 - share) / np.maximum(counts[1], 1))
+        right.plot(steps, share, color=colors(i), label=label(follower), lw=2.2 if follower == LIMIT else 1.4,
+                   ls="--" if follower == LIMIT else "-")
+        right.fill_between(steps, share - half, share + half, color=colors(i), alpha=0.12)
+    left.set_xlabel("wrong pickups per episode")
+    left.set_ylabel("net pickups per episode (goal - wrong)")
+    left.set_title(f"Beside the held-out people ({len(leaders)} leaders x {report['episodes']} seeds)", fontsize=10)
+    left.grid(alpha=0.3)
+    right.set_xlabel("steps after a goal switch")
+    right.set_ylabel("share of switches whose new goal the belief names")
+    right.set_title("Catching a switch, beside the held-out people (95% bands)", fontsize=10)
+    right.set_ylim(0, 1)
+    right.grid(alpha=0.3)
+    right.legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    png.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    sub = parser.add_subparsers(dest="command", required=True)
+    run = sub.add_parser("measure", help="play every follower beside A* and the held-out people; write JSON")
+    run.add_argument("--episodes", type=int, default=100)
+    run.add_argument("--seed", type=int, default=0)
+    run.add_argument("--followers", nargs="+", default=FOLLOWERS)
+    run.add_argument("--workers", type=int, default=1, help="processes for the cells (the result is the same)")
+    run.add_argument("--out", type=Path, required=True)
+    pic = sub.add_parser("draw", help="print the table and draw the picture from measure's JSON")
+    pic.add_argument("json", type=Path)
+    pic.add_argument("--png", type=Path, default=ROOT / "docs" / "images" / "beside_people.png")
+    args = parser.parse_args(argv)
+    if args.command == "measure":
+        if args.episodes < 2:
+            parser.error(f"--episodes must be >= 2 (an interval needs two), got {args.episodes}")
+        report = measure(args.followers, args.episodes, args.seed, args.workers)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(report))
+        print(f"wrote {args.out} ({report['wall_seconds']:.0f} s)")
+        return 0
+    report = json.loads(args.json.read_text())
+    print(f"Beside the held-out people ({', '.join(report['held_out'])}; {report['episodes']} episodes each, "
+          f"seeds {report['seed']}..{report['seed'] + report['episodes'] - 1}):\n")
+    print(table(report, report["held_out"]))
+    print(f"\nBeside A* ({report['episodes']} episodes):\n")
+    print(table(report, ["astar"]))
+    draw(report, args.png)
+    print(f"\nwrote {args.png}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
