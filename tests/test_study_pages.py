@@ -341,7 +341,7 @@ def test_the_goal_frame_is_wide_in_the_goal_color_and_a_new_goal_is_announced(pa
     context.close()
 
 
-def test_the_ai_partner_is_a_large_yellow_disc_with_a_trail_drawn_as_the_legend_draws_it(pages_server, browser):
+def test_the_ai_partner_is_a_yellow_disc_inside_its_cell_with_a_legible_label_and_a_trail(pages_server, browser):
     config = env_config("default")
     width = config.width
     partner = look(config)["agents"][1]
@@ -371,9 +371,22 @@ def test_the_ai_partner_is_a_large_yellow_disc_with_a_trail_drawn_as_the_legend_
     in_legend = most_common(shot[round(disc["y"]) + 2:round(disc["y"] + disc["height"]) - 2,
                                  round(disc["x"]) + 2:round(disc["x"] + disc["width"]) - 2])
     assert on_board == in_legend == partner["body"], "the legend's disc is the board's, in the server's color"
-    around = shot[round(y - cell):round(y + cell) + 1, round(x - cell):round(x + cell) + 1]
-    body = (around == np.array(AGENT_COLORS["follower"][0])).all(axis=-1).sum()
-    assert body > np.pi * (cell / 2) ** 2, f"more of its color than a whole disc one cell wide has ({body} pixels)"
+    # inside its own cell: its color fills most of the cell and none of it reaches past the cell's edges (a pixel of
+    # smoothing allowed), so it covers no neighbouring block and never the frame
+    r, c = divmod(start + 2, width)
+    left, top = box["x"] + FRAME + c * cell, box["y"] + FRAME + r * cell
+    y0, x0 = round(top - cell), round(left - cell)
+    around = shot[y0:round(top + 2 * cell), x0:round(left + 2 * cell)]
+    ys, xs = np.nonzero((around == np.array(AGENT_COLORS["follower"][0])).all(axis=-1))
+    assert len(ys) > 0.25 * cell ** 2, f"a disc about as wide as its cell, its label on it ({len(ys)} pixels)"
+    assert top - 1 <= y0 + ys.min() and y0 + ys.max() <= top + cell + 1, "the disc stays inside its cell's rows"
+    assert left - 1 <= x0 + xs.min() and x0 + xs.max() <= left + cell + 1, "the disc stays inside its cell's columns"
+    # legible: its label (pixels nearer its ink than its body) stands more than half the cell high
+    inside = shot[round(top) + 2:round(top + cell) - 2,  # the middle of the cell, clear of the disc's black ring
+                  round(left + cell / 4):round(left + 3 * cell / 4)].astype(int)
+    ink, fill = (np.array([int(partner[k][i:i + 2], 16) for i in (1, 3, 5)]) for k in ("ink", "body"))
+    label_rows = np.nonzero((np.abs(inside - ink).sum(-1) < np.abs(inside - fill).sum(-1)).any(axis=1))[0]
+    assert label_rows.max() - label_rows.min() + 1 > 0.5 * cell, f"a label {label_rows.tolist()} in a {cell} px cell"
     for behind in (start, start + 1):  # where it was: dots of its color, fainter, on the floor
         bx, by = centre(behind)
         dot = shot[by - 1:by + 2, bx - 1:bx + 2].reshape(-1, 3).astype(int)

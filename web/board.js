@@ -10,9 +10,10 @@ export function setLook(value) {
 }
 
 // `frame`: the goal frame's width in pixels; `discCells`: each disc's width in cells (1: its own cell; wider ones
-// overlap their neighbours so that a person finds them at a glance); `trails`: {agent name: [cell, ...]} oldest
-// first, drawn as fading dots under the discs. Returns the cell's size in pixels.
-export function drawBoard(canvas, board, { frame = 4, discCells = 1, trails = {} } = {}) {
+// overlap their neighbours); `labelPx`: the disc's label's size in pixels (by default the disc's width less 6);
+// `trails`: {agent name: [cell, ...]} oldest first, drawn as fading dots under the discs. Returns the cell's size in
+// pixels.
+export function drawBoard(canvas, board, { frame = 4, discCells = 1, labelPx = null, trails = {} } = {}) {
   const { height, width, blocks, goal } = board;
   const border = frame;
   const cell = Math.floor(Math.min((canvas.width - 2 * border) / width, (canvas.height - 2 * border) / height));
@@ -36,7 +37,7 @@ export function drawBoard(canvas, board, { frame = 4, discCells = 1, trails = {}
     ctx.fillRect(border + c * cell + margin, border + r * cell + margin, cell - 2 * margin, cell - 2 * margin);
   }
   for (const agent of look.agents) drawTrail(ctx, border, cell, width, trails[agent.name] ?? [], agent);
-  for (const agent of look.agents) drawAgent(ctx, border, cell, width, board[agent.name], agent, discCells);
+  for (const agent of look.agents) drawAgent(ctx, border, cell, width, board[agent.name], agent, discCells, labelPx);
   return cell;
 }
 
@@ -55,7 +56,7 @@ function drawTrail(ctx, border, cell, width, cells, agent) {
   ctx.globalAlpha = 1;
 }
 
-function drawAgent(ctx, border, cell, width, index, agent, discCells = 1) {
+function drawAgent(ctx, border, cell, width, index, agent, discCells = 1, labelPx = null) {
   const r = Math.floor(index / width), c = index % width;
   const x = border + c * cell + cell / 2, y = border + r * cell + cell / 2;
   const wide = discCells * cell;
@@ -68,7 +69,7 @@ function drawAgent(ctx, border, cell, width, index, agent, discCells = 1) {
   ctx.stroke();
   ctx.lineWidth = 1;
   ctx.fillStyle = agent.ink;
-  let size = Math.max(8, Math.round(wide) - 6);
+  let size = labelPx ?? Math.max(8, Math.round(wide) - 6);
   ctx.font = `bold ${size}px sans-serif`;
   const room = 0.8 * wide, measured = ctx.measureText(agent.symbol).width;
   if (agent.symbol.length > 1 && measured > room) {  // two-character labels (L1, F2) shrink to fit their disc

@@ -1,6 +1,9 @@
 // The episode chart under the replay board: belief lines, the true goal strip, pickup and switch markers,
-// and a cursor at the current step. Pure drawing: `drawChart(canvas, data, step, followers)`;
+// and a cursor at the current step. Pure drawing: `drawChart(canvas, data, step, followers, watched)`;
 // `stepAt(canvas, data, x)`.
+// A person in a follower seat (the timeline's `stated_beliefs` and `probes`): their stated color as a thick step line
+// (at 1 while they said that color), each answered probe as a ringed point in its color at its confidence, and
+// `watched` ({agent: [T][C]}), an AI follower's goal probabilities watching that seat, as solid lines on the same axis.
 // `data` is a replay's timeline: its `look` gives the colors and the agents (in index order, the leaders first).
 // A chart shows the leaders (dashed belief lines, pickups above) and the `followers` it is for (solid lines,
 // pickups below): every follower unless told (1:1: the follower); the player draws one chart per follower
@@ -22,7 +25,7 @@ export function followerNames(data) {
   return data.look.agents.filter((agent) => agent.role === "follower").map((agent) => agent.name);
 }
 
-export function drawChart(canvas, data, step, followers = followerNames(data)) {
+export function drawChart(canvas, data, step, followers = followerNames(data), watched = {}) {
   const ctx = canvas.getContext("2d");
   const H = canvas.height, plotH = H - PAD.top - PAD.bottom;
   const yOf = (p) => PAD.top + (1 - p) * plotH;
@@ -43,15 +46,13 @@ export function drawChart(canvas, data, step, followers = followerNames(data)) {
   for (const [agent, probs] of Object.entries(data.goal_probs || {})) {
     if (!shown(agent)) continue;
     ctx.setLineDash(role[agent] === "leader" ? [4, 3] : []);
-    for (let k = 0; k < data.colors.length; k++) {
-      ctx.strokeStyle = palette[k];
-      ctx.lineWidth = 1.5;
-      ctx.beginPath();
-      probs.forEach((row, t) => { const x = xOf(canvas, data, t), y = yOf(row[k]); t ? ctx.lineTo(x, y) : ctx.moveTo(x, y); });
-      ctx.stroke();
-    }
+    drawLines(ctx, canvas, data, probs, yOf);
   }
   ctx.setLineDash([]);
+  for (const [agent, probs] of Object.entries(watched)) {  // an AI follower watching the person's seat
+    if (shown(agent)) drawLines(ctx, canvas, data, probs, yOf);
+  }
+  drawPerson(ctx, canvas, data, shown, yOf);
   // the true goal beneath the plot
   const stripY = H - PAD.bottom + 4;
   data.goal.forEach((g, t) => {
@@ -83,4 +84,61 @@ export function drawChart(canvas, data, step, followers = followerNames(data)) {
   ctx.lineWidth = 1;
   canvas.dataset.cursor = step;
   canvas.dataset.cursorX = cx.toFixed(1);
+}
+
+function drawLines(ctx, canvas, data, probs, yOf) {
+  // one line per color over the steps: a belief's probabilities
+  for (let k = 0; k < data.colors.length; k++) {
+    ctx.strokeStyle = data.look.palette[k];
+    ctx.lineWidth = 1.5;
+    ctx.beginPath();
+    probs.forEach((row, t) => { const x = xOf(canvas, data, t), y = yOf(row[k]); t ? ctx.lineTo(x, y) : ctx.moveTo(x, y); });
+    ctx.stroke();
+  }
+}
+
+function drawPerson(ctx, canvas, data, shown, yOf) {
+  // The person's stated color: a step line per run of one color (up to 1 where the run starts, along 1, down where it
+  // ends); steps before their first statement have none. Probe answers: points at their confidence, ringed in black;
+  // a probe missed or left unanswered: a hollow grey ring at 0 on the step that asked. Where each is drawn is kept in
+  // the canvas's data-stated-runs and data-probe-points (JSON), for assistive tools and tests.
+  const palette = data.look.palette, runs = [], points = [];
+  for (const [agent, stated] of Object.entries(data.stated_beliefs || {})) {
+    if (!shown(agent)) continue;
+    for (let t = 0; t < stated.length;) {
+      let end = t + 1;
+      while (end < stated.length && stated[end] === stated[t]) end++;
+      if (stated[t] != null) runs.push({ agent, color: stated[t], from: t, to: end });
+      t = end;
+    }
+  }
+  ctx.lineWidth = 3.5;
+  ctx.lineJoin = "round";
+  for (const run of runs) {
+    const x0 = xOf(canvas, data, run.from), x1 = xOf(canvas, data, run.to);
+    ctx.strokeStyle = palette[run.color];
+    ctx.beginPath();
+    ctx.moveTo(x0, yOf(0)); ctx.lineTo(x0, yOf(1)); ctx.lineTo(x1, yOf(1)); ctx.lineTo(x1, yOf(0));
+    ctx.stroke();
+    Object.assign(run, { x0: Number(x0.toFixed(1)), x1: Number(x1.toFixed(1)), y: Number(yOf(1).toFixed(1)) });
+  }
+  ctx.lineJoin = "miter";
+  for (const probe of data.probes || []) {
+    const agent = probe.agent ?? Object.keys(data.stated_beliefs || {})[0];
+    if (!shown(agent)) continue;
+    const answered = probe.status === "answered";
+    const x = xOf(canvas, data, answered ? probe.answered_step ?? probe.step : probe.step);
+    const y = answered ? yOf(probe.confidence) : yOf(0);
+    ctx.beginPath();
+    ctx.arc(x, y, 5, 0, 2 * Math.PI);
+    if (answered) { ctx.fillStyle = palette[probe.color]; ctx.fill(); }
+    ctx.strokeStyle = answered ? "#000" : "#888";
+    ctx.lineWidth = 1.5;
+    ctx.stroke();
+    points.push({ agent, status: probe.status, color: probe.color, confidence: probe.confidence,
+                  x: Number(x.toFixed(1)), y: Number(y.toFixed(1)) });
+  }
+  ctx.lineWidth = 1;
+  canvas.dataset.statedRuns = JSON.stringify(runs);
+  canvas.dataset.probePoints = JSON.stringify(points);
 }

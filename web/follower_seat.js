@@ -9,11 +9,14 @@ import { agentBadge } from "./board.js";
 const $ = (id) => document.getElementById(id);
 
 /** The probe dialog and the stated-belief panel, the same on the play page and the study page: put into each
- * page's #belief-controls when this module loads, before the pages' own code looks them up. */
+ * page's #belief-controls when this module loads, before the pages' own code looks them up. Both sit in one slot, as
+ * tall as the taller of them: the probe opens over the statement panel and nothing on the page moves. */
 const BELIEF_CONTROLS = `
+  <div id="belief-slot" class="belief-slot" hidden>
   <div id="probe" class="probe" role="dialog" aria-labelledby="probe-question" aria-live="assertive" hidden>
     <h3 id="probe-question">Which color is the goal now, and how sure are you?</h3>
     <p class="note"><span id="probe-step"></span>: <span id="probe-note"></span></p>
+    <p class="note" id="probe-keys"></p>
     <div id="probe-colors"></div>
     <label>How sure are you? <input id="probe-confidence" type="range" min="34" max="100" step="1">
       <b id="probe-percent"></b></label>
@@ -24,6 +27,7 @@ const BELIEF_CONTROLS = `
     <p class="note" id="stated-task"></p>
     <div id="stated-swatches" role="group" aria-label="the color you believe is the goal"></div>
     <p class="note" id="stated-now" aria-live="polite"></p>
+  </div>
   </div>`;
 const slot = document.getElementById("belief-controls");
 if (slot) slot.outerHTML = BELIEF_CONTROLS;
@@ -66,11 +70,14 @@ export function seatRequest() {
 // ---------------------------------------------------------------- in a game
 // At the welcome of a game in the follower seat: the sentence saying who you are, the goal's fate, what to do; the
 // swatches (with their keys); the probe's color buttons and its confidence range (chance to 100%).
-export function startSeat(game, send) {
+// `onHint(words)`: the page's hint, called with what to do now (say the goal, or answer the probe) whenever it changes.
+export function startSeat(game, send, onHint = () => {}) {
   const seated = game.seat === "follower";
+  $("belief-slot").hidden = !seated;
   $("stated-panel").hidden = !seated;
   $("probe").hidden = true;
   game.answering = null;
+  game.onHint = onHint;
   if (!seated) return;
   const you = game.look.agents.find((a) => a.name === game.agent);
   const leaders = game.look.agents.filter((a) => a.role === "leader");
@@ -97,15 +104,39 @@ export function startSeat(game, send) {
   $("probe-confidence").min = Math.ceil(100 * game.confidence_min);  // chance: the answer is your best guess
   $("probe-colors").replaceChildren(...game.colors.map((name, k) => {
     const button = document.createElement("button");
+    const key = Object.keys(game.belief_keys).find((key) => game.belief_keys[key] === k);
     button.className = "probe-color";
     button.dataset.color = k;
-    button.innerHTML = `<span class="swatch" style="background:${game.look.palette[k]}"></span> ${name}`;
+    button.innerHTML = `<span class="swatch" style="background:${game.look.palette[k]}"></span> ${name} <kbd>${key}</kbd>`;
     button.addEventListener("click", () => pickProbeColor(game, k));
     return button;
   }));
   $("probe-note").textContent = game.mode === "turn" ? "The game waits for your answer."
     : "The game goes on while you answer.";
+  $("probe-keys").textContent = probeKeys(game);
+  // the closed probe holds the widest words it may show, so that the slot keeps one height when it opens
+  $("probe-step").textContent = `step ${game.horizon}`;
+  $("probe-percent").textContent = "100%";
   showStated(game, null);
+  onHint(seatHint(game));
+}
+
+function probeKeys(game) {
+  // "Keys: 1, 2, 3 choose the color (or click one); ← → set how sure you are; Enter answers." The color keys are the
+  // server's (welcome.belief_keys); in real time the arrows still move you, and the slider sets the confidence.
+  return `Keys: ${Object.keys(game.belief_keys).join(", ")} choose the color (or click one); ${sureKeys(game)}; ` +
+    "Enter answers.";
+}
+
+function sureKeys(game) {
+  return game.mode === "turn" ? "\u2190 \u2192 set how sure you are" : "the slider sets how sure you are";
+}
+
+// What the person is asked to do now, in a sentence: answer the open probe, or say the goal whenever they like.
+export function seatHint(game) {
+  const keys = Object.keys(game.belief_keys).join(", ");
+  return game.answering ? `Answer the question: ${keys} choose the color, ${sureKeys(game)}, Enter answers.`
+    : `Say which color you believe is the goal with ${keys} or a click on a color.`;
 }
 
 function ringed(badge) {
@@ -149,11 +180,15 @@ function openProbe(game, probe) {
   $("probe-answer").disabled = true;
   $("probe-problem").textContent = "";
   $("probe").hidden = false;
+  $("belief-slot").classList.add("asking");
+  game.onHint?.(seatHint(game));
 }
 
 function closeProbe(game) {
   game.answering = null;
   $("probe").hidden = true;
+  $("belief-slot").classList.remove("asking");
+  game.onHint?.(seatHint(game));
 }
 
 function pickProbeColor(game, color) {
@@ -193,8 +228,10 @@ export function seatKey(game, event, sendKey, send) {
   if (game.seat !== "follower") return false;
   const color = game.belief_keys[event.key];
   if (game.answering) {
+    const nudge = { ArrowLeft: -1, ArrowRight: 1 }[event.key];
     if (color !== undefined) pickProbeColor(game, color);
     else if (event.key === "Enter") answerProbe(game, send);
+    else if (nudge && game.mode === "turn") nudgeConfidence(nudge * 5);  // real time: the arrows still move you
     else return game.mode === "turn";
     return true;
   }
@@ -206,6 +243,52 @@ export function seatKey(game, event, sendKey, send) {
   return true;
 }
 
+function nudgeConfidence(by) {
+  const range = $("probe-confidence");
+  range.value = Math.max(Number(range.min), Math.min(100, Number(range.value) + by));
+  showProbeConfidence();
+}
+
 export function showProbeConfidence() {
   $("probe-percent").textContent = `${$("probe-confidence").value}%`;
+}
+
+// ---------------------------------------------------------------- the game's end
+// The game-over card in the follower seat: the goal at each step against the color the person had said (a strip of
+// each, the answered probes as dots under the step they were answered at, ringed in black when right), and how well
+// they read it (game_over's `stated`: the server's measures). Hidden for a game without one.
+export function showStatedRecord(game, record) {
+  $("over-stated").hidden = !record;
+  if (!record) return;
+  const canvas = $("over-history"), ctx = canvas.getContext("2d"), palette = game.look.palette;
+  const steps = record.goal.length, w = canvas.width / Math.max(1, steps);
+  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  ctx.fillStyle = "#fff";
+  ctx.fillRect(0, 0, canvas.width, canvas.height);
+  record.goal.forEach((goal, t) => {
+    ctx.fillStyle = palette[goal];
+    ctx.fillRect(t * w, 2, Math.ceil(w), 16);
+    const said = record.stated[t];
+    if (said != null) { ctx.fillStyle = palette[said]; ctx.fillRect(t * w, 22, Math.ceil(w), 16); }
+  });
+  for (const probe of record.probes) {
+    ctx.beginPath();
+    ctx.arc((probe.step + 0.5) * w, 46, 5, 0, 2 * Math.PI);
+    ctx.fillStyle = palette[probe.color];
+    ctx.fill();
+    ctx.strokeStyle = probe.color === probe.goal ? "#000" : "#bbb";
+    ctx.lineWidth = 1.5;
+    ctx.stroke();
+  }
+  ctx.lineWidth = 1;
+  canvas.setAttribute("aria-label", `the goal and the color you had said at each of ${steps} steps`);
+  const pct = (v) => `${Math.round(100 * v)}%`;
+  const said = record.accuracy == null ? "You did not say which color you believed was the goal."
+    : `Your stated color was the goal at ${pct(record.accuracy)} of the ${record.stated_steps} steps where you had ` +
+      `said one (of ${record.steps}).`;
+  const asked = record.probes_asked === 0 ? "" : record.probe_accuracy == null
+    ? ` You answered none of the ${record.probes_asked} questions.`
+    : ` ${pct(record.probe_accuracy)} of your ${record.probes_answered} answers to the ${record.probes_asked} ` +
+      "questions named the goal.";
+  $("over-accuracy").textContent = said + asked;
 }

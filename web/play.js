@@ -9,8 +9,8 @@ import { plainEnding, plainError, setEndings, stepsMessage } from "./messages.js
 import { queryParam } from "./params.js";
 import { drawBeliefs, markYou, openedRoom, plainRoomClosed, plainRoomError, showAgents, showRoom,
          showScores, showSeats, whoIs } from "./room.js";
-import { answerProbe, drawStated, followerSeat, probeRefused, seatKey, seatRequest, showProbeChoice,
-         showProbeConfidence, showSeatChoice, startSeat } from "./follower_seat.js";
+import { answerProbe, drawStated, followerSeat, probeRefused, seatHint, seatKey, seatRequest, showProbeChoice,
+         showProbeConfidence, showSeatChoice, showStatedRecord, startSeat } from "./follower_seat.js";
 
 const $ = (id) => document.getElementById(id);
 const ARROWS = { ArrowUp: "↑", ArrowDown: "↓", ArrowLeft: "←", ArrowRight: "→" };
@@ -263,13 +263,15 @@ function onMessage(msg) {
     showAgents(game);
     $("belief-whose").textContent = followers > 1 ? "your AI partners believe" : "your AI partner believes";
     $("belief-panel").hidden = !(msg.show_belief && follower.has_belief && followers > 0);
-    startSeat(game, (message) => connection.send(message));
-    status(assisting ? `your move: ${moveKeys(options.keys)}; say the goal with ${Object.keys(msg.belief_keys).join(", ")}`
-      : `your move: ${moveKeys(options.keys)}`);
+    if (!assisting) status(`your move: ${moveKeys(options.keys)}`);
+    startSeat(game, (message) => connection.send(message), seatStatus);  // in the seat: the hint follows the probe
   } else if (msg.type === "state") {
     lastState = msg;
     render(msg);
-    if (game.team && game.mode === "turn") status(`your move: ${moveKeys(options.keys)}`);
+    if (game.team && game.mode === "turn") {
+      if (game.seat === "follower") seatStatus(seatHint(game));
+      else status(`your move: ${moveKeys(options.keys)}`);
+    }
   } else if (msg.type === "seats") {
     showSeats(game, msg.seats);
   } else if (msg.type === "game_over") {
@@ -279,6 +281,7 @@ function onMessage(msg) {
     $("quit").hidden = true;
     $("over").hidden = false;
     $("over-scores").textContent = `team ${fmt(msg.scores.team)} (${agentScores(msg.scores)}) after ${msg.steps} steps`;
+    showStatedRecord(game, msg.stated);  // the follower seat: the goal's history against what you said
     const link = $("replay-link");
     link.hidden = !msg.replay_id;
     if (msg.replay_id) link.href = `/replay?id=${encodeURIComponent(msg.replay_id)}`;
@@ -303,6 +306,11 @@ function onMessage(msg) {
 }
 
 const fmt = (x) => (x > 0 ? "+" : "") + x;
+
+function seatStatus(hint) {
+  // the follower seat's status line: your move and what to say, or (a probe open) how to answer it
+  status(game.answering ? hint : `your move: ${moveKeys(options.keys)}. ${hint}`);
+}
 
 function named(name) {
   // "you", "your AI partner" (1:1); in a team with its label too: "L2 (the other person)", "F1 (your AI partner)"

@@ -3,11 +3,13 @@
 // "branch here" (branch.js: the replay continued with another follower, drawn beside it at the same step).
 // Colors and agents come with the timeline (`data.look`, agents in index order: the leaders first). Every
 // agent is drawn with its label and listed with its score; each follower that logged beliefs gets belief
-// bars and, in teams other than 1:1, its own episode chart (1:1: the one chart, as ever).
+// bars and, in teams other than 1:1, its own episode chart (1:1: the one chart, as ever). A person in a follower seat:
+// their statements and probe answers on the chart, beside the AI follower of the menu (person.js).
 import { agentBadge, describeBoard, drawBoard, drawBelief, setLook } from "./board.js";
 import { setupBranch, showBranch } from "./branch.js";
 import { drawChart, followerNames, stepAt } from "./chart.js";
 import { queryParam } from "./params.js";
+import { setupPerson } from "./person.js";
 
 const $ = (id) => document.getElementById(id);
 const id = queryParam("id");
@@ -21,6 +23,7 @@ let data = null, step = 0, timer = null;
 let oneToOne = true;  // one leader and one follower: the page as it always was
 let beliefViews = [];  // {name, bars}: where each follower with beliefs shows them
 let charts = [];  // {canvas, followers}: the episode charts and whose lines and pickups each shows
+let watched = {};  // {agent: [T][C]}: the AI follower of the menu watching a person's seat (person.js)
 
 function setStatus(text, kind = "") { $("status").textContent = text; $("status").className = kind; }
 
@@ -67,6 +70,7 @@ async function main() {
   show(Number.isFinite(wanted) ? wanted : 0);
   if (oneToOne) await setupBranch(id, data, () => step);
   else $("branch-controls").hidden = true;  // a branch continues the follower of a 1:1 team
+  await setupPerson(id, data, (beliefs) => { watched = beliefs; show(step); });
 }
 
 function count(role) { return data.look.agents.filter((agent) => agent.role === role).length; }
@@ -161,7 +165,7 @@ function show(t) {
   }
   const acted = Math.min(step, data.steps - 1);  // beliefs are logged per action: the last step has none of its own
   for (const { name, bars } of beliefViews) drawBelief(bars, data.goal_probs[name][acted], data.colors);
-  for (const { canvas, followers } of charts) drawChart(canvas, data, step, followers);
+  for (const { canvas, followers } of charts) drawChart(canvas, data, step, followers, watched);
   showBranch(step);
   const link = new URL(location.href);
   link.searchParams.set("step", step);

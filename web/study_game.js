@@ -1,12 +1,12 @@
-// A study's game, drawn for someone who has never seen ColorGrid: the board with a wide frame in the goal color, large
-// discs and a short trail behind their AI partner, a notice when the goal changes, which game this is, and what the
-// partner believes, in words. Everything is laid out when the game starts (the welcome) and nothing moves after: the
-// belief panel is there from the first step of a game that shows it. web/study.js hands it the server's messages.
+// A study's game, drawn for someone who has never seen ColorGrid: the board with a wide frame in the goal color, each
+// disc inside its own cell with a large label, a short trail behind their AI partner, a notice when the goal changes,
+// which game this is, and what the partner believes, in words. Everything is laid out when the game starts (the
+// welcome) and nothing moves after: the belief panel is there from the first step of a game that shows it. web/study.js hands it the server's messages.
 import { drawBelief, drawBoard } from "./board.js";
 
 const $ = (id) => document.getElementById(id);
 export const FRAME = 16;    // the goal frame's width in pixels: seen from the corner of an eye
-const DISC_CELLS = 1.5;     // each disc a cell and a half wide, over its neighbours' edges
+const LABEL_OF_CELL = 0.8;  // a disc's label, as a share of the cell: "L" 13 px high in a 16 px disc
 const BOARD_PIXELS = 512;   // the board's cells, without the frame
 const TRAIL = 6;            // how many of the AI partner's last cells are drawn behind it
 const NEWS_MS = 4000;       // how long "The goal is now blue" stays over the board
@@ -24,6 +24,7 @@ export function startGame(game, view) {
   const cell = Math.max(8, Math.floor(BOARD_PIXELS / Math.max(game.width, game.height)));
   canvas.width = game.width * cell + 2 * FRAME;
   canvas.height = game.height * cell + 2 * FRAME;
+  game.cell = cell;
   $("game-name").textContent = gameName(view);
   game.partners = game.look.agents.filter((a) => a.name !== view.agent).map((a) => a.name);
   game.trails = Object.fromEntries(game.partners.map((name) => [name, []]));
@@ -44,7 +45,7 @@ export function drawState(game, state) {
   game.last = state;
   for (const agent of game.look.agents) $("board").dataset[agent.name] = state[agent.name];  // for tools and tests
   drawBoard($("board"), { height: game.height, width: game.width, ...state },
-            { frame: FRAME, discCells: DISC_CELLS, trails: game.trails });
+            { frame: FRAME, labelPx: Math.round(LABEL_OF_CELL * game.cell), trails: game.trails });
   if (!$("belief-panel").hidden) showBelief(game, state.belief ?? null);
 }
 
