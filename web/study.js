@@ -5,7 +5,7 @@ import { setLook } from "./board.js";
 import { countdown } from "./countdown.js";
 import { PlaySocket } from "./socket.js";
 import { OwnMove } from "./predict.js";
-import { plainEnding, setEndings } from "./messages.js";
+import { plainEnding, plainError, setEndings } from "./messages.js";
 import { describe, disc, drawLegend } from "./study_people.js";
 import { drawState, gameName, startGame } from "./study_game.js";
 import { answerProbe, drawStated, probeRefused, seatKey, showProbeConfidence, startSeat } from "./follower_seat.js";
@@ -255,7 +255,8 @@ function onMessage(msg) {
     $("page").hidden = true;
     $("game").hidden = false;
     startGame(game, view);  // the board's size, which game, the belief panel: fixed from the first step
-    startSeat(game, (message) => connection.send(message));  // the follower seat: say what you believe, probes
+    startSeat(game, (message) => connection.send(message),  // the follower seat: say what you believe, probes
+              (hint) => { $("how-to-move").textContent = `Move with the arrow keys or W, A, S, D. ${hint}`; });
     $("how-to-move").textContent = msg.seat !== "follower" ? "Move with the arrow keys or W, A, S, D. The frame " +
       "around the board is the goal color." : `Move with the arrow keys or W, A, S, D. Say which color you believe ` +
       `is the goal with ${Object.keys(msg.belief_keys).join(", ")} or a click on a color.`;
@@ -276,7 +277,7 @@ function onMessage(msg) {
     console.info(msg);
     $("countdown").hidden = true;
     if (game && !game.over && msg.code === "bad_probe") {  // the probe asks again, with the reason
-      probeRefused(game, "Choose a color and how sure you are, then answer.");
+      probeRefused(game, plainError(msg));
       return;
     }
     if (game && !game.over && msg.code === "rejected") {  // its server stopped: the game cannot be rejoined
@@ -289,7 +290,7 @@ function onMessage(msg) {
       connection.close();
       api("view", who).then(show).catch((err) => status(err.message, "error"));
     }
-    status(msg.type === "full" ? "the server is busy: try again in a minute" : "something went wrong: try again", "error");
+    status(msg.type === "full" ? "the server is busy: try again in a minute" : plainError(msg), "error");
   } else if (msg.type === "replaced") {
     game.replaced = true;
     connection.close();
