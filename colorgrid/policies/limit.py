@@ -8,10 +8,12 @@ belief is over the goal and everything the leader keeps in mind (the color it pu
 notices a switch, a wrong color it set off after, the steps and direction of a detour), and each step it
 weighs the leader's observed action by the probability the leader's own rules give it (the A* step or
 the Boltzmann move toward each color it may pursue, hesitation, slips, detours), and the reward by the goal
-it implies. What it believes is therefore the posterior over the goal given everything a follower sees:
-no follower can name the goal more accurately on average, nor with a lower expected log-loss. It acts on
-that belief by ``bayes``'s rule (``BayesConfig``'s threshold and standby), so its pickups are those of the
-best belief under one decision rule, not a bound on pickups.
+it implies. What it believes is therefore the posterior over the goal given everything it has seen: no
+follower that reads the same history names the goal more accurately on average, nor with a lower expected
+log-loss. It is the limit of reading the leader, not of every way to learn the goal (a follower that acted
+otherwise would see other things: a block it collects tells it whether that color pays). It acts on that
+belief by ``bayes``'s rule (``BayesConfig``'s threshold and standby), so its pickups are those of the best
+belief under one decision rule, not a bound on pickups.
 
 Being told the leader's model is privileged, as the oracle's true goal is: the evaluation harness tells it
 (``Policy.see_team``, called by ``colorgrid.rollout.run_team``: ``colorgrid eval`` and its ``--leaders``
