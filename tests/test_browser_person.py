@@ -21,8 +21,9 @@ from tests.conftest import start_server, stop_server
 from tests.test_browser import pixel
 from tests.test_browser_follower import open_setup, replay_of
 
-BOXES = ("#board", "#belief-slot", "#mode-label", "#quit")
-"""What must not move when a probe opens: the board, the slot of the probe and the statement panel, what is below."""
+BOXES = ("#board", "#belief-slot", "#mode-label")
+"""What must not move when a probe opens: the board, the slot of the probe and the statement panel, and what is below
+it (down to the last step's events, whose line a pickup may lengthen)."""
 
 
 @pytest.fixture(scope="module")
@@ -155,9 +156,9 @@ def test_the_replay_player_draws_the_person_beside_the_ai_follower_with_both_mea
         elif color is not None:
             expected[-1][2] = t + 1
     assert [[r["color"], r["from"], r["to"]] for r in runs] == expected
-    for run in runs:
-        x = round(run["x0"] + (run["x1"] - run["x0"]) / 4)  # clear of the cursor at step 3
-        assert pixel(page, x, round(run["y"]), "#chart") == palette[run["color"]], run
+    for run in runs:  # along the top of its step, most pixels are its color (the cursor or a switch may cross it)
+        along = [pixel(page, x, round(run["y"]), "#chart") for x in range(round(run["x0"]) + 2, round(run["x1"]) - 1)]
+        assert along.count(palette[run["color"]]) > len(along) / 2, (run, along)
     # each probe's answer: a point in its color at its confidence
     points = json.loads(chart.get_attribute("data-probe-points"))
     assert [(p["color"], p["confidence"]) for p in points] == [(p["color"], p["confidence"]) for p in replay.probes]
