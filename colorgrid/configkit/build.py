@@ -1,4 +1,4 @@
-"""Building a config: from plain data (``from_dict``), with ``KEY=VALUE`` overrides (``parse_override``,
+"""Building a config: from plain data (``from_dict``), with ``KEY=VALUE`` overrides (``split_override``,
 ``apply_overrides``), from layers (``resolve``: a preset, a file, overrides), and named bundles (``Presets``)."""
 
 from __future__ import annotations
@@ -109,8 +109,9 @@ def merge(base: dict, override: dict) -> dict:
 
 
 # --------------------------------------------------------------- overrides
-def parse_override(text: str, flag: str = "--set", example: str = "ppo.lr=3e-4") -> tuple[list[str], Any]:
-    """``a.b.c=value`` -> ``(["a", "b", "c"], value)``; the value is JSON if it parses, else the string."""
+def split_override(text: str, flag: str = "--set", example: str = "ppo.lr=3e-4") -> tuple[list[str], Any]:
+    """``a.b.c=value`` -> ``(["a", "b", "c"], value)``: the key split at its dots, the value JSON if it parses, else
+    the string (``override_dict`` gives it as nested data, as ``train.config.parse_override`` does)."""
     if "=" not in text:
         raise ConfigError(f"{flag} {text!r}: expected KEY=VALUE, e.g. {example}")
     key, raw = text.split("=", 1)
@@ -126,7 +127,7 @@ def override_dict(text: str, cls=None, section: str | None = None, **kwargs) -> 
     ``a,b`` becomes a tuple where the field is one. ``section``: the keys are named as a config holding ``cls``
     in its field ``section`` names them (``env.horizon=64`` for ``EnvConfig`` under ``env``), and a key without
     it is read as one under it; the data is ``cls``'s own."""
-    path, value = parse_override(text, **kwargs)
+    path, value = split_override(text, **kwargs)
     prefix = ""
     if section is not None and path[0] == section:
         path, prefix = path[1:], f"{section}."

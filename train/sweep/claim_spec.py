@@ -69,59 +69,29 @@ class Claim:
         return ", ".join(f"{k}={'|'.join(map(str, v)) if isinstance(v, list) else v}" for k, v in side.items())
 
 
-FIELDS = ("name", "a", "b", "expect", "margin", "metric", "paper", "b_name")
-
-
-def parse_claims(params: tuple, metric: str, summarised: set[str], rows) -> tuple[Claim, ...]:
-    """The ``[[claim]]`` tables of a sweep file, checked against its parameters (``Param``s), its ``metric`` and the
-    columns its trials table ``summarised``."""
-    if not isinstance(rows, list):
-        raise bad("claim", rows, "a list of tables: [[claim]] name = ..., a = {...}, b = {...} or a number, "
-                                 "expect = '>', '<' or '~'")
+def parse_claims(params: tuple, metric: str, summarised: set[str], tables: tuple) -> tuple[Claim, ...]:
+    """The ``[[claim]]`` tables of a sweep file (``train.sweep.file.ClaimTable``s, each already checked on its own),
+    checked against its parameters (``Param``s), its ``metric`` and the columns its trials table ``summarised``."""
     claims, names = [], set()
-    for i, row in enumerate(rows):
+    for i, table in enumerate(tables):
         where = f"claim[{i}]"
-        if not isinstance(row, dict):
-            raise bad(where, row, "a table with name, a, b and expect")
-        unknown = sorted(set(row) - set(FIELDS))
-        if unknown:
-            raise SweepError(f"{where}: unknown field {unknown[0]!r}; allowed: {list(FIELDS)}")
-        name = row.get("name")
-        if not isinstance(name, str) or not name.strip() or name in names:
-            raise bad(f"{where}.name", name, "a non-empty name no other claim has")
-        names.add(name)
-        try:
-            direction = Direction(row.get("expect"))
-        except ValueError:
-            raise bad(f"{where}.expect", row.get("expect"),
-                      "'>' (a above b), '<' (a below b) or '~' (no difference beyond margin)") from None
-        margin = row.get("margin", 0.0)
-        if direction is Direction.SAME:
-            if not _positive(margin):
-                raise bad(f"{where}.margin", margin, "a number > 0 in the metric's units (expect = '~' needs one)")
-        elif "margin" in row:
-            raise bad(f"{where}.margin", margin, "given only with expect = '~'")
-        column = row.get("metric", metric)
+        if table.name in names:
+            raise bad(f"{where}.name", table.name, "a non-empty name no other claim has")
+        names.add(table.name)
+        column = table.metric if table.metric is not None else metric
         if column != metric and column not in summarised:
             raise bad(f"{where}.metric", column, f"the sweep's metric or a column the trials table summarises: "
                                                  f"{sorted(summarised)}")
-        a = _side(params, f"{where}.a", row.get("a"), constant_ok=False)
-        b = _side(params, f"{where}.b", row.get("b"), constant_ok=True)
+        a = _side(params, f"{where}.a", table.a, constant_ok=False)
+        b = _side(params, f"{where}.b", table.b, constant_ok=True)
         if isinstance(b, dict) and _overlap(params, a, b):
-            raise bad(f"{where}.b", row.get("b"), "a side sharing no configuration with a")
+            raise bad(f"{where}.b", table.b, "a side sharing no configuration with a")
         if isinstance(b, Baseline) and not _one_configuration(params, a):
-            raise bad(f"{where}.a", row.get("a"), "one configuration (one value of each listed parameter): a side "
-                                                  "against a baseline is paired with it by seed")
-        for text in ("paper", "b_name"):
-            if not isinstance(row.get(text, ""), str):
-                raise bad(f"{where}.{text}", row.get(text), "a string")
-        claims.append(Claim(name, a, b, direction, float(margin), column, row.get("paper", ""),
-                            row.get("b_name", "")))
+            raise bad(f"{where}.a", table.a, "one configuration (one value of each listed parameter): a side "
+                                             "against a baseline is paired with it by seed")
+        claims.append(Claim(table.name, a, b, Direction(table.expect), float(table.margin or 0.0), column,
+                            table.paper, table.b_name))
     return tuple(claims)
-
-
-def _positive(v) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
 
 
 def _one_configuration(params: tuple, side: dict) -> bool:
@@ -161,7 +131,7 @@ def _side(params: tuple, where: str, value, constant_ok: bool) -> dict | float |
     return side
 
 
-def configurations(params: tuple, where: str, value) -> dict:
+def parse_selection(params: tuple, where: str, value) -> dict:
     """A table ``{parameter = value or [values]}`` naming configurations (a claim's side, a ``[[more_seeds]]``
     table's ``where``), each value as the parameter lists it."""
     return _side(params, where, value, constant_ok=False)

@@ -14,12 +14,14 @@ from typing import Any
 
 from colorgrid.configkit import (ConfigBase, ConfigError, check_choice, check_int, check_number, fail, is_int,
                                  is_number)
+from train.sweep.claim_spec import Direction
 
 GRID_KINDS = ("grid", "options")
 RANDOM_KINDS = ("choice", "uniform", "loguniform")
 KINDS = GRID_KINDS + RANDOM_KINDS
 MODES = ("max", "min")
 SCHEDULERS = ("none", "asha")
+
 
 
 def written(value: Any) -> Any:
@@ -121,6 +123,45 @@ class MoreSeeds(Table):
 
 
 @dataclass(frozen=True)
+class ClaimTable(Table):
+    """``[[claim]]``: one of the paper's claims as written, each field checked on its own. What needs the file's
+    parameters and metric (its sides, the column it compares, a name no other claim has) is checked by
+    ``train.sweep.claim_spec.parse_claims``, which makes it a ``Claim``."""
+
+    name: str | None = None
+    """A short name, e.g. ``annealing helps`` (required)."""
+    a: Any = None
+    """Side a: ``{parameter = value or [values]}`` (required)."""
+    b: Any = None
+    """Side b: a table as ``a``, ``{ baseline = "<partner>/<policy>" }`` or a number (required)."""
+    expect: str | None = None
+    """The paper's direction: ``>`` (a above b), ``<`` (a below b) or ``~`` (no difference beyond ``margin``)."""
+    margin: float | None = None
+    """``~`` only (and required there): the largest difference that counts as none, in the metric's units."""
+    metric: str | None = None
+    """The final column compared (default: the sweep's metric)."""
+    paper: str = ""
+    """The paper's words (or figures) for the claim."""
+    b_name: str = ""
+    """What a constant or baseline side b is, for the report."""
+
+    def __post_init__(self):
+        if not isinstance(self.name, str) or not self.name.strip():
+            refuse(self, "name", "a non-empty name no other claim has")
+        if self.expect not in [d.value for d in Direction]:
+            refuse(self, "expect", "'>' (a above b), '<' (a below b) or '~' (no difference beyond margin)")
+        if self.expect == Direction.SAME:
+            if not (is_number(self.margin) and self.margin > 0):
+                fail(self, "margin", "a number > 0 in the metric's units (expect = '~' needs one)",
+                     value=0.0 if self.margin is None else self.margin)
+        elif self.margin is not None:
+            refuse(self, "margin", "given only with expect = '~'")
+        for text in ("paper", "b_name"):
+            if not isinstance(getattr(self, text), str):
+                refuse(self, text, "a string")
+
+
+@dataclass(frozen=True)
 class ParamTable(Table):
     """One ``[params.NAME]`` table: exactly one kind of values, and the training keys they set."""
 
@@ -199,7 +240,7 @@ class SweepFile(Table):
     scheduler: Scheduler = field(default_factory=Scheduler)
     paper: tuple[PaperFigure, ...] = ()
     """``[[paper]]``: the paper's figures, shown beside the sweep's own."""
-    claim: tuple = ()
+    claim: tuple[ClaimTable, ...] = ()
     """``[[claim]]``: the paper's claims to decide (``train.sweep.claim_spec``)."""
     results: str | None = None
     """A folder of finished trials' results kept with the project (``sweep publish`` writes it)."""
@@ -227,6 +268,9 @@ class SweepFile(Table):
             refuse(self, "more_seeds", "a list of tables: [[more_seeds]] seeds = [...], where = {...}")
         if not isinstance(self.paper, tuple):
             refuse(self, "paper", "a list of tables: [[paper]] where = {...}, value = ...")
+        if not isinstance(self.claim, tuple):
+            refuse(self, "claim", "a list of tables: [[claim]] name = ..., a = {...}, b = {...} or a number, "
+                                  "expect = '>', '<' or '~'")
         if self.results is not None and (not isinstance(self.results, str) or not self.results.strip()):
             refuse(self, "results", "a folder for the finished trials' results, e.g. 'docs/reproduction/x'")
 

@@ -21,7 +21,7 @@ from pathlib import Path
 from colorgrid.configkit import ConfigError, from_dict, read_toml, resolve_data
 from train.config import TrainConfig, eval_stream, load_preset, parse_override, resolve
 from train.sweep.checks import SUMMARY_SUFFIXES, SweepError, bad, same_value
-from train.sweep.claim_spec import configurations, matches, parse_claims
+from train.sweep.claim_spec import matches, parse_claims, parse_selection
 from train.sweep.file import (KINDS, RANDOM_KINDS, MoreSeeds, PaperFigure, ParamTable, Resources, Scheduler, SweepFile,
                               written)
 
@@ -280,8 +280,7 @@ def parse_sweep(data: dict, path: Path, text: str = "", out: str | Path | None =
     spec = dataclasses.replace(spec, paper=tuple(paper_figure(spec, i, row) for i, row in enumerate(file.paper)),
                                more_seeds=tuple(more_seeds(spec, i, row) for i, row in enumerate(file.more_seeds)))
     return dataclasses.replace(spec, claims=parse_claims(spec.params, spec.metric, summarised_columns(spec),
-                                                         list(written(file.claim)) if isinstance(file.claim, tuple)
-                                                         else file.claim))
+                                                         file.claim))
 
 
 def base_config(file: SweepFile) -> dict:
@@ -431,5 +430,5 @@ def more_seeds(spec: SweepSpec, i: int, more: MoreSeeds) -> MoreSeeds:
     if again:
         raise bad(f"{where}.seeds", written(more.seeds), f"seeds not already in 'seeds' {list(spec.seeds)} "
                                                          f"({again[0]} is)")
-    listed = configurations(spec.params, f"{where}.where", {k: written(v) for k, v in more.where.items()})
+    listed = parse_selection(spec.params, f"{where}.where", {k: written(v) for k, v in more.where.items()})
     return dataclasses.replace(more, where=listed)
