@@ -31,6 +31,7 @@ from colorgrid.config import ENV_ID, EnvConfig
 from colorgrid.env import BatchEnv
 from colorgrid.policies import make_policy
 from colorgrid.render import render_ansi, render_rgb
+from colorgrid.seat_view import seat_view
 from colorgrid.step_inputs import StepInputs
 
 GYM_ID = f"colorgrid/ColorGrid-v{ENV_ID.rsplit('_v', 1)[1]}"
@@ -183,15 +184,8 @@ class SeatVectorEnv(VectorEnv):
 
     def _observation(self, obs: dict):
         """The seat's view of batched observations: the Dict, or the flattened Box."""
-        planes = obs["observation"]
-        if self._self_plane:
-            planes = np.concatenate([planes, planes[:, self.config.num_colors + self.seat][:, None]], axis=1)
-        else:
-            planes = planes.copy()
-        goal = obs["goal_info"][:, self.seat].copy()
-        if not self.flatten:
-            return {"observation": planes, "goal_info": goal}
-        return np.concatenate([planes.reshape(self.num_envs, -1).astype(np.float32), goal], axis=1)
+        return seat_view(obs["observation"], obs["goal_info"], self.seat, self.config.num_colors, self._self_plane,
+                         self.flatten)
 
 
 class SeatEnv(gymnasium.Env):

@@ -10,6 +10,7 @@ from pettingzoo.utils.conversions import parallel_to_aec
 from colorgrid.config import ENV_ID, EnvConfig
 from colorgrid.env import BatchEnv
 from colorgrid.render import render_ansi, render_rgb
+from colorgrid.seat_view import seat_view
 
 RENDER_MODES = ("rgb_array", "ansi", "human")
 
@@ -134,17 +135,12 @@ class ColorGridParallelEnv(ParallelEnv):
         }
 
     def _split(self, obs: dict) -> dict:
-        planes = obs["observation"][0]
+        """Each agent's view of env 0's observations (``seat_view`` of a batch of one)."""
         out = {}
         for i, a in enumerate(self.names):
-            own = planes.copy()
-            if self._self_plane:  # the observer's own cell, again, as the last plane
-                own = np.concatenate([own, own[self.config.num_colors + i][None]])
-            goal = obs["goal_info"][0, i].copy()
-            if self.flatten:
-                out[a] = np.concatenate([own.reshape(-1).astype(np.float32), goal])
-            else:
-                out[a] = {"observation": own, "goal_info": goal}
+            view = seat_view(obs["observation"][:1], obs["goal_info"][:1], i, self.config.num_colors,
+                             self._self_plane, self.flatten)
+            out[a] = view[0] if self.flatten else {key: value[0] for key, value in view.items()}
         return out
 
 

@@ -101,18 +101,18 @@ def read_recipe_sweep(folder: Path) -> RecipeSweep:
     require("sweep", what, only=("pandas",))
     from train.checkpoint import load_checkpoint
     from train.cli import resumed_config
-    from train.sweep.results import committed_keys, results_folder, trained_to
+    from train.sweep.results import committed_keys, finished, results_folder, trained_to
     from train.sweep.spec import load_folder
 
     spec = load_folder(folder)  # a SweepError (a ValueError) when it is not a sweep's folder
     arms = recipe_arms(spec, folder)
-    trials = {}
+    trials, params = {}, {}
     for params_file in sorted(folder.glob("trial_*/params.json")):
-        params = json.loads(params_file.read_text())
-        if int(params.get("seed", -1)) == RECIPE_SEED:
-            trials[params.get("arm")] = params_file.parent
+        values = json.loads(params_file.read_text())
+        if int(values.get("seed", -1)) == RECIPE_SEED:
+            trials[values.get("arm")], params[values.get("arm")] = params_file.parent, values
     kept = committed_keys(spec, folder)  # trials run elsewhere: their results kept with the project, not their runs
-    finished, skipped = [], []
+    ready, skipped = [], []
     for arm in arms:
         trial = trials.get(arm)
         if trial is None and (spec.label({"arm": arm}), RECIPE_SEED) in kept:
@@ -124,14 +124,15 @@ def read_recipe_sweep(folder: Path) -> RecipeSweep:
             skipped.append(f"skipped the arm '{arm}': its seed-{RECIPE_SEED} trial has not started in {folder}")
             continue
         config = resumed_config(run, [])
-        total, last = config.end_step, trained_to(trial)
-        step = load_checkpoint(trial / TRIAL_CHECKPOINT)["step"] if last >= total else last
+        total = config.end_step
+        step = load_checkpoint(trial / TRIAL_CHECKPOINT)["step"] if finished(spec, trial, params[arm]) \
+            else trained_to(trial)
         if step < total:
             skipped.append(f"skipped the arm '{arm}': its seed-{RECIPE_SEED} trial ({trial.name}) has not finished "
                            f"(step {step:,} of {total:,})")
             continue
-        finished.append(RecipeTrial(arm, trial, config.env, step))
-    return RecipeSweep(folder, tuple(finished), tuple(skipped))
+        ready.append(RecipeTrial(arm, trial, config.env, step))
+    return RecipeSweep(folder, tuple(ready), tuple(skipped))
 
 
 def steps_text(steps: int) -> str:

@@ -65,6 +65,19 @@ def _plain(v):
     return v
 
 
+EPISODE_TOTALS = ("block_reward", "goal_pickups", "wrong_pickups", "net_pickups", "training_reward")
+"""What the training log totals for each agent over each finished episode (``episode_totals``)."""
+
+
+def episode_totals(final_info: dict, done: np.ndarray, training_reward: np.ndarray) -> dict[str, np.ndarray]:
+    """Each ``EPISODE_TOTALS`` entry, ``[E, A]``, of the episodes that ended (``done``, ``[B]``): the env's episode
+    records in ``final_info`` and the reward each agent trained on (``training_reward``, ``[B, A]``, shaping in)."""
+    goal, wrong = final_info["episode_goal_pickups"][done], final_info["episode_wrong_pickups"][done]
+    totals = {"block_reward": final_info["episode_block_reward"][done], "goal_pickups": goal,
+              "wrong_pickups": wrong, "net_pickups": goal - wrong, "training_reward": training_reward[done]}
+    return {key: totals[key] for key in EPISODE_TOTALS}
+
+
 def episode_columns(env: EnvConfig, totals: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
     """Per-episode totals ``{metric: [E, A]}`` as columns ``{agent name}_{metric}`` (``[E]`` each), agent by agent,
     then, beyond the 1:1 team, ``{role}s_{metric}``: the sum over the role's agents."""

@@ -30,7 +30,7 @@ from train.config import TrainConfig, eval_stream
 from train.inputs import rows_of_agents, step_tensors
 from train.learner import Learner
 from train.memory import keep_freed_memory
-from train.metrics import MetricsLog, episode_columns, evaluation_row
+from train.metrics import MetricsLog, episode_columns, episode_totals, evaluation_row
 from train.nets import ActorCritic
 from train.placement import Placement, device_name, pick_device
 from train.policy import NetPolicy
@@ -228,15 +228,10 @@ class Trainer:
                 learner.record(rewards[:, learner.agents].T.reshape(-1), np.tile(done, k), np.tile(true_goal, k),
                                final.get(i), targets[i])
             if done.any():
-                fi = infos["final_info"]
-                totals = {"block_reward": fi["episode_block_reward"][done],
-                          "goal_pickups": fi["episode_goal_pickups"][done],
-                          "wrong_pickups": fi["episode_wrong_pickups"][done],
-                          "net_pickups": fi["episode_goal_pickups"][done] - fi["episode_wrong_pickups"][done],
-                          "training_reward": shaped_sum[done]}
+                totals = episode_totals(infos["final_info"], done, shaped_sum)
                 for key, values in episode_columns(cfg.env, totals).items():
                     done_eps.setdefault(key, []).extend(values)
-                done_eps.setdefault("team_reward", []).extend(fi["episode_block_reward"][done].sum(axis=1))
+                done_eps.setdefault("team_reward", []).extend(totals["block_reward"].sum(axis=1))
                 shaped_sum[done] = 0.0
         episodes = {k: float(np.mean(v)) for k, v in done_eps.items()}
         if done_eps:

@@ -36,6 +36,14 @@ def refuse(owner, name: str, allowed: str) -> None:
     fail(owner, name, allowed, value=written(getattr(owner, name)))
 
 
+def check_seeds(owner, example: str) -> None:
+    """``owner.seeds`` is a non-empty list of distinct whole numbers >= 0 (``seeds``, ``[[more_seeds]] seeds``)."""
+    seeds = owner.seeds
+    if (not isinstance(seeds, tuple) or not seeds or not all(is_int(s) and s >= 0 for s in seeds)
+            or len(set(seeds)) != len(seeds)):
+        refuse(owner, "seeds", f"a list of distinct whole numbers >= 0, e.g. {example}")
+
+
 class Table(ConfigBase):
     """What every table of the sweep file shares: how its errors read (the field first, as ``ConfigBase``'s)."""
 
@@ -113,9 +121,7 @@ class MoreSeeds(Table):
     """Why these configurations get more seeds, for people."""
 
     def __post_init__(self):
-        if (not isinstance(self.seeds, tuple) or not self.seeds or not all(is_int(s) and s >= 0 for s in self.seeds)
-                or len(set(self.seeds)) != len(self.seeds)):
-            refuse(self, "seeds", "a list of distinct whole numbers >= 0, e.g. [3, 4]")
+        check_seeds(self, "[3, 4]")
         if not isinstance(self.where, dict) or not self.where:
             refuse(self, "where", "a non-empty table of {parameter name = value or [values]}")
         if not isinstance(self.note, str):
@@ -251,10 +257,7 @@ class SweepFile(Table):
                 refuse(self, name, "a string")
         if not isinstance(self.set, tuple) or not all(isinstance(s, str) for s in self.set):
             refuse(self, "set", "a list of KEY=VALUE strings, as colorgrid train --set takes them")
-        seeds = self.seeds
-        if (not isinstance(seeds, tuple) or not seeds or not all(is_int(s) and s >= 0 for s in seeds)
-                or len(set(seeds)) != len(seeds)):
-            refuse(self, "seeds", "a list of distinct whole numbers >= 0, e.g. [0, 1, 2]")
+        check_seeds(self, "[0, 1, 2]")
         if not isinstance(self.params, dict):
             refuse(self, "params", "a table ([params])")
         check_int(self, "num_samples", 1, allowed="a whole number >= 1 (draws of the random parameters per grid "

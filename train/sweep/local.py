@@ -47,7 +47,7 @@ def run_local(spec: SweepSpec, processes: int, stop_after: float | None = None) 
     """Run (or continue) every trial of ``spec`` in ``spec.out`` with ``processes`` at a time, then write the
     folder's tables; returns the exit status (0: every trial finished; 130: stopped before that, continue with the
     same command)."""
-    from train.sweep.results import collect, committed_keys, results_folder
+    from train.sweep.results import collect, committed_keys, finished, results_folder
 
     if processes < 1:
         raise SweepError(f"--local takes the number of trials to run at a time (>= 1), got {processes}")
@@ -142,13 +142,6 @@ def share_stop(event) -> None:
     global _STOP
     _STOP = event
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent asks every trial to stop through the event
-
-
-def finished(spec: SweepSpec, trial_dir: Path, params: dict) -> bool:
-    """Whether the trial's training log reaches its last step."""
-    from train.sweep.results import trained_to
-
-    return trained_to(trial_dir) >= spec.config(spec.values(params), int(params["seed"])).end_step
 
 
 def trial_packs(spec: SweepSpec, todo: list[dict]) -> list[list[dict]]:

@@ -76,6 +76,12 @@ def trained_to(trial_dir: Path) -> int:
     return max(training_rows(trial_dir), default=0)
 
 
+def finished(spec, trial_dir: Path, params: dict) -> bool:
+    """Whether the trial of ``params`` (its ``params.json``), in ``trial_dir``, has finished: its training log reaches
+    its configuration's ``end_step``."""
+    return trained_to(trial_dir) >= spec.config(spec.values(params), int(params["seed"])).end_step
+
+
 CURVE_COLUMNS = ("wall_time_s", "sps", "penalty_coef", "team_reward")
 """Columns the kept curves hold besides the identity, the step, the metric and the summarised columns."""
 UNFINISHED_FILE = "unfinished.csv"

@@ -371,13 +371,12 @@ def summarised_columns(spec: SweepSpec) -> set[str]:
 
 def metric_columns(config: TrainConfig) -> set[str]:
     """The columns of the training log a sweep can take as its metric (learner statistics, ``NAME/key``, aside)."""
-    from train.metrics import episode_columns
+    from train.metrics import EPISODE_TOTALS, episode_columns
 
     import numpy as np
 
     A = config.env.num_agents
-    totals = {k: np.zeros((1, A)) for k in ("block_reward", "goal_pickups", "wrong_pickups", "net_pickups",
-                                                  "training_reward")}
+    totals = {k: np.zeros((1, A)) for k in EPISODE_TOTALS}
     columns = {"team_reward", "penalty_coef", "sps", "episodes", *episode_columns(config.env, totals)}
     names = [*config.env.agent_names, *([f"{r}s" for r in ("leader", "follower")] if not config.env.one_to_one
                                         else [])]
