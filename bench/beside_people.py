@@ -1,8 +1,9 @@
 """Every follower beside the held-out people and beside A*, against the information limit (``bayes-limit``): the
 table and the picture of docs/ASSISTANT_RECIPE.md's "Beside people".
 
-    python bench/beside_people.py measure --episodes 100 --seed 0 --out runs/beside_people/beside_people.json
-    python bench/beside_people.py draw runs/beside_people/beside_people.json --png docs/images/beside_people.png
+    python bench/beside_people.py measure --episodes 100 --seed 0 --workers 2 \
+        --out docs/reproduction/beside_people/beside_people.json      # 388 s on 2 CPU cores beside a training run
+    python bench/beside_people.py draw docs/reproduction/beside_people/beside_people.json   # the tables; the picture
 
 ``measure`` plays every follower beside A* and beside each member of ``population:people#held_out`` on the same
 episodes (env ``i`` seeded ``seed + i``) and keeps, per episode, the follower's net and wrong pickups, its belief
@@ -179,6 +180,23 @@ def table(report: dict, leaders: list[str]) -> str:
     return "\n".join(lines)
 
 
+def per_leader(report: dict) -> str:
+    """The markdown table of each follower's gap to the limit beside each held-out leader: net pickups, and belief
+    accuracy in points (paired over that leader's episodes)."""
+    followers = [f for f in report["followers"] if f != LIMIT]
+    lines = ["| leader | limit: net / accuracy | " + " | ".join(f"`{label(f)}`" for f in followers) + " |",
+             "|---|---:|" + "---:|" * len(followers)]
+    for name in report["held_out"]:
+        limit = summary(report, [name])[LIMIT]
+        cells = []
+        for follower in followers:
+            gap = summary(report, [name])[follower]["gap"]
+            acc = "" if gap["accuracy"] is None else f" / {gap['accuracy'][0] * 100:+.1f}"
+            cells.append(f"{gap['net'][0]:+.2f}{acc}")
+        lines.append(f"| {name} | {limit['net'][0]:+.2f} / {limit['accuracy'][0]:.1%} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def draw(report: dict, png: Path) -> None:
     import matplotlib
 
@@ -247,6 +265,9 @@ def main(argv: list[str] | None = None) -> int:
     print(table(report, report["held_out"]))
     print(f"\nBeside A* ({report['episodes']} episodes):\n")
     print(table(report, ["astar"]))
+    if LIMIT in report["followers"]:
+        print("\nGap to the limit beside each held-out leader: net pickups / belief accuracy (points)\n")
+        print(per_leader(report))
     draw(report, args.png)
     print(f"\nwrote {args.png}")
     return 0
