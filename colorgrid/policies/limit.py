@@ -122,7 +122,11 @@ def leader_step(joint: np.ndarray, move_probs: np.ndarray, action: np.ndarray, l
         return joint * own[..., None]
     along = taken((action[:, None] == np.arange(MOVES)[None]).astype(float))  # [B, direction]
     L = style.detour_len
-    index = lambda left, direction: 0 if left == 0 else 1 + MOVES * (left - 1) + direction  # noqa: E731
+
+    def index(left: int, direction: int) -> int:
+        """The detour axis's index of ``left`` steps still to walk in ``direction`` (0: none)."""
+        return 0 if left == 0 else 1 + MOVES * (left - 1) + direction
+
     out = np.zeros_like(joint)
     idle = joint[..., 0]  # [B, goal, target, pending, distracted]: on no detour before the step
     out[..., 0] += idle * (1.0 - style.detour) * own
