@@ -12,8 +12,10 @@ paying pickup yet).
     colorgrid replay rescore recordings/scripted --follower bayes-people ippo
 
 With ``--participants N`` it takes part in the study a ``colorgrid study run`` serves, as N participants
-(``stand-in-1``, ...) one after another: it consents, plays every game of the study in the follower seat, answers each
-question (a Likert scale's middle point, a choice's first option, no text), so that the study's export, and what is
+(``stand-in-1``, ...) one after another: it passes the study's screening as a desktop browser of 1280 by 800 pixels
+would (its round trips measured over the play socket), consents, plays every game of the study in the follower seat,
+answers each question (a Likert scale's middle point, a choice's first option, no text; each check's options in turn
+until one is taken), so that the study's export, and what is
 computed from it (``colorgrid study power``), can be shown on real files without human data:
 
     colorgrid study run studies/human_follower.toml --replays-dir recordings/stand_in
@@ -26,12 +28,15 @@ from __future__ import annotations
 import argparse
 import json
 import time
+import urllib.error
 import urllib.request
 
 from websockets.sync.client import connect
 
 PACE_S = 0.04
 """Between two messages: within the server's --max-messages-per-s (40 by default), as a person's keys are."""
+VIEWPORT = (1280, 800)
+"""The window the stand-in says it has, for a study's screening."""
 MOVES = {(-1, 0): "ArrowUp", (1, 0): "ArrowDown", (0, -1): "ArrowLeft", (0, 1): "ArrowRight"}
 
 
@@ -102,6 +107,19 @@ def post(base: str, path: str, body: dict) -> dict:
         return json.loads(response.read())
 
 
+def round_trips(url: str, pings: int) -> list[float]:
+    """The round trips (ms) of ``pings`` pings over a play socket, as the study page measures them before consent."""
+    times = []
+    with connect(url, open_timeout=20) as ws:
+        for _ in range(pings):
+            sent = time.perf_counter()
+            ws.send(json.dumps({"type": "ping"}))
+            while json.loads(ws.recv(timeout=60))["type"] != "pong":
+                pass
+            times.append((time.perf_counter() - sent) * 1000)
+    return times
+
+
 def answer(question: dict):
     """The stand-in's answer to a study's question: a Likert scale's middle point, a choice's first option, no text."""
     return {"likert": (question["scale"] + 1) // 2, "choice": (question["options"] or [None])[0]}.get(question["kind"])
@@ -111,8 +129,13 @@ def take_part(url: str, pid: str) -> int:
     """Go through the study served at ``url`` (the play socket's URL) as participant ``pid``, from consent to its
     last page; returns the games played."""
     base = url.replace("ws://", "http://", 1).replace("wss://", "https://", 1).removesuffix("/ws/play")
-    joined = post(base, "/api/study/join", {"params": {"PROLIFIC_PID": pid, "STUDY_ID": "stand-in",
-                                                       "SESSION_ID": pid}})
+    with urllib.request.urlopen(base + "/api/study/info", timeout=60) as response:
+        screening = json.loads(response.read())["screening"]
+    join = {"params": {"PROLIFIC_PID": pid, "STUDY_ID": "stand-in", "SESSION_ID": pid}}
+    if screening is not None:
+        join["screen"] = {"touch_only": False, "viewport": list(VIEWPORT),
+                          "round_trips_ms": round_trips(url, screening["pings"])}
+    joined = post(base, "/api/study/join", join)
     who, view, games = {"pid": pid, "session": joined["session"]}, joined["view"], 0
     while not view.get("finished") and view["kind"] != "debrief":
         body = {**who, "step": view["step"]}
@@ -121,9 +144,20 @@ def take_part(url: str, pid: str) -> int:
         if view.get("game") and not view.get("done"):
             play_game(url, {"type": "new_game", "study": {"participant": pid, "session": joined["session"]}})
             games += 1
-        if view.get("questions"):
-            body["answers"] = {q["id"]: answer(q) for q in view["questions"]}
-        view = post(base, "/api/study/advance", body)
+        tried = {q["id"]: 0 for q in view.get("questions") or []}  # a check: the option tried
+        while True:
+            if view.get("questions"):
+                body["answers"] = {q["id"]: q["options"][tried[q["id"]]] if q["kind"] == "check" else answer(q)
+                                   for q in view["questions"]}
+            try:
+                view = post(base, "/api/study/advance", body)
+                break
+            except urllib.error.HTTPError as err:  # a check answered wrong, with tries left: the next option
+                detail = json.loads(err.read())["detail"]
+                if err.code != 422 or not isinstance(detail, dict) or not detail.get("again"):
+                    raise
+                for problem in detail["problems"]:
+                    tried[problem["question"]] += 1
     return games
 
 

@@ -590,7 +590,8 @@ def test_every_exported_table_has_the_declared_columns_and_types_in_parquet_and_
         csv = read_csv(out, name)
         arrow = pq.read_table(out / f"{name}.parquet").schema
         assert check_frame(parquet, table) == [] and check_frame(csv, table) == [] and check_arrow(arrow, table) == []
-        assert len(parquet) > 0 or name in ("probes", "statements"), name  # those two: the follower seat's
+        # the follower seat's two tables, and exclusions (this study declares no rules)
+        assert len(parquet) > 0 or name in ("probes", "statements", "exclusions"), name
         pd.testing.assert_frame_equal(csv, parquet)  # the same values and types from either file
         assert json.loads(arrow.metadata[b"colorgrid"])["columns"][0]["name"] == "participant"
         assert (parquet.arm_label.notna()).all(), name  # every row says whose arm it is

@@ -243,7 +243,7 @@ def test_the_export_from_postgresql_equals_the_export_from_sqlite(postgres, tmp_
         exported[name] = tables(study, database, replays_dir)
     assert len(exported["sqlite"]["trials"]) == 2 * 5 + 2 and len(exported["sqlite"]["answers"]) == 2 * 6 + 1
     for table, frame in exported["sqlite"].items():  # (keys and focus come from the replays: none recorded here)
-        assert len(frame) > 0 or table in ("keys", "focus", "probes", "statements"), table
+        assert len(frame) > 0 or table in ("keys", "focus", "probes", "statements", "exclusions"), table
         pd.testing.assert_frame_equal(exported["postgresql"][table], frame, obj=table)
 
 

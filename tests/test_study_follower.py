@@ -25,9 +25,11 @@ HORIZON = 5
 
 
 def fast_study(tmp) -> tuple:
-    """The example with games of 5 turn-based steps, probes at steps 2 and 4 (and a practice of 5)."""
+    """The example with games of 5 turn-based steps, probes at steps 2 and 4 (and a practice of 5), and a trial
+    excluded for any time away from the page (``away_s = 0``)."""
     data = tomllib.loads(EXAMPLE.read_text())
     data["defaults"]["horizon"] = HORIZON
+    data["exclusions"]["away_s"] = 0
     data["factors"]["probes"] = ["none", "steps:2,4"]
     for page in data["pages"]:
         if page["kind"] == "practice":
@@ -67,14 +69,16 @@ def test_a_wrong_follower_seat_in_a_study_file_is_one_line_and_exit_code_2(chang
     assert words in done.stderr
 
 
-def play_game(page, goal: str) -> int:
+def play_game(page, goal: str, away: bool = False) -> int:
     """One study game in the follower seat: say green, move, answer each probe (blue, 70%); the goal row says
-    ``goal``. Returns the probes answered."""
+    ``goal``; ``away``: the window loses its focus and gets it back first. Returns the probes answered."""
     board = page.locator("#board")
     page.click("#play")
     expect(board).to_be_visible()
     expect(page.locator("#stated-panel")).to_be_visible()
     expect(page.locator("#goal-name")).to_have_text(re.compile(goal))
+    if away:
+        page.evaluate("window.dispatchEvent(new Event('blur')); window.dispatchEvent(new Event('focus'))")
     board.focus()
     page.keyboard.press("2")
     asked = 0
@@ -106,6 +110,13 @@ def test_a_participant_plays_the_assistant_in_chromium_and_the_export_has_belief
         expect(page.locator("#legend [data-who=you]")).to_contain_text("You")
         expect(page.locator("#legend [data-who=partner]")).to_contain_text("The AI leader (it knows the goal)")
         expect(page.locator("#board-picture")).to_be_hidden()  # the picture is the leader's seat's
+        # the comprehension checks: one answered wrong, the instructions shown again, then both right
+        page.locator("fieldset[data-id=your_disc] input[value='the dark disc marked L']").check()
+        page.locator("fieldset[data-id=what_to_say] input[value='which color I believe is the goal']").check()
+        page.click("#next")
+        expect(page.locator("#check-note")).to_contain_text("please read the instructions again")
+        expect(page.locator("#page-title")).to_have_text("How to play")
+        page.locator("fieldset[data-id=your_disc] input[value='the yellow disc marked F']").check()
         page.click("#next")
         expect(page.locator("#page-title")).to_have_text("Practice game")
         assert play_game(page, "^(red|green|blue)$") == 1  # the practice shows the goal: a control
@@ -113,7 +124,7 @@ def test_a_participant_plays_the_assistant_in_chromium_and_the_export_has_belief
         page.click("#next")
         for trial in range(4):
             expect(page.locator("#page-title")).to_have_text(f"Game {trial + 1} of 4")
-            assert play_game(page, "^hidden from you$") in (0, 2)
+            assert play_game(page, "^hidden from you$", away=trial == 0) in (0, 2)
             expect(page.locator("#next")).to_be_visible()
             page.click("#next")
             page.locator("fieldset[data-id=sure] input[value='5']").check()
@@ -135,7 +146,7 @@ def test_a_participant_plays_the_assistant_in_chromium_and_the_export_has_belief
     study = load_study(path)
     declared = export_schema(study)
     tables = {}
-    for name in ("trials", "steps", "keys", "probes", "statements"):
+    for name in ("trials", "steps", "keys", "probes", "statements", "exclusions", "focus", "answers"):
         parquet, csv = pd.read_parquet(out / f"{name}.parquet"), read_csv(out, name)
         assert check_frame(parquet, declared[name]) == [] and check_frame(csv, declared[name]) == [], name
         assert check_arrow(pq.read_table(out / f"{name}.parquet").schema, declared[name]) == [], name
@@ -158,6 +169,17 @@ def test_a_participant_plays_the_assistant_in_chromium_and_the_export_has_belief
     statements = tables["statements"]
     assert set(statements.via) == {"key", "probe"} and statements.color.dtype == "int64"
     assert (tables["keys"][tables["keys"].status == "stated"].color == 1).all()
+    # the trial the window left is excluded, with the time away the server recorded; no other rule is broken
+    exclusions, focus = tables["exclusions"], tables["focus"]
+    first = trials[trials.trial_index == 0].game_id.item()
+    away = exclusions.set_index("game_id").loc[first]
+    assert away.rule == "away" and away.threshold == 0 and away.trial_index == 0
+    assert away.value == pytest.approx(trials.set_index("game_id").loc[first, "away_s"]) and away.value > 0
+    assert set(exclusions.rule) == {"away"}  # the checks were passed on a second try: no participant excluded
+    blurred = focus[(focus.trial_index == 0) & (focus.event == "blur")]
+    assert len(blurred) >= 1 and set(exclusions.trial_index) <= set(focus.trial_index.dropna())
+    checks = tables["answers"][tables["answers"].question_kind == "check"]
+    assert len(checks) == 2 and checks.correct.all()
     for replay_id in trials.replay_id:
         assert verify(load(server.replays_dir / f"{replay_id}.replay.json")).ok
     # the analysis of docs/STUDIES.md, as it stands there, on this export (games a test played, not people)
@@ -166,8 +188,10 @@ def test_a_participant_plays_the_assistant_in_chromium_and_the_export_has_belief
     namespace = {}
     exec(code, namespace)
     per_game = namespace["per_game"]
-    assert len(per_game) == 4 * 3 and set(per_game.who) == {"person", "bayes-people", "ippo"}
+    assert len(per_game) == 3 * 3 and set(per_game.who) == {"person", "bayes-people", "ippo"}  # one trial excluded
+    assert first not in set(trials[trials.replay_id.isin(per_game.replay_id)].game_id)
     assert set(per_game.condition_leader) == {"astar", "person:slip=0.1,notice_delay=3"}
     mine = per_game[per_game.who == "person"].set_index("replay_id").accuracy.to_dict()
-    exported = trials[trials.kind == "trial"].set_index("replay_id").stated_accuracy.to_dict()
+    kept = trials[(trials.kind == "trial") & (trials.game_id != first)]
+    exported = kept.set_index("replay_id").stated_accuracy.to_dict()
     assert mine == pytest.approx(exported)  # the export's trials columns are the same computation

@@ -9,6 +9,7 @@ import { plainEnding, plainError, setEndings } from "./messages.js";
 import { describe, disc, drawLegend } from "./study_people.js";
 import { drawState, gameName, startGame } from "./study_game.js";
 import { answerProbe, drawStated, probeRefused, seatKey, showProbeConfidence, startSeat } from "./follower_seat.js";
+import { PlayPings, measureScreen } from "./study_screen.js";
 
 const $ = (id) => document.getElementById(id);
 const params = Object.fromEntries(new URLSearchParams(location.search));
@@ -61,7 +62,8 @@ async function join() {
   // lost to a stopped process) resumes the participant instead of finding them "already started".
   const session = saved?.session ?? newSession();
   if (!saved) localStorage.setItem(storageKey(), JSON.stringify({ session }));
-  const joined = await api("join", { params: sent, session }, 3);
+  const screen = info.screening ? await measureScreen(info.screening.pings) : null;  // the study's [screening]
+  const joined = await api("join", { params: sent, session, ...(screen ? { screen } : {}) }, 3);
   who = { pid: joined.pid, session: joined.session };
   localStorage.setItem(storageKey(), JSON.stringify(who));
   show(joined.view);
@@ -77,6 +79,7 @@ function show(next) {
   $("page-text").innerHTML = view.html;  // rendered by the server from the study file (raw HTML is escaped)
   $("progress").textContent = `page ${view.step + 1} of ${view.steps}`;
   $("questions").replaceChildren(...(view.questions ?? []).map(questionField));
+  $("check-note").hidden = true;
   $("legend").hidden = !["instructions", "practice", "trial"].includes(view.kind);  // who is who, before each game
   drawLegend($("legend"), view.look, view.agent);
   // the board, its frame and its discs, labelled (for the leader's seat: the picture says "you are L")
@@ -137,7 +140,7 @@ function questionField(q) {
     box.append(area);
     return box;
   }
-  const choices = q.kind === "likert" ? Array.from({ length: q.scale }, (_, i) => String(i + 1)) : q.options;
+  const choices = q.kind === "likert" ? Array.from({ length: q.scale }, (_, i) => String(i + 1)) : q.options;  // check: a choice
   if (q.kind === "likert" && q.labels.length) box.append(span(q.labels[0], "note"));
   for (const value of choices) {
     const label = document.createElement("label");
@@ -175,7 +178,9 @@ async function next() {
     showProblems([], false);
     show(await api("advance", body, 3));
   } catch (err) {
-    if (err.problems) {
+    if (err.detail?.again) {  // a check answered wrong: the page (its instructions) again, from the top
+      readAgain(err.problems);
+    } else if (err.problems) {
       showProblems(err.problems);
     } else {
       status(err.message, "error");
@@ -184,6 +189,20 @@ async function next() {
 }
 
 let problemsShown = [];
+
+function readAgain(problems) {
+  // A wrong answer to a check: the note above the page's text, the wrong answers cleared, the page from its top.
+  for (const p of problems) {
+    for (const input of $("questions").querySelectorAll(`fieldset[data-id="${p.question}"] input`)) input.checked = false;
+  }
+  showProblems(problems, false);
+  $("check-note").textContent = view.kind === "instructions"
+    ? "Not quite: please read the instructions again, then answer the question below once more."
+    : "Not quite: please read the question again and answer once more.";
+  $("check-note").hidden = false;
+  $("page").scrollIntoView({ block: "start" });
+  $("page-title").focus();
+}
 
 function showProblems(problems, focus = true) {
   // The server's problems with the answers, each beside its question; the status line names the questions.
@@ -223,6 +242,7 @@ function answered(event) {
 // ------------------------------------------------------------------ games
 // One connection, for the game in play (web/socket.js): only its messages count, it rejoins the game after a drop,
 // and it is closed when the game ends.
+const pings = new PlayPings((message) => connection.ready && connection.send(message));  // round trips in play
 const connection = new PlaySocket({
   onMessage,
   resume: () => (game && !game.over && !game.replaced ? { type: "rejoin", game_id: game.game_id, token: game.token }
@@ -266,11 +286,15 @@ function onMessage(msg) {
     if (!$("countdown").hidden) setTimeout(() => { $("countdown").hidden = true; }, 700);
     status("");
     $("board").focus();
+    pings.start();
+  } else if (msg.type === "pong") {
+    pings.pong();
   } else if (msg.type === "state") {
     lastState = msg;
     render(own.shown(msg));
   } else if (msg.type === "game_over") {
     game.over = true;
+    pings.stop();
     connection.close();  // one connection a game (the server closes it too)
     api("view", who).then(show).catch((err) => status(err.message, "error"));
   } else if (msg.type === "error" || msg.type === "full") {
@@ -282,6 +306,7 @@ function onMessage(msg) {
     }
     if (game && !game.over && msg.code === "rejected") {  // its server stopped: the game cannot be rejoined
       game = null;
+      pings.stop();
       connection.close();
       api("view", who).then(show).catch((err) => status(err.message, "error"));  // it offers to play it again
       return;
@@ -293,6 +318,7 @@ function onMessage(msg) {
     status(msg.type === "full" ? "the server is busy: try again in a minute" : plainError(msg), "error");
   } else if (msg.type === "replaced") {
     game.replaced = true;
+    pings.stop();
     connection.close();
     status("this game continues in another tab or window", "warn");
   }
@@ -380,8 +406,13 @@ $("questions").addEventListener("input", answered);
 join().catch((err) => {
   $("page").hidden = false;
   const finished = err.detail?.completion_code !== undefined;  // finished before, in another browser
+  const screened = err.detail?.return_code !== undefined;  // the study's [screening] refused this device
   $("page-title").textContent = finished ? "You have completed this study" : "This study cannot continue here";
   $("page-text").textContent = err.message;
   if (finished) showCompletion(err.detail.completion_code, err.detail.redirect_url);
+  if (screened) {
+    $("code-label").textContent = "Your return code:";
+    showCompletion(err.detail.return_code, err.detail.redirect_url);
+  }
   $("next").hidden = $("play").hidden = true;
 });

@@ -39,13 +39,15 @@ async function refresh() {
   $("times").textContent = median === null ? "no one has completed yet"
     : `completion time: median ${median.toFixed(1)} min (all: ${s.completion_minutes.values.join(", ")})`;
   $("endings").textContent = endings(s.endings);
+  $("refused").textContent = refused(s.refused);
   const mean = (value, digits = 2) => (value == null ? "" : value.toFixed(digits));
   table($("arms"), ["arm", "trials (conditions in order)", "in progress", "completed", "quota", "trials ended",
                     "team score (mean)", "AI partner's net pickups (mean)", "its wrong pickups (mean)",
-                    "belief accuracy (mean)"],
+                    "belief accuracy (mean)", "trials excluded", "participants excluded"],
     s.arms.map((a) => [a.arm, a.label, a.active, a.completed, s.quota ?? "none", a.trials?.games ?? 0,
                        mean(a.trials?.team_score), mean(a.trials?.follower_net_pickups),
-                       mean(a.trials?.follower_wrong_pickups), mean(a.trials?.belief_accuracy)]));
+                       mean(a.trials?.follower_wrong_pickups), mean(a.trials?.belief_accuracy),
+                       excluded(a.excluded.trials, a.excluded.rules), a.excluded.participants]));
   $("servers").hidden = !s.backends;  // several processes behind HAProxy: each one's load and clock
   if (s.backends) {
     table($("backends"), ["process", "address", "state", "live games", "connections", "tick lateness p50 / p99 (ms)",
@@ -69,6 +71,18 @@ function endings({ counted, played_again: again }) {
   const list = (counts) => Object.entries(counts).map(([ended, n]) => `${n} ${ENDING_WORDS[ended] ?? ended}`)
     .join(", ");
   return `Games that count: ${list(counted) || "none yet"}. Played again: ${list(again) || "none"}.`;
+}
+
+function excluded(trials, rules) {
+  // "2 (away 1, idle 1)": trials the study's [exclusions] rules exclude, and the rows of each rule (a trial may break two)
+  const each = Object.entries(rules).filter(([rule]) => rule !== "failed_checks").map(([rule, n]) => `${rule} ${n}`);
+  return each.length ? `${trials} (${each.join(", ")})` : String(trials);
+}
+
+function refused(counts) {
+  // "Refused at the door: 2 full, 1 screening:viewport." (the reasons the server logged)
+  const list = Object.entries(counts).map(([reason, n]) => `${n} ${reason}`).join(", ");
+  return `Refused at the door: ${list || "none"}.`;
 }
 
 async function open() {

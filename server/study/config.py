@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import re
+import statistics
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -24,7 +25,8 @@ from server.protocol import MAX_HORIZON, GoalView, SeatKind, Team
 from server.stated import PROBE_FORMS, ProbePlan
 
 PAGE_KINDS = ("consent", "instructions", "practice", "trials", "questionnaire", "debrief")
-QUESTION_KINDS = ("likert", "choice", "text")
+QUESTION_KINDS = ("likert", "choice", "text", "check")
+"""``check``: a comprehension or attention check, a choice with one right ``answer`` (``Question.answer``)."""
 FACTORS = ("follower", "show_belief", "mode", "preset", "horizon", "tick_hz", "seat", "leader", "goal", "probes")
 """What a condition may vary: the fields of ``GameSettings``."""
 ID_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
@@ -131,9 +133,15 @@ class Question:
     labels: tuple[str, ...] = ()
     """``likert``: the words under the lowest and the highest point (two, or none)."""
     options: tuple[str, ...] = ()
-    """``choice``: the options, in the order shown."""
+    """``choice`` and ``check``: the options, in the order shown."""
     max_length: int = 2000
     """``text``: the longest answer taken, in characters."""
+    answer: str = ""
+    """``check``: the right option (one of ``options``; the page never sees it)."""
+    tries: int = 2
+    """``check``: answers taken before the participant goes on with a wrong one (a failed check, in the export's
+    ``exclusions`` table when ``[exclusions] failed_checks`` says so); after each wrong one but the last, the page
+    (its instructions, on an instructions page) is shown again."""
 
     def __post_init__(self):
         if not isinstance(self.id, str) or not ID_PATTERN.match(self.id):
@@ -147,11 +155,20 @@ class Question:
         if self.kind == "likert" and len(self.labels) not in (0, 2):
             fail(self, "labels", "two words (the lowest and the highest point) or none")
         check_strings(self, "options", distinct=True)
-        if self.kind == "choice" and len(self.options) < 2:
-            fail(self, "options", "at least two distinct options for a 'choice' question")
-        if self.kind != "choice" and self.options:
-            fail(self, "options", "only for kind='choice'")
+        choosing = self.kind in ("choice", "check")
+        if choosing and len(self.options) < 2:
+            fail(self, "options", f"at least two distinct options for a {self.kind!r} question")
+        if not choosing and self.options:
+            fail(self, "options", "only for kind='choice' or kind='check'")
         check_int(self, "max_length", 1, 100_000, allowed="a whole number in 1..100000")
+        if not isinstance(self.answer, str) or (self.kind == "check" and self.answer not in self.options):
+            fail(self, "answer", f"the right option, one of {list(self.options)}" if self.kind == "check"
+                 else "only for kind='check' (the right option)")
+        if self.kind != "check" and self.answer:
+            fail(self, "answer", "only for kind='check' (the right option)")
+        check_int(self, "tries", 1, 10, allowed="a whole number in 1..10")
+        if self.kind == "check" and not self.required:
+            fail(self, "required", "true for a 'check' question (a check cannot be skipped)")
 
     def problem(self, value: Any) -> str | None:
         """What is wrong with ``value`` as an answer, in words for the participant (None: it is a valid answer,
@@ -161,7 +178,7 @@ class Question:
         if self.kind == "likert":
             ok = isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= self.scale
             return None if ok else f"Choose one of the points from 1 to {self.scale}."
-        if self.kind == "choice":
+        if self.kind in ("choice", "check"):
             return None if value in self.options else "Choose one of the options."
         if not isinstance(value, str):
             return "Write your answer as text."
@@ -183,7 +200,8 @@ class Page:
     text: str = ""
     """Markdown shown on the page (consent, instructions, debrief, or above a questionnaire)."""
     questions: tuple[Question, ...] = ()
-    """``questionnaire``: its questions."""
+    """``questionnaire``: its questions; ``instructions``: its comprehension checks (kind ``check``), asked below
+    the instructions, which are shown again after a wrong answer."""
     after_each: tuple[Question, ...] = ()
     """``trials``: questions asked after every trial (answers carry the trial's index)."""
     game: GameSettings | None = None
@@ -200,8 +218,12 @@ class Page:
             fail(self, "text", "the consent text (Markdown), which the participant agrees to")
         if self.kind == "questionnaire" and not self.questions:
             fail(self, "questions", "at least one question for a questionnaire page")
-        if self.kind != "questionnaire" and self.questions:
-            fail(self, "questions", "only on a questionnaire page (a trials page asks 'after_each')")
+        if self.kind not in ("questionnaire", "instructions") and self.questions:
+            fail(self, "questions", "only on a questionnaire or an instructions page (a trials page asks "
+                                    "'after_each')")
+        if self.kind == "instructions" and any(q.kind != "check" for q in self.questions):
+            fail(self, "questions", "only questions of kind 'check' on an instructions page (its comprehension "
+                                    "checks)", value=[q.kind for q in self.questions])
         if self.kind != "trials" and self.after_each:
             fail(self, "after_each", "only on the trials page")
         if self.game is not None and self.kind != "practice":
@@ -246,6 +268,79 @@ class Design:
 
 
 @dataclass(frozen=True)
+class Screening:
+    """Who may take part (``[screening]``): checked by the study page before the consent page, from the device, the
+    window and round trips over the play socket; a participant who fails is told why and given ``return_code``, and
+    the refusal is logged with its reason (they take no place in the study)."""
+
+    keyboard: bool = True
+    """Refuse a device with a touch screen and no mouse or trackpad (a phone, a tablet): the games need keys."""
+    min_width: int = 0
+    """The narrowest window taken, in CSS pixels (0: any)."""
+    min_height: int = 0
+    """The lowest window taken, in CSS pixels (0: any)."""
+    pings: int = 5
+    """Round trips measured over the play socket (``ping`` and its ``pong``) before consent."""
+    max_round_trip_ms: float | None = None
+    """The highest median of those round trips taken, in ms (None: not checked)."""
+    return_code: str = ""
+    """Given to a participant who is refused (put into the study's ``redirect_url`` as ``{code}``): the platform's
+    code for a participant screened out."""
+
+    def __post_init__(self):
+        check_bool(self, "keyboard")
+        check_int(self, "min_width", 0, 10_000, allowed="a whole number of CSS pixels in 0..10000")
+        check_int(self, "min_height", 0, 10_000, allowed="a whole number of CSS pixels in 0..10000")
+        check_int(self, "pings", 1, 50, allowed="a whole number in 1..50")
+        check_number(self, "max_round_trip_ms", "a number of milliseconds > 0, or leave it out", lambda v: v > 0,
+                     optional=True)
+        if not isinstance(self.return_code, str):
+            fail(self, "return_code", "a string")
+
+    def problem(self, touch_only: bool, viewport: tuple[int, int], round_trips_ms: list[float]) -> tuple[str, str]:
+        """Why a device and connection cannot take part: ``(reason, words)``, the reason as logged and the words
+        for the participant; ``("", "")`` when they can."""
+        if self.keyboard and touch_only:
+            return "touch_only", ("This study needs a keyboard: its games are played with the arrow keys. Please "
+                                  "open it on a computer with a keyboard.")
+        width, height = viewport
+        if width < self.min_width or height < self.min_height:
+            return "viewport", (f"This study needs a browser window of at least {self.min_width} by "
+                                f"{self.min_height} pixels, and yours is {width} by {height}. Please open it on a "
+                                f"larger screen, or make the window larger and reload the page.")
+        if self.max_round_trip_ms is not None:
+            if len(round_trips_ms) < self.pings:
+                return "round_trip", ("Your connection to our server could not be measured. Please reload the page "
+                                      "on a steady connection.")
+            median = statistics.median(round_trips_ms)
+            if median > self.max_round_trip_ms:
+                return "round_trip", (f"Your connection to our server is too slow for this study's games (a round "
+                                      f"trip of {median:.0f} ms; they need at most {self.max_round_trip_ms:g} ms).")
+        return "", ""
+
+
+@dataclass(frozen=True)
+class Exclusions:
+    """The rules by which a trial or a participant is excluded from the analysis (``[exclusions]``): applied at
+    export into the ``exclusions`` table (a row per rule a trial or a participant breaks, with its evidence), and
+    counted per arm on the admin page. Each rule is off when left out; practice games are never excluded."""
+
+    away_s: float | None = None
+    """A trial in which the page was hidden or out of focus for more than this many seconds in all."""
+    idle_s: float | None = None
+    """A trial with a stretch of more than this many seconds without a key (moves, beliefs and probe answers)."""
+    round_trip_ms: float | None = None
+    """A trial whose median round trip over the play socket, measured during play, was above this many ms."""
+    failed_checks: int | None = None
+    """A participant who failed at least this many comprehension or attention checks (every try wrong)."""
+
+    def __post_init__(self):
+        for name in ("away_s", "idle_s", "round_trip_ms"):
+            check_number(self, name, "a number >= 0, or leave it out", lambda v: v >= 0, optional=True)
+        check_int(self, "failed_checks", 1, 100, optional=True, allowed="a whole number in 1..100, or leave it out")
+
+
+@dataclass(frozen=True)
 class Study:
     """A whole study file."""
 
@@ -278,6 +373,10 @@ class Study:
     """Shown on the debrief page (and put into ``redirect_url`` as ``{code}``)."""
     redirect_url: str = ""
     """Where the debrief page sends the participant (``https://app.prolific.com/submissions/complete?cc={code}``)."""
+    screening: Screening | None = None
+    """Who may take part, checked before consent (None: anyone)."""
+    exclusions: Exclusions = field(default_factory=Exclusions)
+    """The rules by which trials and participants are excluded at export (none by default)."""
 
     ERROR_STYLE = "{name}={value!r} is invalid: {allowed}"
 

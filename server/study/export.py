@@ -1,11 +1,13 @@
 """``colorgrid study export``: a study's database and replays as analysis-ready tables.
 
-Eight tables, each written as Parquet and CSV, of the columns and types declared in
+Nine tables, each written as Parquet and CSV, of the columns and types declared in
 ``server.study.schema`` (listed in docs/STUDIES.md, "Data dictionary"):
 ``participants``, ``trials`` (one row per game played, practice included), ``steps`` (one row
 per game step), ``keys`` (the key log with reaction times), ``answers``, ``focus`` (the page's
-focus and visibility changes during games), and for games in the follower seat ``probes`` (each
-probe's answer) and ``statements`` (each stated belief; ``server.study.stated_export``). The database is read through ``server.study.store``
+focus and visibility changes during games), for games in the follower seat ``probes`` (each
+probe's answer) and ``statements`` (each stated belief; ``server.study.stated_export``), and
+``exclusions`` (each rule of the study's ``[exclusions]`` a trial or a participant breaks, with its
+evidence: ``server.study.exclusions``). The database is read through ``server.study.store``
 (SQLite or PostgreSQL alike). A game's figures in ``trials`` are those stored when it ended
 (``server.study.figures``); games recorded before have them computed from their replays, the same
 way. The per-step tables read the replay files back and re-simulate them, so positions come from
@@ -29,11 +31,12 @@ from server.study.assign import arm_labels, arms
 from server.study.config import GameSettings, Study
 from server.study.figures import FIGURES, SCORES, game_figures, score_figures
 from server.study.columns import SCHEMA_FILE, conform
+from server.study.exclusions import attention_figures, exclusion_rows
 from server.study.schema import export_schema, questions_metadata, sidecar, write_parquet
 from server.study.stated_export import probe_rows, stated_by_step, stated_figures, statement_rows
 from server.study.store import read_tables
 
-TABLES = ("participants", "trials", "steps", "keys", "answers", "focus", "probes", "statements")
+TABLES = ("participants", "trials", "steps", "keys", "answers", "focus", "probes", "statements", "exclusions")
 
 
 def _time(seconds) -> pd.Timestamp | None:
@@ -69,7 +72,7 @@ def numbered_on(seqs: list[int | None]) -> list[int | None]:
 
 
 def tables(study: Study, database: str | Path, replays_dir: Path) -> dict[str, pd.DataFrame]:
-    """The eight tables as pandas DataFrames, each of the columns and types ``export_schema`` declares.
+    """The nine tables as pandas DataFrames, each of the columns and types ``export_schema`` declares.
     ``database``: the study's SQLite file or its URL (``server.study.store.database_url``)."""
     data = read_tables(database, study.id)
     labels, arm_list = arm_labels(study), arms(study)
@@ -103,7 +106,9 @@ def tables(study: Study, database: str | Path, replays_dir: Path) -> dict[str, p
         path = replays_dir / f"{g['replay_id']}.replay.json" if g["replay_id"] else None
         replay = load(path) if path is not None and path.is_file() else None
         if stored:
-            figures = {name: g[name] for name in (*SCORES, *FIGURES)}
+            figures = {name: g.get(name) for name in (*SCORES, *FIGURES)}
+            if g.get("away_s") is None and replay is not None:  # stored before the attention figures (schema 2)
+                figures.update(attention_figures(replay))
         else:  # a game recorded before: its figures from the replay, as it was exported then
             scores = score_figures(json.loads(g["scores"]) if g["scores"] else None)
             figures = {**scores, **(game_figures(replay) if replay is not None else {})}
@@ -140,7 +145,7 @@ def tables(study: Study, database: str | Path, replays_dir: Path) -> dict[str, p
         probes += probe_rows(replay, base, g["game_id"])
         statements += statement_rows(replay, base, g["game_id"])
     questions = {(page, q["id"]): q for page, qs in questions_metadata(study).items() for q in qs}
-    answers = []
+    answers, checks = [], []
     for a in data["answers"]:
         q = questions.get((a["page"], a["question"]), {})
         value = json.loads(a["value"]) if a["value"] is not None else None
@@ -151,13 +156,19 @@ def tables(study: Study, database: str | Path, replays_dir: Path) -> dict[str, p
             condition = own_condition(a["pid"])
         answers.append({**who(a["pid"]), "page": a["page"], "trial_index": a["trial_index"],
                         **_condition(study, condition), "question": a["question"], "question_kind": kind,
+                        "correct": value == q["answer"] if kind == "check" else None,
                         "likert": value if kind == "likert" else None,
                         "scale": q["scale"] if kind == "likert" else None,
-                        "choice": value if kind == "choice" else None, "text": value if kind == "text" else None,
-                        "answered": _time(a["answered"])})
+                        "choice": value if kind in ("choice", "check") else None,
+                        "text": value if kind == "text" else None, "answered": _time(a["answered"])})
+        if kind == "check":
+            checks.append({"participant": a["pid"], "page": a["page"], "question": a["question"], "answer": value})
+    exclusions = [{**who(row["participant"]), **row,
+                   "condition": f"C{row['condition_index'] + 1}" if row["condition_index"] is not None else None}
+                  for row in exclusion_rows(study, trials, checks)]
     schema = export_schema(study)
     rows = {"participants": participants, "trials": trials, "steps": steps, "keys": keys, "answers": answers,
-            "focus": focus, "probes": probes, "statements": statements}
+            "focus": focus, "probes": probes, "statements": statements, "exclusions": exclusions}
     return {name: conform(rows[name], schema[name]) for name in TABLES}
 
 

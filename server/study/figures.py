@@ -14,6 +14,7 @@ import numpy as np
 
 from colorgrid.config import AGENTS, FOLLOWER, LEADER
 from colorgrid.replay import Replay
+from server.study.exclusions import attention_figures
 
 SCORES = {"team_score": "team", "leader_score": AGENTS[LEADER], "follower_score": AGENTS[FOLLOWER]}
 """Each score column and its key in the game's scores (``colorgrid.roles.scores``: ``team`` and an agent's name)."""
@@ -28,6 +29,9 @@ FIGURES: dict[str, type] = {
     "deadline_misses": int,
     "viewport": str,  # JSON: the page's [width, height]
     "user_agent": str,
+    "away_s": float,  # server.study.exclusions: seconds hidden or out of focus
+    "idle_s": float,  # the longest stretch without a key
+    "round_trip_ms": float,  # the median round trip during play (None: none measured; not in a replay)
 }
 """Each figure ``game_figures`` reads from a game's replay, and its Python type (the exported ``trials`` columns)."""
 
@@ -55,4 +59,6 @@ def game_figures(replay: Replay) -> dict:
         "deadline_misses": len(replay.meta.get("deadline_misses", [])),
         "viewport": json.dumps(client.get("viewport")),
         "user_agent": client.get("user_agent"),
+        **attention_figures(replay),
+        "round_trip_ms": None,  # measured by the page during play, kept by the study service (not in the replay)
     }

@@ -18,14 +18,14 @@ from typing import Annotated
 
 from fastapi import APIRouter, Depends, FastAPI, Header, HTTPException, Request, Response
 from fastapi.responses import FileResponse, JSONResponse, RedirectResponse
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, StrictBool
 from starlette.background import BackgroundTask
 from starlette.concurrency import run_in_threadpool
 from starlette.requests import HTTPConnection
 
 from server.backend import CurrentBackend
 from server.routes.pages import WEB_DIR
-from server.study.service import AnswerProblems, Finished, Invalid, Refused, StudyService
+from server.study.service import AnswerProblems, Finished, Invalid, Refused, ScreenedOut, StudyService
 
 NOT_SERVED = ("/replays", "/replay", "/api/replays")
 
@@ -34,12 +34,26 @@ class _Body(BaseModel):
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
 
 
+class Screen(_Body):
+    """What the study page measured before consent, for ``[screening]``."""
+
+    touch_only: StrictBool
+    """Whether the device has a touch screen and no fine pointer (no mouse or trackpad): a phone or a tablet."""
+    viewport: tuple[Annotated[int, Field(strict=True, ge=0, le=100_000)],
+                    Annotated[int, Field(strict=True, ge=0, le=100_000)]]
+    """The window's ``[width, height]`` in CSS pixels."""
+    round_trips_ms: list[Annotated[float, Field(strict=True, ge=0, le=600_000)]] = Field(max_length=50)
+    """The round trips of the pings sent over the play socket (``ping`` to ``pong``), in ms."""
+
+
 class Join(_Body):
     params: dict[str, str] = Field(default_factory=dict, max_length=32)
     """The study link's URL parameters (``PROLIFIC_PID``, ``STUDY_ID``, ``SESSION_ID``, ``pid``)."""
     session: str | None = Field(default=None, max_length=128)
     """The session key this browser got when it joined before, or the one it proposes for its first join (random
     URL-safe text of 32 to 128 characters), so that a join sent again after its answer was lost resumes."""
+    screen: Screen | None = None
+    """A study with ``[screening]``: what the page measured (a new participant without it is refused)."""
 
 
 class Who(_Body):
@@ -102,11 +116,14 @@ def answered(fn, *args):
     except Finished as err:  # what the debrief page said, again: the completion code
         raise HTTPException(403, {"message": str(err), "completion_code": err.completion_code,
                                   "redirect_url": err.redirect_url}) from None
+    except ScreenedOut as err:  # why, in words, and the study's return code
+        raise HTTPException(403, {"message": str(err), "return_code": err.return_code,
+                                  "redirect_url": err.redirect_url}) from None
     except Refused as err:
         raise HTTPException(403, str(err)) from None
     except AnswerProblems as err:  # every problem, for the page to show beside each question
         raise HTTPException(422, {"message": f"{len(err.problems)} answer(s) need attention",
-                                  "problems": err.problems}) from None
+                                  "problems": err.problems, "again": err.again}) from None
     except Invalid as err:
         raise HTTPException(409, str(err)) from None
 
@@ -146,18 +163,23 @@ async def admin_page():
 
 @router.get("/api/study/info")
 async def info(study: CurrentStudy) -> dict:
-    """The study's title and which URL parameters carry the participant id."""
+    """The study's title, which URL parameters carry the participant id, and what the page measures before consent
+    (``screening``: the number of pings; null when the study screens no one)."""
     about = study.service.study
-    return {"id": about.id, "title": about.title, "id_params": list(about.id_params), "anonymous": about.anonymous}
+    screening = {"pings": about.screening.pings} if about.screening is not None else None
+    return {"id": about.id, "title": about.title, "id_params": list(about.id_params), "anonymous": about.anonymous,
+            "screening": screening}
 
 
 @router.post("/api/study/join")
 def join(body: Join, request: Request, response: Response, study: CurrentStudy) -> dict:
     """Start, or resume, the participant the link names; answers their session key and current page. Refused:
     403 with a sentence for the participant; one who finished the study, from another browser: ``detail:
-    {message, completion_code, redirect_url}``."""
+    {message, completion_code, redirect_url}``; one screened out (``[screening]``): ``detail: {message, return_code,
+    redirect_url}``."""
     service = study.service
-    who = answered(service.join, body.params, body.session, request.headers.get("user-agent", ""))
+    screen = body.screen.model_dump() if body.screen is not None else None
+    who = answered(service.join, body.params, body.session, request.headers.get("user-agent", ""), screen)
     return {**who, "view": pinned(answered(service.view, who["pid"], who["session"]), response)}
 
 

@@ -26,11 +26,13 @@ from server.stated import ProbeKind, ProbeStatus, Via
 from server.study.assign import arm_labels
 from server.study.columns import Column, Table
 from server.study.config import QUESTION_KINDS, GameSettings, Study
+from server.study.exclusions import RULES
 
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5
 """Bumped whenever a column is added, removed or changes type (3: ``keys.game_id``, and each table's ``unique``; 4: the
 follower seat: ``condition_seat``, ``_leader``, ``_goal``, ``_probes``, the stated beliefs' columns, ``probes`` and
-``statements``)."""
+``statements``; 5: screening and exclusions: ``trials.away_s``, ``idle_s``, ``round_trip_ms``, ``answers.correct``
+and the ``exclusions`` table)."""
 STATUSES = ("active", "completed")
 """A participant's status."""
 PAGE_EVENTS = typing.get_args(PageEvent.model_fields["event"].annotation)
@@ -183,7 +185,13 @@ def export_schema(study: Study) -> dict[str, Table]:
                                                          "deadline and stayed"),
             *stated_figures(),
             Column("viewport", "string", "JSON", "the page's `[width, height]` in CSS pixels"),
-            Column("user_agent", "string", "text", "the browser's user agent in this game"))),
+            Column("user_agent", "string", "text", "the browser's user agent in this game"),
+            Column("away_s", "float64", "s", "seconds the page was hidden or out of focus during the game, in all "
+                                             "(the `focus` table's changes, by the server's clock)"),
+            Column("idle_s", "float64", "s", "the longest stretch of the game without a key, a stated belief or a "
+                                             "probe's answer, by the server's clock"),
+            Column("round_trip_ms", "float64", "ms", "the median round trip the page measured over its socket during "
+                                                     "the game (empty: none measured)"))),
         Table("steps", "one row per step of every game, re-simulated from its replay", (
             *who, *game,
             Column("t", "int64", "step", "the step (0-based)"),
@@ -219,10 +227,14 @@ def export_schema(study: Study) -> dict[str, Table]:
             *_condition(study, "the trial the answer is about (other pages: the participant's between subjects, "
                                "else empty)"),
             Column("question", "category", "id", "the question's id in the study file", question_ids(study)),
-            Column("question_kind", "category", "name", "`likert`, `choice` or `text`", QUESTION_KINDS),
+            Column("question_kind", "category", "name", "`likert`, `choice`, `text` or `check` (a comprehension "
+                                                        "or attention check)", QUESTION_KINDS),
+            Column("correct", "boolean", "", "a check: whether the answer kept was the right one (wrong: every try "
+                                             "was wrong)"),
             Column("likert", "Int64", "point", "a Likert answer: 1 (the lowest point) .. `scale`"),
             Column("scale", "Int64", "points", "a Likert question's number of points"),
-            Column("choice", "string", "text", "a choice answer: the option, as shown"),
+            Column("choice", "string", "text", "a choice or check answer: the option, as shown (a check's: the "
+                                               "last one tried)"),
             Column("text", "string", "text", "a free-text answer"),
             Column("answered", "timestamp", "UTC", "when the page was sent"))),
         Table("focus", "one row per focus or visibility change of the page during a game", (
@@ -269,6 +281,23 @@ def export_schema(study: Study) -> dict[str, Table]:
             Column("goal", "Int64", "color", "the goal at that step (empty: after the last step)"),
             Column("t_client_ms", "float64", ms, "by the participant's clock"),
             Column("t_server_ms", "float64", ms, "by the server's clock"))),
+        Table("exclusions", "one row per exclusion rule (`[exclusions]` in the study file) a trial or a participant "
+                            "breaks: a trial's rules name its game, a participant's (failed checks) none",
+              unique=("participant", "game_id", "rule"), columns=(
+            *who,
+            Column("game_id", "string", "id", "the trial's game (as in `trials`); empty: the participant is excluded"),
+            Column("trial_index", "Int64", "index", "the trial (0-based, in play order); empty for a participant"),
+            Column("condition_index", "Int64", "index", "the trial's condition (0-based); empty for a participant"),
+            Column("condition", "category", "label", "the same condition as `C1`, `C2`, ...",
+                   tuple(f"C{i + 1}" for i in range(len(study.conditions)))),
+            Column("rule", "category", "name", "`away` (`away_s`), `idle` (`idle_s`), `round_trip` (`round_trip_ms`) "
+                                               "or `failed_checks`", RULES),
+            Column("value", "float64", "s, ms or checks", "the evidence: the trial's `away_s`, `idle_s` or "
+                                                          "`round_trip_ms`, or the checks failed"),
+            Column("threshold", "float64", "s, ms or checks", "the rule's setting: excluded above it (checks: at it "
+                                                              "or above)"),
+            Column("evidence", "string", "text", "the same in words (a failed check: its page, question, the answer "
+                                                 "kept and the right one)"))),
     ]
     return {t.name: t for t in tables}
 

@@ -30,6 +30,7 @@ from colorgrid.render import look
 from server.study.assign import arm_labels, arms, choose_arm, trial_order
 from server.followers import follower_info
 from server.study.config import ID_PATTERN, GameSettings, Page, Question, Study
+from server.study.exclusions import exclusion_rows, median_round_trip
 from server.study.figures import game_figures, score_figures
 from server.study.store import StudyStore
 
@@ -37,8 +38,14 @@ LOST = Ending.lost()
 """Game endings that do not count: the participant plays that game again. ``Ending.SERVER_LOST`` is written when the
 participant starts a game again whose process stopped without saving it (killed, crashed), on whichever process they
 reach."""
+FULL = "full"
+"""The reason logged for a participant refused because the study is full (every place or every arm's quota taken)."""
+SCREENED = "screening:"
+"""The prefix of the reason logged for a participant refused by ``[screening]`` (``screening:viewport``, ...)."""
 SESSION_PATTERN = re.compile(r"^[A-Za-z0-9_-]{32,128}$")
 """A session key a browser may propose at its first join: random URL-safe text, 32 to 128 characters."""
+MAX_ROUND_TRIPS = 10_000
+"""Round trips kept per game (a page pings every few seconds)."""
 END_RETRIES = 1
 """How many more times the end of a game is written when its write fails (a database that blinked)."""
 END_RETRY_WAIT_S = 0.5
@@ -67,16 +74,30 @@ class Finished(Refused):
         super().__init__(f"You have already completed this study: thank you for taking part.{code}")
 
 
+READ_AGAIN = {"instructions": "instructions", "questionnaire": "question", "questions": "question"}
+"""What a participant is asked to read again after a wrong check, by the kind of page."""
+
+
+class ScreenedOut(Refused):
+    """The participant's device or connection cannot take part (``[screening]``): the message says why, and the
+    study's return code comes with it."""
+
+    def __init__(self, words: str, return_code: str, redirect_url: str):
+        self.return_code, self.redirect_url = return_code, redirect_url
+        super().__init__(words)
+
+
 class Invalid(Exception):
     """The request does not fit the participant's current step; the message names the problem."""
 
 
 class AnswerProblems(Invalid):
     """Answers that cannot be taken: every problem at once, each ``{question, prompt, problem}`` (its id, its
-    text as the participant reads it, what is wrong in words for them)."""
+    text as the participant reads it, what is wrong in words for them); ``again``: a check was answered wrong, and the
+    page (its instructions) is shown again."""
 
-    def __init__(self, problems: list[dict]):
-        self.problems = problems
+    def __init__(self, problems: list[dict], again: bool = False):
+        self.problems, self.again = problems, again
         super().__init__("; ".join(f"{p['question']}: {p['problem']}" for p in problems))
 
 
@@ -112,6 +133,7 @@ class StudyService:
         self.rng = random.Random(study.design.seed)
         self.arms = arms(study)
         self.live: dict[str, object] = {}  # pid -> its live Game (for a page that reloads)
+        self.round_trips: dict[str, list[float]] = defaultdict(list)  # game id -> the round trips measured in play
         # pid -> where another process of the deployment runs its game, {game_id, token, backend} to rejoin it there,
         # or None: set by server.cluster.siblings.join_cluster, which asks the siblings
         self.elsewhere: Callable[[str], dict | None] = lambda pid: None
@@ -148,20 +170,28 @@ class StudyService:
         raise Refused("This link has no participant id in it. Please open the study from the link you were given "
                       "(on the study platform), without changing it.")
 
-    def join(self, params: dict, session: str | None, user_agent: str) -> dict:
-        """Start or resume a participant; the answer carries their session key and the step to show."""
+    def join(self, params: dict, session: str | None, user_agent: str, screen: dict | None = None) -> dict:
+        """Start or resume a participant; the answer carries their session key and the step to show. A new
+        participant of a study with ``[screening]`` brings the page's ``screen`` (``touch_only``, ``viewport``,
+        ``round_trips_ms``); one who fails it, or who finds the study full, is refused, and the refusal logged with
+        its reason (they take no place)."""
         pid = params.get("_pid")  # an anonymous participant coming back: only with its session
         if not (self.study.anonymous and pid and session and self.store.participant(pid) is not None):
             pid = self.participant_id(params)
         with self.store.transaction(assign=True) as tx:  # counts read and row written as one, across processes
             row = tx.participant(pid)
-            if row is None:
-                if tx.count_participants() >= self.study.max_participants:
-                    raise Refused("the study is full: thank you for your interest")
-                arm = choose_arm(tx.arm_counts(len(self.arms)), self.study.design.quota, self.study.design.balance,
-                                 self.rng)
+            refusal = self.screened_out(tx, pid, screen) if row is None else None
+            if row is None and refusal is None:
+                arm = None
+                if tx.count_participants() < self.study.max_participants:
+                    arm = choose_arm(tx.arm_counts(len(self.arms)), self.study.design.quota,
+                                     self.study.design.balance, self.rng)
                 if arm is None:
-                    raise Refused("the study is full: thank you for your interest")
+                    tx.log(pid, "refused", reason=FULL)
+                    refusal = Refused("the study is full: thank you for your interest")
+            if refusal is not None:
+                answer = refusal  # raised once the transaction is committed: the refusal stays in the log
+            elif row is None:
                 conditions = trial_order(self.study, arm, self.rng)
                 kept = {k: str(params[k])[:200] for k in (*self.study.id_params, *self.study.keep_params)
                         if params.get(k)}
@@ -171,12 +201,31 @@ class StudyService:
                                           "url_params": json.dumps(kept), "user_agent": user_agent[:500],
                                           "started": now, "updated": now})
                 if row["session"] == new:
-                    tx.log(pid, "joined", arm=arm)
+                    tx.log(pid, "joined", arm=arm, **({"screen": screen} if screen else {}))
                     return {"pid": pid, "session": new}
-            answer = self.returning(tx, row, session, user_agent)  # joined before (or in another process just now)
+                answer = self.returning(tx, row, session, user_agent)  # another process joined them just now
+            else:
+                answer = self.returning(tx, row, session, user_agent)  # joined before
         if isinstance(answer, Refused):
             raise answer  # once the transaction is committed: the refusal stays in the audit log
         return answer
+
+    def screened_out(self, tx, pid: str, screen: dict | None) -> ScreenedOut | None:
+        """The refusal of a new participant whose ``screen`` fails the study's ``[screening]`` (logged with its
+        reason and the measures), or None."""
+        rules = self.study.screening
+        if rules is None:
+            return None
+        if screen is None:
+            reason, words = "not_screened", ("This study checks your browser before it starts, and this page did "
+                                              "not. Please open the study from your link again.")
+        else:
+            reason, words = rules.problem(screen["touch_only"], tuple(screen["viewport"]), screen["round_trips_ms"])
+            if not reason:
+                return None
+        tx.log(pid, "refused", reason=SCREENED + reason, screen=screen)
+        url = self.study.redirect_url
+        return ScreenedOut(words, rules.return_code, url.replace("{code}", rules.return_code) if url else "")
 
     def returning(self, tx, row: dict, session: str | None, user_agent: str) -> dict | Refused:
         """A participant who joined before: their own browser (or any, when the study resumes) gets their session.
@@ -220,7 +269,9 @@ class StudyService:
                "study": self.study.title, "html": _markdown.render(step.page.text) if step.kind != "questions" else "",
                "trial_index": step.trial_index, "trials": trials}
         if step.questions:
-            out["questions"] = [dataclasses.asdict(q) for q in step.questions]
+            # a check's right answer stays on the server
+            out["questions"] = [{k: v for k, v in dataclasses.asdict(q).items() if k != "answer"}
+                                for q in step.questions]
         settings = self.game_settings(step) if step.has_game else self.study.defaults
         config = env_config(settings.preset)
         out["look"] = look(config)  # who is who: the page's legend draws each disc as the board will
@@ -271,6 +322,7 @@ class StudyService:
             if problems:
                 raise AnswerProblems(problems)
             clean = {q.id: answers.get(q.id) if answers.get(q.id) != "" else None for q in step.questions}
+            self.checked(pid, step_index, step, clean)
         if step.has_game:
             last = self.store.last_game(pid, step_index)
             if last is None or not last["ended"] or last["ended"] in LOST:
@@ -289,6 +341,29 @@ class StudyService:
         if nxt == len(steps):  # no debrief page: the study ends on the last page
             return {**self.view(pid, session), "finished": True}
         return self.view(pid, session)
+
+    def checked(self, pid: str, step_index: int, step: Step, answers: dict) -> None:
+        """Log each check of the page answered (right or wrong, with its try); a wrong one with tries left raises
+        ``AnswerProblems`` with ``again`` (the page, its instructions, is shown again). On the last try a wrong answer
+        is kept: the participant goes on, and the export counts a failed check."""
+        checks = [q for q in step.questions if q.kind == "check"]
+        if not checks:
+            return
+        with self.store.transaction() as tx:
+            tried = tx.check_tries(pid, step_index)
+            again = []
+            for q in checks:
+                attempt = tried.get(q.id, 0) + 1
+                right = answers[q.id] == q.answer
+                tx.log(pid, "check", step=step_index, question=q.id, answer=answers[q.id], right=right, attempt=attempt)
+                if not right and attempt < q.tries:
+                    left = q.tries - attempt
+                    again.append({"question": q.id, "prompt": q.prompt,
+                                  "problem": f"That is not right. Please read the {READ_AGAIN[step.kind]} again, "
+                                             f"then answer once more ({left} {'try' if left == 1 else 'tries'} "
+                                             f"left)."})
+        if again:
+            raise AnswerProblems(again, again=True)
 
     # ---------------------------------------------------------------- games
     def game_for(self, pid: str, session: str) -> tuple[GameSettings, dict]:
@@ -346,6 +421,7 @@ class StudyService:
             for attempt in range(1 + END_RETRIES):
                 try:
                     figures = game_figures(game.to_replay(reason, defaultdict(dict)))
+                    figures["round_trip_ms"] = median_round_trip(self.round_trips.get(game.game_id, []))
                     with self.store.transaction() as tx:
                         tx.end_game(m["participant"], m["step"], m["attempt"],
                                     {"replay_id": game.replay_id, "ended": reason, "scores": json.dumps(scores),
@@ -358,8 +434,14 @@ class StudyService:
                                 game.game_id, m["participant"], type(error).__name__, error)
                     time.sleep(END_RETRY_WAIT_S)
         finally:  # stored or not, it is not running: once stored never "interrupted" meanwhile, else it is
+            self.round_trips.pop(game.game_id, None)
             if self.live.get(m["participant"]) is game:
                 del self.live[m["participant"]]
+
+    def round_trip(self, game, ms: float) -> None:
+        """A round trip the page of a study game measured during play (``ping.round_trip_ms``; the hub's hook)."""
+        if game.study is not None and len(self.round_trips[game.game_id]) < MAX_ROUND_TRIPS:
+            self.round_trips[game.game_id].append(float(ms))
 
     # ---------------------------------------------------------------- the admin's view
     def summary(self, live_games: int) -> dict:
@@ -367,12 +449,16 @@ class StudyService:
         labels = arm_labels(self.study)
         figures = self.store.figures_by_arm(LOST)
         by_arm = [{"arm": a, "label": labels[a], "active": 0, "completed": 0,
-                   "trials": figures.get(a, {"games": 0})} for a in range(len(self.arms))]
+                   "trials": figures.get(a, {"games": 0}),
+                   "excluded": {"trials": 0, "participants": 0, "rules": {}}} for a in range(len(self.arms))]
         for r in rows:
             if 0 <= r["arm"] < len(by_arm):
                 by_arm[r["arm"]][r["status"]] += 1
         minutes = [(r["completed"] - r["started"]) / 60 for r in rows if r["completed"]]
         endings = self.store.endings()  # games by how they ended; a lost one (LOST) was played again
+        for a, counts in self.excluded_by_arm().items():
+            if 0 <= a < len(by_arm):
+                by_arm[a]["excluded"] = counts
         return {
             "study": self.study.id, "title": self.study.title,
             "conditions": [{"label": f"C{i + 1}", **dataclasses.asdict(c)}
@@ -383,9 +469,30 @@ class StudyService:
             "completion_minutes": {"median": statistics.median(minutes) if minutes else None,
                                    "values": sorted(round(m, 2) for m in minutes)},
             "live_games": live_games,
+            "refused": self.store.refusals(),
             "endings": {"counted": {k: n for k, n in endings.items() if k not in LOST},
                         "played_again": {k: n for k, n in endings.items() if k in LOST}},
             "recent": [{"pid": r["pid"], "arm": r["arm"], "status": r["status"], "step": r["step"],
                         "started": r["started"], "updated": r["updated"], "completed": r["completed"]}
                        for r in sorted(rows, key=lambda r: -r["updated"])[:200]],
         }
+
+    def excluded_by_arm(self) -> dict[int, dict]:
+        """Per arm, the trials and the participants the study's ``[exclusions]`` rules exclude so far, from the
+        figures stored when each game ended (``server.study.exclusions``, as the export applies them)."""
+        rows = self.store.participants()
+        arm_of = {r["pid"]: r["arm"] for r in rows}
+        games = [{**g, "participant": g["pid"], "condition_index": g["condition"]} for g in self.store.games()]
+        checks = [{"participant": a["pid"], "page": a["page"], "question": a["question"],
+                   "answer": json.loads(a["value"]) if a["value"] is not None else None}
+                  for a in self.store.answers()]
+        out: dict[int, dict] = {}
+        for row in exclusion_rows(self.study, games, checks):
+            arm = arm_of.get(row["participant"])
+            if arm is None:
+                continue
+            counts = out.setdefault(arm, {"trials": set(), "participants": set(), "rules": {}})
+            counts["trials" if row["game_id"] else "participants"].add(row["game_id"] or row["participant"])
+            counts["rules"][row["rule"]] = counts["rules"].get(row["rule"], 0) + 1
+        return {a: {"trials": len(c["trials"]), "participants": len(c["participants"]), "rules": c["rules"]}
+                for a, c in out.items()}

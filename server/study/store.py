@@ -48,8 +48,9 @@ from sqlalchemy.exc import ArgumentError, DBAPIError
 from colorgrid.enums import GameKind
 from server.study.figures import FIGURES, SCORES, score_figures
 
-SCHEMA_VERSION = 2
-"""Version 2 added the per-game figures (``figures.SCORES`` and ``figures.FIGURES``) to ``games``."""
+SCHEMA_VERSION = 3
+"""Version 2 added the per-game figures (``figures.SCORES`` and ``figures.FIGURES``) to ``games``; version 3 the
+attention figures (``away_s``, ``idle_s``, ``round_trip_ms``: ``server.study.exclusions``)."""
 BACKENDS = ("sqlite", "postgresql")
 SQL_TYPES = {int: Integer, float: Float, str: Text}
 
@@ -103,7 +104,7 @@ events = Table(
     "events", tables,
     Column("pid", Text, nullable=False),
     Column("t", Float, nullable=False),
-    Column("kind", Text, nullable=False),  # joined, resumed, refused, consented, advanced, completed
+    Column("kind", Text, nullable=False),  # joined, resumed, refused, consented, advanced, completed, check
     Column("detail", Text, nullable=False),  # JSON
 )
 
@@ -250,6 +251,16 @@ class Transaction:
         self.conn.execute(update(games).where(*which, *([games.c.ended.is_(None)] if running else []))
                           .values(**values))
 
+    def check_tries(self, pid: str, step: int) -> dict[str, int]:
+        """How many times each check of page ``step`` was answered by the participant (``check`` events)."""
+        tries: dict[str, int] = {}
+        for (detail,) in self.conn.execute(select(events.c.detail).where(events.c.pid == pid,
+                                                                         events.c.kind == "check")):
+            d = json.loads(detail)
+            if d.get("step") == step:
+                tries[d["question"]] = tries.get(d["question"], 0) + 1
+        return tries
+
     def log(self, pid: str, kind: str, **detail) -> None:
         self.conn.execute(insert(events).values(pid=pid, t=time.time(), kind=kind, detail=json.dumps(detail)))
 
@@ -274,6 +285,8 @@ class StudyStore:
                 version = check_meta(known, study_id, self.name)
                 if version == 1:
                     migrate_1_to_2(tx.conn)
+                elif version == 2:
+                    add_figure_columns(tx.conn)
                 tx.conn.execute(tx.insert(meta).on_conflict_do_nothing(index_elements=["key"]).values(
                     [{"key": "study_id", "value": study_id}, {"key": "created", "value": str(time.time())}]))
                 for key, value in (("schema", str(SCHEMA_VERSION)), ("study_hash", study_hash)):
@@ -323,6 +336,23 @@ class StudyStore:
         with self.reading() as tx:
             return rows_of(tx.conn.execute(select(participants)))
 
+    def games(self) -> list[dict]:
+        with self.reading() as tx:
+            return rows_of(tx.conn.execute(select(games)))
+
+    def answers(self) -> list[dict]:
+        with self.reading() as tx:
+            return rows_of(tx.conn.execute(select(answers)))
+
+    def refusals(self) -> dict[str, int]:
+        """How many joins were refused, by reason (``full``, ``screening:viewport``, ``already started``, ...)."""
+        counts: dict[str, int] = {}
+        with self.reading() as tx:
+            for (detail,) in tx.conn.execute(select(events.c.detail).where(events.c.kind == "refused")):
+                reason = json.loads(detail).get("reason", "")
+                counts[reason] = counts.get(reason, 0) + 1
+        return counts
+
     def endings(self) -> dict[str, int]:
         """How many games (practice and trials, every attempt) ended each way: ``{"complete": 40,
         "server_lost": 1}``."""
@@ -345,15 +375,21 @@ class StudyStore:
                                if k != "arm"} for r in rows_of(tx.conn.execute(query))}
 
 
-def migrate_1_to_2(conn: Connection) -> None:
-    """Add the figure columns to ``games`` and fill the scores of games already over from their JSON (the other
-    figures of those games stay null: the export computes them from the replays)."""
+def add_figure_columns(conn: Connection) -> None:
+    """Add the figure columns ``games`` lacks (null for the games recorded before: the export computes what it can
+    from their replays)."""
     present = {c["name"] for c in inspect(conn).get_columns("games")}
     quote = conn.dialect.identifier_preparer.quote
     for column in FIGURE_COLUMNS:
         if column.name not in present:
             conn.exec_driver_sql(f"ALTER TABLE games ADD COLUMN {quote(column.name)} "
                                  f"{column.type.compile(dialect=conn.dialect)}")
+
+
+def migrate_1_to_2(conn: Connection) -> None:
+    """Add the figure columns to ``games`` and fill the scores of games already over from their JSON (the other
+    figures of those games stay null: the export computes them from the replays)."""
+    add_figure_columns(conn)
     done = conn.execute(select(games.c.pid, games.c.step, games.c.attempt, games.c.scores)
                         .where(games.c.scores.is_not(None))).all()
     for pid, step, attempt, scores in done:
