@@ -119,7 +119,8 @@ def cmd_view(args: argparse.Namespace) -> int:
     from colorgrid.resources import find_shipped, shipped
 
     require("viewer", "colorgrid view")
-    from colorgrid_apps.viewer import ReplayViewer, export_html
+    from colorgrid_apps.viewer import ReplayViewer
+    from colorgrid_apps.viewer_export import export_html
 
     path = shipped("replays") if args.path is None else find_shipped(args.path, "replays", SUFFIX)
     if args.export:

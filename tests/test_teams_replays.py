@@ -23,7 +23,8 @@ from colorgrid.render import AGENT_COLORS, _font, tiles
 from colorgrid.replay import Replay, load, save, verify
 from colorgrid.replay.timeline import timeline
 from colorgrid.replay.export import PANEL_BG, PANEL_WIDTH, episode_frames, export, panel_height
-from colorgrid_apps.viewer import ReplayViewer, TabView, standalone_html
+from colorgrid_apps.viewer import ReplayViewer, TabView
+from colorgrid_apps.viewer_export import standalone_html
 from tests.conftest import ROOT
 from tests.test_viewer import read_recording
 

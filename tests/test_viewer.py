@@ -16,8 +16,9 @@ from playwright.sync_api import expect
 
 from colorgrid.replay import load, save
 from colorgrid.replay.timeline import timeline
-from colorgrid_apps.viewer import (STEP_SECONDS, ReplayViewer, TabView, block_capacity, board_bounds, export_html,
-                                   frame_at, framing_camera)
+from colorgrid_apps.viewer import ReplayViewer, TabView
+from colorgrid_apps.viewer_export import export_html
+from colorgrid_apps.viewer_frames import STEP_SECONDS, block_capacity, board_bounds, frame_at, framing_camera
 from tests.helpers import wait_until
 
 ROOT = Path(__file__).resolve().parents[1]
