@@ -93,9 +93,34 @@ def test_only_the_study_imports_the_study():
     assert not bad, bad
 
 
-def test_each_job_of_the_server_and_the_trainer_fits_a_file_a_reader_can_hold():
-    """No module of the server over about 400 lines, the trainer about 350 (split one concern out instead)."""
-    limits = {path: 360 if path.name == "trainer.py" else 420
-              for path in [*(ROOT / "server").rglob("*.py"), ROOT / "train" / "trainer.py"]}
+LONG_ALLOWED = {
+    "train/config.py": "split pending: the training configs and their presets",
+    "train/sweep/spec.py": "split pending: the sweep spec and the checks across its tables",
+}
+"""Modules allowed over the size, each with its reason."""
+
+
+def test_each_job_fits_a_file_a_reader_can_hold():
+    """No module of any package over about 400 lines, the trainer about 350 (split one concern out instead)."""
+    limits = {path: 360 if path == ROOT / "train" / "trainer.py" else 420
+              for package in PACKAGES for path in (ROOT / package).rglob("*.py")}
     long = {str(p.relative_to(ROOT)): n for p, limit in limits.items() if (n := len(p.read_text().splitlines())) > limit}
-    assert not long, long
+    assert not set(long) - set(LONG_ALLOWED), {k: n for k, n in long.items() if k not in LONG_ALLOWED}
+    assert all((ROOT / path).is_file() for path in LONG_ALLOWED), "an allowance names a module that is gone"
+
+
+NOT_IN_THE_CHECKOUT = {"colorgrid/_data/": "the wheel's copy of the shipped folders, made when the wheel is built"}
+"""Paths ARCHITECTURE.md names that a checkout does not hold, each with its reason."""
+
+
+def test_every_repository_path_architecture_md_names_exists():
+    """Each `path` ARCHITECTURE.md names under a folder of the repository (``colorgrid/configkit/``,
+    ``server/play/offer.py``) is there: the map is corrected when the code moves."""
+    import re
+
+    text = (ROOT / "docs" / "ARCHITECTURE.md").read_text()
+    folders = {p.name for p in ROOT.iterdir() if p.is_dir() and not p.name.startswith(".")}
+    named = {m for m in re.findall(r"`([A-Za-z0-9_.-]+/[A-Za-z0-9_./-]*)`", text) if m.split("/")[0] in folders}
+    assert len(named) > 20, named  # the map names the project's files
+    missing = sorted(p for p in named - set(NOT_IN_THE_CHECKOUT) if not (ROOT / p).exists())
+    assert not missing, missing
