@@ -8,6 +8,7 @@ from typing import Any
 
 from colorgrid.configkit import (ConfigBase, check_bool, check_choice, check_int, check_number, check_strings, fail,
                                  from_dict, to_dict)
+from colorgrid.enums import Role
 
 ENV_ID = "colorgrid_v0"
 """Versioned id of the 1:1 team (one leader, one follower): bumped whenever its dynamics, rewards or
@@ -15,8 +16,8 @@ observations change."""
 TEAM_ENV_ID = "colorgrid_teams_v0"
 """Versioned id of every other team shape (``num_leaders`` or ``num_followers`` above 1)."""
 
-ROLES = ("leader", "follower")
-"""The two roles: a leader knows the goal, a follower (in the asymmetric setting) does not."""
+ROLES = tuple(Role)
+"""The two roles (``Role``): a leader knows the goal, a follower (in the asymmetric setting) does not."""
 AGENTS = ("leader", "follower")
 """The 1:1 team's agent names, in the order moves and pickups resolve (leader first).
 Other team shapes name theirs ``leader_0, leader_1, ..., follower_0, ...`` (``EnvConfig.agent_names``)."""
@@ -116,9 +117,9 @@ class EnvConfig(ConfigBase):
         return ENV_ID if self.one_to_one else TEAM_ENV_ID
 
     @property
-    def roles(self) -> tuple[str, ...]:
-        """Each agent's role (``ROLES``), in index order: the leaders, then the followers."""
-        return ("leader",) * self.num_leaders + ("follower",) * self.num_followers
+    def roles(self) -> tuple[Role, ...]:
+        """Each agent's role (``Role``), in index order: the leaders, then the followers."""
+        return (Role.LEADER,) * self.num_leaders + (Role.FOLLOWER,) * self.num_followers
 
     @property
     def leaders(self) -> range:
@@ -150,7 +151,7 @@ class EnvConfig(ConfigBase):
     def sees_goal(self) -> tuple[bool, ...]:
         """Which agents' goal information shows the goal: every leader always, a follower only when the
         setting is symmetric (the rule is this property; the env and its kernel read it)."""
-        return tuple(role == "leader" or not self.asymmetric for role in self.roles)
+        return tuple(role == Role.LEADER or not self.asymmetric for role in self.roles)
 
     @property
     def num_agents(self) -> int:

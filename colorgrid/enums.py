@@ -1,6 +1,6 @@
-"""The fixed sets of names a game's record uses, each declared once: how a game ended, what became of a key, the
-kind of a study's game and how an AI leader fits a leader seat. The play server, the study's export, the replay
-format and the tests import them from here; the pages get the lists they need from the server.
+"""The fixed sets of names a game's record uses, each declared once: an agent's role, how a game ended, what
+became of a key, the kind of a study's game and how an AI leader fits a leader seat. The play server, the study's
+export, the replay format and the tests import them from here; the pages get the lists they need from the server.
 
 Each is a ``StrEnum``: a member is equal to its value (``Ending.COMPLETE == "complete"``), so records written
 before stay valid and JSON holds the plain string."""
@@ -8,6 +8,13 @@ before stay valid and JSON holds the plain string."""
 from __future__ import annotations
 
 from enum import StrEnum
+
+
+class Role(StrEnum):
+    """An agent's role in its team (``EnvConfig.roles``): a leader knows the goal, a follower works it out."""
+
+    LEADER = "leader"
+    FOLLOWER = "follower"
 
 
 class Ending(StrEnum):

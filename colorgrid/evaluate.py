@@ -14,6 +14,7 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from colorgrid.config import ROLES, EnvConfig
+from colorgrid.enums import Role
 from colorgrid.policies import Policy, make_policy
 from colorgrid.rollout import EpisodeBatch, run_team
 
@@ -119,7 +120,7 @@ def team_specs(config: EnvConfig, leader: str | Policy, follower: str | Policy,
     agents = dict(agents or {})
     for name in agents:
         config.index(name)  # an unknown name is an error that lists the team's agents
-    return [agents.get(name, leader if role == "leader" else follower)
+    return [agents.get(name, leader if role == Role.LEADER else follower)
             for name, role in zip(config.agent_names, config.roles)]  # run_team refuses one object for two
 
 

@@ -13,6 +13,7 @@ import numpy as np
 from numba import njit
 
 from colorgrid import rng
+from colorgrid.enums import Role
 
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
@@ -73,7 +74,7 @@ def pack(config, penalty_coef: float | None = None) -> np.ndarray:
         p["penalty_coef"] = penalty_coef
     p["distance_mask"] = [config.penalised(a) for a in range(config.num_agents)]
     p["sees_goal"] = config.sees_goal
-    p["is_leader"] = [role == "leader" for role in config.roles]
+    p["is_leader"] = [role == Role.LEADER for role in config.roles]
     return params
 
 

@@ -4,6 +4,7 @@ plays with, and what each has scored. Every module that needs one of these asks 
 from __future__ import annotations
 
 from colorgrid.config import EnvConfig
+from colorgrid.enums import Role
 from colorgrid.state import EnvState
 
 
@@ -16,7 +17,7 @@ def columns(config: EnvConfig, agent: int) -> tuple[int, int]:
     if not config.hemispheres:
         return 0, config.width
     half = config.width // 2
-    return (0, half) if config.roles[agent] == "leader" else (half, config.width)
+    return (0, half) if config.roles[agent] == Role.LEADER else (half, config.width)
 
 
 def others(config: EnvConfig, agent: int) -> list[int]:

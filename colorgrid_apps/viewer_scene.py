@@ -8,6 +8,7 @@ import numpy as np
 import viser
 import viser.uplot
 
+from colorgrid.enums import Role
 from colorgrid.render import AGENT_COLORS, FLOOR, GRID_LINE, PALETTE
 from colorgrid_apps.viewer_frames import (HIDDEN_Z, Frame, agent_label, believer_label, block_capacity, board_bounds,
                                           frame_at, team, unit_cube)
@@ -91,7 +92,7 @@ def believers(data: dict) -> list[str]:
     """The followers that logged goal probabilities, in index order: one chart each."""
     probs = data.get("goal_probs", {})
     return [agent["name"] for agent in data["look"]["agents"]
-            if agent["role"] == "follower" and probs.get(agent["name"])]
+            if agent["role"] == Role.FOLLOWER and probs.get(agent["name"])]
 
 
 def beliefs(data: dict, name: str) -> np.ndarray | None:

@@ -27,6 +27,7 @@ from colorgrid.replay import Replay
 from colorgrid.roles import columns, scores
 from colorgrid.step_inputs import StepInputs
 from server.keylog import PENDING, CappedLog, KeyLog, now_ms
+from server.messages import SeatView, State, Welcome
 from server.protocol import KEY_ACTIONS, GoalView, Mode, SeatKind, belief_keys
 from server.seats import STAND_IN, AIPlayer, Seat, lineup, pair_view
 from server.stated import ProbePlan, StatedBeliefs, Via
@@ -273,34 +274,31 @@ class Game:
         return self.stated is not None and self.goal_view == GoalView.HIDDEN
 
     # ------------------------------------------------------------ views
-    def seats_view(self) -> list[dict]:
+    def seats_view(self) -> list[SeatView]:
         """Each person's seat for the pages: ``{agent, symbol, status}``."""
         symbols = self.config.symbols
-        return [{"agent": s.name, "symbol": symbols[s.agent], "status": s.status()} for s in self.seats]
+        return [SeatView(agent=s.name, symbol=symbols[s.agent], status=s.status()) for s in self.seats]
 
-    def welcome(self, seat: Seat | None = None) -> dict:
+    def welcome(self, seat: Seat | None = None) -> Welcome:
         """The ``welcome`` of ``seat`` (the first by default): its own token; in a team, its own agent."""
         cfg, seat = self.config, seat or self.seats[0]
-        message = {
-            "type": "welcome", "game_id": self.game_id, "token": seat.token, "mode": self.mode.value,
-            "follower": self.follower, "preset": self.preset,
-            "tick_hz": self.tick_hz if self.mode == Mode.REALTIME else None,
-            "height": cfg.height, "width": cfg.width, "colors": list(cfg.color_names), "horizon": cfg.horizon,
-            "show_belief": self.show_belief, "keys": sorted(KEY_ACTIONS), "look": look(cfg),
-            "next_seq": seat.next_seq, "prediction": self.prediction(seat),
-        }
+        fields = {}  # the fields of some games only
         if not self.solo:
-            message.update(team=self.config.team, agent=seat.name, seats=self.seats_view(), room=self.room)
+            fields.update(team=self.config.team, agent=seat.name, seats=self.seats_view(), room=self.room)
         if self.stated is not None:  # the follower seat: who they are, what they see, how they say what they believe
-            message.update(seat=self.seat.value, agent=seat.name, goal_view=self.goal_view.value,
-                           belief_keys=self.belief_keys, probes=self.probes.text,
-                           confidence_min=round(1.0 / cfg.num_colors, 6))
+            fields.update(seat=self.seat, agent=seat.name, goal_view=self.goal_view, belief_keys=self.belief_keys,
+                          probes=self.probes.text, confidence_min=round(1.0 / cfg.num_colors, 6))
         if len(self.ai_followers) > 1:  # each AI follower's kind, by agent name
             kinds = self.follower_kinds or (self.follower,) * len(self.ai_followers)
-            message["followers"] = dict(zip((cfg.agent_names[i] for i in self.ai_followers), kinds))
+            fields["followers"] = dict(zip((cfg.agent_names[i] for i in self.ai_followers), kinds))
         if self.leader_kinds:  # each AI leader's kind, by agent name
-            message["leaders"] = dict(zip((cfg.agent_names[i] for i in self.ai_leaders), self.leader_kinds))
-        return message
+            fields["leaders"] = dict(zip((cfg.agent_names[i] for i in self.ai_leaders), self.leader_kinds))
+        return Welcome(
+            type="welcome", game_id=self.game_id, token=seat.token, mode=self.mode, follower=self.follower,
+            preset=self.preset, tick_hz=self.tick_hz if self.mode == Mode.REALTIME else None, height=cfg.height,
+            width=cfg.width, colors=list(cfg.color_names), horizon=cfg.horizon, show_belief=self.show_belief,
+            keys=sorted(KEY_ACTIONS), look=look(cfg), next_seq=seat.next_seq, prediction=self.prediction(seat),
+            **fields)
 
     def prediction(self, seat: Seat) -> dict:
         """What a page needs to draw its person's own move before the server's state shows it (the state corrects
@@ -309,30 +307,28 @@ class Game:
         return {"moves": {key: ACTION_DELTAS[action].tolist() for key, action in KEY_ACTIONS.items()},
                 "columns": list(columns(self.config, seat.agent))}
 
-    def state_message(self) -> dict:
+    def state_message(self) -> State:
+        """The ``state`` after the last step (or at the start), as every person of the game sees it."""
         s, cfg = self.env.state, self.config
         colors = s.block_colors(cfg)[0].ravel()
         blocks = np.where(colors < 0, ord("."), colors + ord("0")).astype(np.uint8).tobytes().decode("ascii")
-        message = {
-            "type": "state", "step": int(s.t[0]), "horizon": cfg.horizon,
-            **{name: int(s.agent_cell[0, i]) for i, name in enumerate(cfg.agent_names)},
-            "blocks": blocks,
-            "goal": None if self.goal_hidden else int(s.goal[0]),
-            "scores": scores(s, cfg),
-        }
+        fields = {name: int(s.agent_cell[0, i]) for i, name in enumerate(cfg.agent_names)}  # each agent's cell
         if self.solo:
             players = self.followers()
             beliefs = players[0].beliefs if players else []
-            message["belief"] = beliefs[-1] if (self.show_belief and beliefs) else None
+            fields["belief"] = beliefs[-1] if (self.show_belief and beliefs) else None
         else:  # one belief per AI follower, by name
-            message["beliefs"] = {cfg.agent_names[p.agent]: p.beliefs[-1] if (self.show_belief and p.beliefs)
-                                  else None for p in self.followers()}
-        message["events"] = [e for e in self.last_events if "switch" not in e] if self.goal_hidden else self.last_events
+            fields["beliefs"] = {cfg.agent_names[p.agent]: p.beliefs[-1] if (self.show_belief and p.beliefs)
+                                 else None for p in self.followers()}
         if self.stated is not None:
-            message.update(self.stated.view())
-        message["last_applied_seq"] = self.seats[0].last_applied_seq if self.solo else {
-            seat.name: seat.last_applied_seq for seat in self.seats}
-        return message
+            fields.update(self.stated.view())
+        return State(
+            type="state", step=int(s.t[0]), horizon=cfg.horizon, blocks=blocks,
+            goal=None if self.goal_hidden else int(s.goal[0]), scores=scores(s, cfg),
+            events=[e for e in self.last_events if "switch" not in e] if self.goal_hidden else self.last_events,
+            last_applied_seq=self.seats[0].last_applied_seq if self.solo else {
+                seat.name: seat.last_applied_seq for seat in self.seats},
+            **fields)
 
     def to_replay(self, ended: Ending, descriptions: dict[int, dict]) -> Replay:
         """The game as a replay; ``descriptions``: agent index -> its policy's ``agents`` entry (each AI follower

@@ -1,10 +1,10 @@
 """The play protocol's other half: every message the server sends to the page on ``/ws/play``, as pydantic models.
 
-``server.protocol`` declares what the page sends; this module declares what it gets back. The server still builds
-its messages as plain dicts (``Game.welcome``, ``Game.state_message``, ``Room.message``, ...); ``server_message``
-validates one (a test plays real games and validates every message sent), and ``messages_table`` writes the
-declaration as docs/SERVER_PROTOCOL.md's table "From the server". Every model forbids fields it does not declare, so a
-new field or message type must be declared here before a test passes.
+``server.protocol`` declares what the page sends; this module declares what it gets back. The server builds each
+message as its model where it is made (``Game.welcome``, ``Game.state_message``, ``Room.message``, ...) and sends its
+``wire`` form; ``server_message`` validates one as it arrived (a test plays real games and validates every message
+sent), and ``messages_table`` writes the declaration as docs/SERVER_PROTOCOL.md's table "From the server". Every
+model forbids fields it does not declare, so a new field or message type must be declared here before it is built.
 
 ``ENDING_WORDS`` says each ending (``colorgrid.enums.Ending``) in a player's words; ``/api/options`` sends them and
 the pages show them, so the pages hold no list of endings of their own.
@@ -18,8 +18,8 @@ from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
 
-from colorgrid.enums import Ending
-from server.protocol import GoalView, Mode, SeatKind
+from colorgrid.enums import Ending, Role
+from server.protocol import GoalView, Mode, RoomClosedReason, RoomSeatStatus, SeatKind, SeatStatus
 
 ENDING_WORDS: dict[Ending, str] = {
     Ending.COMPLETE: "Game over.",
@@ -41,13 +41,17 @@ AGENT_NAME = re.compile(r"(leader|follower)(_\d+)?")
 class _Outgoing(BaseModel):
     model_config = ConfigDict(extra="forbid")
 
+    def wire(self) -> dict:
+        """The message as it is sent: the fields it was built with (an optional field left out stays out)."""
+        return self.model_dump(exclude_unset=True)
+
 
 # ---------------------------------------------------------------- parts of messages
 class LookAgent(_Outgoing):
     """How one agent is drawn."""
 
     name: str
-    role: Literal["leader", "follower"]
+    role: Role
     symbol: str
     body: str
     ink: str
@@ -74,7 +78,7 @@ class SeatView(_Outgoing):
 
     agent: str
     symbol: str
-    status: Literal["playing", "reconnecting", "left"]
+    status: SeatStatus
 
 
 class RoomSeat(_Outgoing):
@@ -82,7 +86,7 @@ class RoomSeat(_Outgoing):
 
     agent: str
     symbol: str
-    status: Literal["open", "joined", "ready"]
+    status: RoomSeatStatus
 
 
 class Pickup(_Outgoing):
@@ -242,7 +246,7 @@ class RoomClosed(_Outgoing):
 
     type: Literal["room_closed"]
     code: str
-    reason: Literal["expired", "server_shutdown", "failed"] = Field(description="`failed`: the game could not start")
+    reason: RoomClosedReason = Field(description="`failed`: the game could not start")
     message: str
 
 
@@ -286,8 +290,9 @@ class Pong(_Outgoing):
     t_server: float = Field(description="the server's clock, ms")
 
 
-ServerMessage = Annotated[Union[Welcome, State, GameOver, RoomMessage, RoomClosed, Seats, Error, Full, Replaced, Pong],
-                          Field(discriminator="type")]
+ServerModel = Union[Welcome, State, GameOver, RoomMessage, RoomClosed, Seats, Error, Full, Replaced, Pong]
+"""A message the server sends, as built (``wire`` gives what goes out)."""
+ServerMessage = Annotated[ServerModel, Field(discriminator="type")]
 SERVER_TYPES = tuple(typing.get_args(m.model_fields["type"].annotation)[0]
                      for m in typing.get_args(typing.get_args(ServerMessage)[0]))
 """Every message type the server sends, in the declaration's order."""

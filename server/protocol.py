@@ -6,7 +6,7 @@ sends; ``server.messages`` what the server sends back.
 
 from __future__ import annotations
 
-from enum import Enum
+from enum import StrEnum
 from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
@@ -29,7 +29,7 @@ def belief_keys(num_colors: int) -> dict[str, int]:
     return {key: color for key, color in BELIEF_KEYS.items() if color < num_colors}
 
 
-class Mode(str, Enum):
+class Mode(StrEnum):
     """How a game advances: once per move key of the leader, or on the server's clock."""
 
     TURN = "turn"
@@ -41,7 +41,7 @@ class Mode(str, Enum):
         return {Mode.TURN: "turn-based", Mode.REALTIME: "real time"}[self]
 
 
-class SeatKind(str, Enum):
+class SeatKind(StrEnum):
     """The seat a person takes: a leader's (they know the goal; the default) or a follower's, the assistant's seat,
     beside AI leaders (the goal hidden from them unless a game shows it). The values are ``colorgrid.config.ROLES``."""
 
@@ -55,7 +55,7 @@ class SeatKind(str, Enum):
                 SeatKind.FOLLOWER: "you assist: follow an AI leader and work out the goal"}[self]
 
 
-class GoalView(str, Enum):
+class GoalView(StrEnum):
     """Whether a person in the follower seat sees the goal: ``hidden`` (the assistant's problem, the default) or
     ``shown`` (a control). A leader always sees it."""
 
@@ -68,7 +68,7 @@ class GoalView(str, Enum):
         return {GoalView.HIDDEN: "hidden from you (work it out)", GoalView.SHOWN: "shown to you (a control)"}[self]
 
 
-class Team(str, Enum):
+class Team(StrEnum):
     """Who plays a game: leaders and followers, as ``"leaders:followers"``. Every leader is a person (a
     scripted leader takes the seat of one who leaves), or one person leads beside AI leaders (``NewGame.leader``);
     every follower is the server's AI follower."""
@@ -107,6 +107,39 @@ class Team(str, Enum):
         return {Team.ONE_TO_ONE: "one leader, one follower: you and an AI",
                 Team.TWO_PEOPLE: "two leaders, one AI follower: you and another person (a room) or an AI leader",
                 Team.TWO_FOLLOWERS: "one leader, two followers: you and two AIs"}[self]
+
+
+class SeatStatus(StrEnum):
+    """How a person's seat of a team's game stands, as the other people see it (``seats``)."""
+
+    PLAYING = "playing"
+    RECONNECTING = "reconnecting"  # the connection was lost; the game waits for a rejoin (at most the grace)
+    LEFT = "left"  # the person left: a scripted leader plays the seat
+
+
+class RoomSeatStatus(StrEnum):
+    """A seat of a waiting room (``room``)."""
+
+    OPEN = "open"
+    JOINED = "joined"
+    READY = "ready"
+
+
+class RoomClosedReason(StrEnum):
+    """Why a waiting room closed without its game (``room_closed``)."""
+
+    EXPIRED = "expired"  # nobody started its game in time
+    SERVER_SHUTDOWN = "server_shutdown"
+    FAILED = "failed"  # its game could not start
+
+
+class RoomErrorCode(StrEnum):
+    """The ``error`` codes of a room request that cannot be met (``server.rooms.RoomError``)."""
+
+    BAD_ROOM_CODE = "bad_room_code"
+    ROOM_NOT_FOUND = "room_not_found"
+    ROOM_FULL = "room_full"
+    ROOM_STARTED = "room_started"
 
 
 ROOM_CODE_ALPHABET = "ABCDEFGHJKMNPQRSTUVWXYZ23456789"
@@ -271,13 +304,9 @@ class Quit(_Message):
     type: Literal["quit"]
 
 
-ClientMessage = Annotated[Union[NewGame, CreateRoom, JoinRoom, Ready, Rejoin, Key, Belief, ProbeAnswer, PageEvent, Ping,
-                                Quit], Field(discriminator="type")]
+ClientModel = Union[NewGame, CreateRoom, JoinRoom, Ready, Rejoin, Key, Belief, ProbeAnswer, PageEvent, Ping, Quit]
+"""A message the page sends, as validated."""
+ClientMessage = Annotated[ClientModel, Field(discriminator="type")]
 CLIENT_TYPES = ("new_game", "create_room", "join_room", "ready", "rejoin", "key", "belief", "probe_answer",
                 "page_event", "ping", "quit")
 client_message = TypeAdapter(ClientMessage)
-
-
-def error(code: str, message: str) -> dict:
-    """An ``error`` message; the game goes on."""
-    return {"type": "error", "code": code, "message": message}

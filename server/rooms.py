@@ -13,13 +13,15 @@ from dataclasses import dataclass, field
 
 from colorgrid.config import EnvConfig
 from server.followers import follower_label
-from server.protocol import ROOM_CODE_ALPHABET, ROOM_CODE_LENGTH, Mode, Team, normalise_room_code
+from server.messages import RoomClosed, RoomMessage, RoomSeat
+from server.protocol import (ROOM_CODE_ALPHABET, ROOM_CODE_LENGTH, Mode, RoomClosedReason, RoomErrorCode,
+                             RoomSeatStatus, Team, normalise_room_code)
 
 
 class RoomError(ValueError):
     """A room request that cannot be met; ``code`` is the ``error`` message's code."""
 
-    def __init__(self, code: str, message: str):
+    def __init__(self, code: RoomErrorCode, message: str):
         super().__init__(message)
         self.code = code
 
@@ -73,7 +75,8 @@ class Room:
         """Seat ``client`` in the first free seat; a full room raises ``RoomError`` (``room_full``)."""
         free = next((i for i, m in enumerate(self.members) if m is None), None)
         if free is None:
-            raise RoomError("room_full", f"room {self.code} is full: all {len(self.members)} seats are taken")
+            raise RoomError(RoomErrorCode.ROOM_FULL,
+                            f"room {self.code} is full: all {len(self.members)} seats are taken")
         self.members[free] = Member(client, client_info)
         return free
 
@@ -82,22 +85,24 @@ class Room:
         if seat is not None:
             self.members[seat] = None
 
-    def members_view(self) -> list[dict]:
-        """Each seat for the pages: ``{agent, symbol, status}``, status ``open``, ``joined`` or ``ready``."""
+    def members_view(self) -> list[RoomSeat]:
+        """Each seat for the pages: ``{agent, symbol, status}`` (``RoomSeatStatus``)."""
         names, symbols = self.config.agent_names, self.config.symbols
-        return [{"agent": names[i], "symbol": symbols[i],
-                 "status": "open" if m is None else "ready" if m.ready else "joined"}
+        return [RoomSeat(agent=names[i], symbol=symbols[i],
+                         status=RoomSeatStatus.OPEN if m is None else RoomSeatStatus.READY if m.ready
+                         else RoomSeatStatus.JOINED)
                 for i, m in enumerate(self.members)]
 
-    def message(self, seat: int) -> dict:
+    def message(self, seat: int) -> RoomMessage:
         """The ``room`` message for the person in ``seat``."""
-        return {"type": "room", "code": self.code, "link": f"/?room={self.code}", "team": self.team.value,
-                "mode": self.mode.value, "preset": self.preset, "follower": follower_label(self.followers),
-                "horizon": self.config.horizon, "seats": self.members_view(), "you": self.config.agent_names[seat],
-                "starting_in_s": self.starting_in_s}
+        return RoomMessage(type="room", code=self.code, link=f"/?room={self.code}", team=self.team.value,
+                           mode=self.mode, preset=self.preset, follower=follower_label(self.followers),
+                           horizon=self.config.horizon, seats=self.members_view(), you=self.config.agent_names[seat],
+                           starting_in_s=self.starting_in_s)
 
-    def closed_message(self, reason: str, message: str) -> dict:
-        return {"type": "room_closed", "code": self.code, "reason": reason, "message": message}
+    def closed_message(self, reason: RoomClosedReason, message: str) -> RoomClosed:
+        """The ``room_closed`` message: why the room closed without its game."""
+        return RoomClosed(type="room_closed", code=self.code, reason=reason, message=message)
 
 
 def new_code(taken) -> str:
@@ -112,6 +117,6 @@ def parse_code(text: str) -> str:
     """A room code as typed or pasted, or ``RoomError`` (``bad_room_code``) saying what a code looks like."""
     code = normalise_room_code(text)
     if code is None:
-        raise RoomError("bad_room_code", f"{text[:32]!r} is not a room code: a code has {ROOM_CODE_LENGTH} "
+        raise RoomError(RoomErrorCode.BAD_ROOM_CODE, f"{text[:32]!r} is not a room code: a code has {ROOM_CODE_LENGTH} "
                                          f"letters and digits from {ROOM_CODE_ALPHABET}")
     return code

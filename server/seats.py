@@ -21,7 +21,7 @@ from colorgrid.enums import Ending, SeatFit
 from colorgrid.env import ACTION_NAMES
 from colorgrid.policies.base import AgentInput
 from server.followers import leads
-from server.protocol import GoalView, SeatKind, Team
+from server.protocol import GoalView, SeatKind, SeatStatus, Team
 from server.stated import ProbePlan
 
 STAY = ACTION_NAMES.index("stay")
@@ -55,9 +55,9 @@ class Seat:
         """The pending key's move, or stay (real time with no key pending)."""
         return STAY if self.pending is None else self.pending["action"]
 
-    def status(self) -> str:
-        """How the other people see this seat: ``playing``, ``reconnecting`` or ``left``."""
-        return "left" if self.left else "reconnecting" if self.client is None else "playing"
+    def status(self) -> SeatStatus:
+        """How the other people see this seat."""
+        return SeatStatus.LEFT if self.left else SeatStatus.RECONNECTING if self.client is None else SeatStatus.PLAYING
 
 
 @dataclass(eq=False)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import asdict, dataclass, field
-from enum import Enum
+from enum import StrEnum
 
 import numpy as np
 
@@ -26,7 +26,7 @@ from colorgrid.config import EnvConfig
 from server.protocol import MAX_HORIZON
 
 
-class ProbeKind(str, Enum):
+class ProbeKind(StrEnum):
     """When a game asks its probes."""
 
     NONE = "none"
@@ -40,7 +40,7 @@ class ProbeKind(str, Enum):
                 ProbeKind.RANDOM: "at random steps"}[self]
 
 
-class ProbeStatus(str, Enum):
+class ProbeStatus(StrEnum):
     """How a probe ended."""
 
     OPEN = "open"
@@ -49,7 +49,7 @@ class ProbeStatus(str, Enum):
     UNANSWERED = "unanswered"  # the game ended first
 
 
-class Via(str, Enum):
+class Via(StrEnum):
     """How a statement was made."""
 
     KEY = "key"

@@ -12,6 +12,7 @@ from pathlib import Path
 
 from colorgrid.commandline import OneLineParser
 from colorgrid.config import ROLES
+from colorgrid.enums import Role
 from colorgrid.extras import MissingExtra
 from colorgrid.files import JSONFileError, read_json_object
 from train.config import TrainConfig, load_preset, preset_names, resolve
@@ -231,7 +232,7 @@ def cmd_import_paper(args: argparse.Namespace) -> int:
 
     if not args.role or not args.out:
         raise ValueError("needs --role leader|follower (the role the paper's network played) and --out PATH.pt")
-    if args.asymmetric is None and args.role == "follower":
+    if args.asymmetric is None and args.role == Role.FOLLOWER:
         raise ValueError("say how the follower was trained: --asymmetric (it never saw the goal) or --symmetric")
     path = import_paper_checkpoint(args.path, args.role, args.out, asymmetric=bool(args.asymmetric))
     print(f"wrote {path} ({path.stat().st_size / 1e6:.1f} MB) and its model card {path.with_suffix('.md')}")

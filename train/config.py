@@ -20,6 +20,7 @@ from colorgrid import configkit
 from colorgrid.config import ROLES, EnvConfig
 from colorgrid.configkit import (ConfigBase, ConfigError, Presets, check_bool, check_choice, check_int, check_number,
                                  check_strings, fail, merge, override_dict)
+from colorgrid.enums import Role
 from colorgrid.policies.names import policy_names, read_name
 
 PRESETS_DIR = Path(__file__).parent / "presets"
@@ -340,10 +341,10 @@ class TrainConfig(ConfigBase):
 
     def section(self, role: str) -> AgentConfig:
         """The settings of every agent of ``role`` (``leader`` or ``follower``)."""
-        return self.leader if role == "leader" else self.follower
+        return self.leader if role == Role.LEADER else self.follower
 
     def role_size(self, role: str) -> int:
-        return self.env.num_leaders if role == "leader" else self.env.num_followers
+        return self.env.num_leaders if role == Role.LEADER else self.env.num_followers
 
     @cached_property
     def agents(self) -> tuple[AgentConfig, ...]:

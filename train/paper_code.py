@@ -20,6 +20,7 @@ from pathlib import Path
 import torch
 
 from colorgrid.config import ROLES, EnvConfig
+from colorgrid.enums import Role
 from colorgrid.paper_format import (
     ACTIONS_FROM_PAPER,
     COLORS_FROM_PAPER,
@@ -232,7 +233,7 @@ def model_card(path: Path, source: dict, net, env: EnvConfig) -> str:
         (f"- **Environment recorded**: {json.dumps(env.to_dict())}. The paper's env differs from this one in a few "
          "rules (docs/PAPER_CODE.md)."),
         "",
-        "Run it: " + (f"`colorgrid eval --leader {path.name} --follower bayes`" if role == "leader" else
+        "Run it: " + (f"`colorgrid eval --leader {path.name} --follower bayes`" if role == Role.LEADER else
                       f"`colorgrid eval --leader astar --follower {path.name}`") +
         " (any command that takes a checkpoint .pt takes it).",
         "",
@@ -240,7 +241,7 @@ def model_card(path: Path, source: dict, net, env: EnvConfig) -> str:
             f"`colorgrid play --leaders {path.name}`, then the team \"two leaders, one AI follower\" and \"The other "
             f"leader: {path.name} (imported from the paper's code)\": it leads beside you as the AI leader of a 2:1 "
             "game, which it sees as the 1:1 game it was trained in: itself and the follower, you not in its view"
-            if role == "leader" else
+            if role == Role.LEADER else
             f"`colorgrid play --follower {path.name}`: it assists you as your AI partner in the 1:1 team, the one it "
             "was trained in") + "; see docs/PAPER_CODE.md, \"Play with it in the browser\".",
     ]

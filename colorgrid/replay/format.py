@@ -18,7 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from colorgrid.config import EnvConfig
-from colorgrid.enums import Ending, KeyStatus
+from colorgrid.enums import Ending, KeyStatus, Role
 from colorgrid.files import JSONFileError, atomic_path, read_json
 from colorgrid.rng import MAX_SEED
 
@@ -230,7 +230,7 @@ class Replay:
             require(all(k.get("status", KeyStatus.APPLIED) in set(KeyStatus) for k in self.key_events),
                     f"key_events: a key's status must be one of {[s.value for s in KeyStatus]}")
         for name, stated in self.stated_beliefs.items():
-            require(name in cfg.agent_names and cfg.roles[cfg.agent_names.index(name)] == "follower",
+            require(name in cfg.agent_names and cfg.roles[cfg.agent_names.index(name)] == Role.FOLLOWER,
                     f"steps.stated_belief has {name!r}, which is not a follower of the config's team")
             require(isinstance(stated, list) and len(stated) == T
                     and all(c is None or (_is_int(c) and 0 <= c < C) for c in stated),

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
-from colorgrid.enums import GameKind
+from colorgrid.enums import GameKind, Role
 from colorgrid.replay import Replay, load
 from colorgrid.evaluate import catch_lags, format_mean_ci, mean_ci
 
@@ -52,7 +52,7 @@ def human_followers(replay: Replay) -> list[str]:
     """The followers a person played in ``replay`` (by agent name), those that stated beliefs."""
     cfg = replay.config
     return [name for name, role in zip(cfg.agent_names, cfg.roles)
-            if role == "follower" and replay.agents.get(name, {}).get("policy") == "human"
+            if role == Role.FOLLOWER and replay.agents.get(name, {}).get("policy") == "human"
             and name in replay.stated_beliefs]
 
 

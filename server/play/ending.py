@@ -15,6 +15,7 @@ from colorgrid.replay import Replay, save
 from colorgrid.replay.human_follower import person_measures, scored_probes
 from colorgrid.roles import scores
 from server.game import Game
+from server.messages import GameOver
 from server.play.live import Live
 
 log = logging.getLogger("colorgrid.server")
@@ -34,15 +35,13 @@ class GameListener(Protocol):
         """``game`` ended for ``reason`` with ``scores`` (``colorgrid.roles.scores``), after it was saved."""
 
 
-def game_over_message(game: Game, reason: Ending, replay_id: str | None) -> dict:
+def game_over_message(game: Game, reason: Ending, replay_id: str | None) -> GameOver:
     """The ``game_over`` that tells a person the game ended (for them, with reason ``left``); in the follower seat,
     once saved, with what the person said beside the goal's history (``stated``)."""
     s = game.env.state
-    message = {"type": "game_over", "reason": reason, "replay_id": replay_id, "steps": int(s.t[0]),
-               "scores": scores(s, game.env.config)}
-    if game.stated_record is not None:
-        message["stated"] = game.stated_record
-    return message
+    stated = {} if game.stated_record is None else {"stated": game.stated_record}
+    return GameOver(type="game_over", reason=reason, replay_id=replay_id, steps=int(s.t[0]),
+                    scores=scores(s, game.env.config), **stated)
 
 
 def stated_record(replay: Replay, agent: str) -> dict:

@@ -20,7 +20,7 @@ from server.play.offer import Offer, make_config
 from server.play.pools import Pools
 from server.play.sessions import Sessions
 from server.play.source import FreePlay, GameSource
-from server.protocol import GoalView, Mode, SeatKind, Team
+from server.protocol import GoalView, Mode, RoomClosedReason, SeatKind, Team
 from server.rooms import Room
 from server.settings import ServerSettings
 
@@ -87,7 +87,8 @@ class GameHub:
                 if s.client is not None]
         told += [m.client for room in live.rooms.values() for m in room.members if m is not None]
         for room in list(live.rooms.values()):
-            await self.lobby.close_room(room, "server_shutdown", "the server is shutting down; try again in a minute")
+            await self.lobby.close_room(room, RoomClosedReason.SERVER_SHUTDOWN,
+                                        "the server is shutting down; try again in a minute")
         await self.finisher.finish_complete()  # complete already: saved as such, without waiting for late keys
         for game in list(live.games.values()):
             try:

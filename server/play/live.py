@@ -7,6 +7,7 @@ import asyncio
 from typing import Protocol
 
 from server.game import Game
+from server.messages import Seats, ServerModel
 from server.rooms import Room
 from server.settings import ServerSettings
 
@@ -14,7 +15,8 @@ from server.settings import ServerSettings
 class Client(Protocol):
     """What the hub needs of a player's connection."""
 
-    async def send(self, message: dict) -> None: ...
+    async def send(self, message: dict) -> None:
+        """Send ``message`` as it goes on the wire (``ServerModel.wire``)."""
 
     def detach(self) -> None:
         """The connection no longer plays its game or sits in its room (another connection took the game
@@ -58,7 +60,7 @@ class Live:
         still on their way."""
         return game is not None and (game.game_id in self.games or game.game_id in self.finishing)
 
-    async def send(self, game: Game, message: dict) -> None:
+    async def send(self, game: Game, message: ServerModel) -> None:
         """To every person still in ``game``."""
         for seat in game.people:
             if seat.client is not None:
@@ -66,13 +68,13 @@ class Live:
 
     async def send_seats(self, game: Game) -> None:
         """Tell the people of a team game how each seat stands (``seats``)."""
-        await self.send(game, {"type": "seats", "seats": game.seats_view()})
+        await self.send(game, Seats(type="seats", seats=game.seats_view()))
 
 
-async def send_to(client: Client, message: dict) -> None:
+async def send_to(client: Client, message: ServerModel) -> None:
     """Send ``message`` to ``client``; a closed socket is left to its disconnect handler, which takes care of the
     game."""
     try:
-        await client.send(message)
+        await client.send(message.wire())
     except Exception:
         pass

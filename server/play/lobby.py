@@ -10,7 +10,7 @@ from colorgrid.enums import Ending
 from server.play.live import Client, Live, send_to
 from server.play.offer import Offer
 from server.play.sessions import Sessions
-from server.protocol import ROOM_COUNTDOWN_S, Mode, Team
+from server.protocol import ROOM_COUNTDOWN_S, Mode, RoomClosedReason, RoomErrorCode, Team
 from server.rooms import Room, RoomError, new_code, parse_code
 
 log = logging.getLogger("colorgrid.server")
@@ -47,8 +47,8 @@ class Lobby:
         room = self.live.rooms.get(code)
         if room is None:
             if any(g.room == code for g in self.live.games.values()):
-                raise RoomError("room_started", f"the game of room {code} has already started")
-            raise RoomError("room_not_found", f"no room {code} is waiting (it may have expired or closed)")
+                raise RoomError(RoomErrorCode.ROOM_STARTED, f"the game of room {code} has already started")
+            raise RoomError(RoomErrorCode.ROOM_NOT_FOUND, f"no room {code} is waiting (it may have expired or closed)")
         room.join(client, client_info or {})
         await self._send_room(room)
         return room
@@ -96,9 +96,9 @@ class Lobby:
         wait_s = self.live.settings.room_wait_s
         for room in list(self.live.rooms.values()):
             if room.starting_in_s is None and now - room.created > wait_s:
-                await self.close_room(room, "expired", f"nobody started the game within {wait_s:g} s")
+                await self.close_room(room, RoomClosedReason.EXPIRED, f"nobody started the game within {wait_s:g} s")
 
-    async def close_room(self, room: Room, reason: str, message: str) -> None:
+    async def close_room(self, room: Room, reason: RoomClosedReason, message: str) -> None:
         """Close ``room`` and tell its people why (``room_closed``)."""
         if self.live.rooms.pop(room.code, None) is None:
             return
@@ -123,7 +123,8 @@ class Lobby:
             log.exception("could not start the game of room %s", room.code)
             for client, _ in people:
                 client.detach()
-                await send_to(client, room.closed_message("failed", f"the game could not start: {err}"))
+                closed = room.closed_message(RoomClosedReason.FAILED, f"the game could not start: {err}")
+                await send_to(client, closed)
             return
         finally:
             room.opening = False

@@ -11,10 +11,11 @@ import dataclasses
 import gc
 import logging
 from concurrent.futures import ThreadPoolExecutor
+from enum import StrEnum
 from functools import partial
 
 from colorgrid.config import FOLLOWER, LEADER, EnvConfig
-from colorgrid.enums import SeatFit
+from colorgrid.enums import Role, SeatFit
 from server.followers import FollowerPool, is_scripted
 from server.inference import InferenceLost, InferenceWorker
 from server.play.offer import Offer, make_config
@@ -24,6 +25,14 @@ from server.settings import ServerSettings
 
 log = logging.getLogger("colorgrid.server")
 POOL_IDLE_S = 120.0  # a follower pool with no game for this long is freed (the default follower's stay)
+
+
+class Warmed(StrEnum):
+    """The seats a pool is warmed for at start-up (``Pools.warm_seats``)."""
+
+    FOLLOWER = "follower"  # every AI follower of a team
+    LEADER = "leader"  # the AI leaders beside a person in a team of several leaders
+    LEADER_OF_A_PERSON = "lead a person"  # every leader, beside a person in the follower seat
 
 
 class Pools:
@@ -66,7 +75,7 @@ class Pools:
         """The pool that plays ``kind`` at agent ``agent`` of ``config``, and the agents it sees when it sees the game
         as a 1:1 game (``SeatFit.PAIR_VIEW``: a network trained in 1:1 in a leader seat of a larger team; its pool is
         built for the 1:1 team's leader), else None."""
-        fit = self.offer.leader_fit(kind, Team(config.team)) if config.roles[agent] == "leader" else None
+        fit = self.offer.leader_fit(kind, Team(config.team)) if config.roles[agent] == Role.LEADER else None
         if fit == SeatFit.PAIR_VIEW:
             pair = dataclasses.replace(config, num_leaders=1, num_followers=1)
             return await self.pool_for(kind, pair, LEADER), (agent, *config.followers)
@@ -83,8 +92,8 @@ class Pools:
         for kind, team, role in self.warm_seats():
             for mode in Mode:
                 config = make_config(self.settings.preset, mode, None, team)
-                agents = (config.followers if role == "follower" else config.leaders if role == "lead a person"
-                          else leader_seats(config, config.num_leaders - 1)[1])
+                agents = (config.followers if role == Warmed.FOLLOWER else config.leaders
+                          if role == Warmed.LEADER_OF_A_PERSON else leader_seats(config, config.num_leaders - 1)[1])
                 try:
                     for agent in agents:
                         pool, _ = await self.seat_pool(kind, config, agent)
@@ -93,7 +102,7 @@ class Pools:
                         timed.add(kind)
                         await loop.run_in_executor(self.executor, self.time_calls, pool)
                 except Exception as err:
-                    if role != "follower" and not isinstance(err, InferenceLost):  # one that cannot lead is not offered
+                    if role != Warmed.FOLLOWER and not isinstance(err, InferenceLost):  # one that cannot lead is not offered
                         log.error("AI leader %s is not offered in team %s: %s", kind, team.value, err)
                         self.offer.withdraw_leader(kind, team)
                         break
@@ -101,17 +110,18 @@ class Pools:
         gc.freeze()  # what start-up loaded (torch, the networks) is left out of later collections
         self.ready = True
 
-    def warm_seats(self) -> list[tuple[str, Team, str]]:
+    def warm_seats(self) -> list[tuple[str, Team, Warmed]]:
         """``(kind, team, role)`` of the pools made at start-up: the default follower first (in 1:1 when it is
         scripted), each trained follower in each team it plays, each trained AI leader in each team it leads."""
         seats = []
         for follower in sorted(self.warmed_followers, key=lambda f: f != self.settings.follower):
             teams = ([Team.ONE_TO_ONE] if is_scripted(follower)
                      else [t for t in Team if follower in self.offer.team_followers(t)])
-            seats += [(follower, team, "follower") for team in teams]
+            seats += [(follower, team, Warmed.FOLLOWER) for team in teams]
         for leader in self.kept_kinds - self.warmed_followers:
-            seats += [(leader, team, "leader") for team in Team if leader in self.offer.team_leaders(team)]
-            seats += [(leader, team, "lead a person") for team in Team if leader in self.offer.seat_leaders(team)]
+            seats += [(leader, team, Warmed.LEADER) for team in Team if leader in self.offer.team_leaders(team)]
+            seats += [(leader, team, Warmed.LEADER_OF_A_PERSON) for team in Team
+                      if leader in self.offer.seat_leaders(team)]
         return seats
 
     def time_calls(self, pool: FollowerPool) -> None:

@@ -12,6 +12,7 @@ from colorgrid.config import EnvConfig
 from colorgrid.enums import Ending
 from server.followers import follower_label
 from server.game import Game
+from server.messages import Replaced
 from server.play.clock import Clock
 from server.play.ending import Finisher, game_over_message
 from server.play.live import Client, Live, ServerFull, send_to
@@ -91,12 +92,12 @@ class Sessions:
         previous = seat.client
         if previous is not None and previous is not client:
             previous.detach()
-            await send_to(previous, {"type": "replaced", "game_id": game_id,
-                                     "message": "this game was taken over by another connection"})
+            await send_to(previous, Replaced(type="replaced", game_id=game_id,
+                                             message="this game was taken over by another connection"))
         was_away = previous is None
         seat.client, seat.disconnected_at, seat.last_key_at = client, None, time.monotonic()
-        await client.send(game.welcome(seat))
-        await client.send(game.state_message())
+        await client.send(game.welcome(seat).wire())
+        await client.send(game.state_message().wire())
         if was_away and not game.solo:
             await self.live.send_seats(game)
         if game.mode == Mode.TURN:  # the others may all have moved while this person was away

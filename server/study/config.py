@@ -21,7 +21,7 @@ from colorgrid import configkit
 from colorgrid.configkit import ConfigError, check_bool, check_choice, check_int, check_number, check_strings, fail
 from colorgrid.enums import SeatFit
 from colorgrid.presets import PRESETS
-from server.protocol import MAX_HORIZON, GoalView, SeatKind, Team
+from server.protocol import MAX_HORIZON, GoalView, Mode, SeatKind, Team
 from server.stated import PROBE_FORMS, ProbePlan
 
 PAGE_KINDS = ("consent", "instructions", "practice", "trials", "questionnaire", "debrief")
@@ -104,7 +104,7 @@ class GameSettings:
             out.update(follower=None, show_belief=None)
         else:
             out.update(leader=None, goal=None, probes=None)
-        if out["mode"] != "realtime":
+        if out["mode"] != Mode.REALTIME:
             out["tick_hz"] = None
         return out
 
