@@ -41,8 +41,12 @@ services:
 play: $(STAMP)
 	$(VENV)/bin/colorgrid play
 
+# Two tests at a time (pytest-xdist), file by file; the files that start a Ray run one after another on one worker
+# (tests/scheduling.py): most of the suite waits on servers, browsers and subprocesses, not the CPU.
+# TEST_WORKERS=0 runs them one at a time in this process.
+TEST_WORKERS ?= 2
 test: $(STAMP) browser services
-	$(PY) -m pytest
+	$(PY) -m pytest -n $(TEST_WORKERS) --dist loadscope
 
 bench: $(STAMP)
 	$(PY) bench/bench_env.py

@@ -49,6 +49,17 @@ def pytest_make_collect_report(collector):
     fail_a_skip(outcome.get_result())
 
 
+def pytest_xdist_make_scheduler(config, log):
+    """`make test` runs the tests two at a time (pytest-xdist, ``-n 2 --dist loadscope``) by file: a file's tests run
+    on one worker in their order, so that a module's server or cluster starts once and each test finds it as the test
+    before left it; the files that start a Ray run on one worker, one after another (``tests/scheduling.py``)."""
+    if config.getoption("dist") == "loadscope":
+        from tests.scheduling import FileScheduling
+
+        return FileScheduling(config, log)
+    return None
+
+
 def free_port() -> int:
     """A port free a moment ago, for servers that take a port number only (HAProxy, Ray): another process may take
     it before they bind it. The play server is started on port 0 instead and says which port it got."""

@@ -278,6 +278,7 @@ def test_a_page_that_reaches_another_backend_than_its_game_rejoins_the_game_ther
 
 
 def test_ctrl_c_stops_the_backends_their_workers_and_haproxy(study_cluster):
+    backends_up(study_cluster)  # the launcher has started again whatever a test before killed
     launcher = study_cluster.process.pid
     started = children(launcher)
     everything = started + [p for child in started for p in children(child)]

@@ -40,7 +40,6 @@ def ray_instance():
         ray.shutdown()
 
 
-@pytest.mark.xdist_group("ray")  # one Ray at a time (`make test` runs tests two at a time, --dist loadgroup)
 def test_rllib_multi_agent_ppo_trains_both_agents_for_two_iterations(ray_instance):
     rllib = example("rllib_ippo")
     algo = rllib.build({"horizon": 32}, batch=256, seed=0)

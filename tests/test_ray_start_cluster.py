@@ -25,8 +25,6 @@ from tests.conftest import ROOT, free_port
 from tests.test_sweep_cluster import SWEEP
 from train.sweep.results import read_tables
 
-pytestmark = pytest.mark.xdist_group("ray")  # one Ray at a time: `make test` runs tests two at a time (--dist loadgroup)
-
 RAY = Path(sys.executable).with_name("ray")
 
 

@@ -10,8 +10,6 @@ from tests.conftest import ROOT
 from tests.documented import documented_code
 from tests.test_examples import ray_instance  # noqa: F401  (the fixture: an in-process Ray of 2 CPUs)
 
-pytestmark = pytest.mark.xdist_group("ray")  # one Ray at a time: `make test` runs tests two at a time (--dist loadgroup)
-
 
 def module_weights(algo, agent: str) -> dict:
     return {k: np.array(v, copy=True) for k, v in algo.get_module(agent).get_state().items()}

@@ -40,3 +40,13 @@ def test_no_test_waits_a_fixed_time_or_asserts_one():
     found = [f"{path.name}:{n}: {line.strip()}" for path in sorted((ROOT / "tests").glob("*.py"))
              for n, line in enumerate(path.read_text().splitlines(), 1) if banned.search(line)]
     assert found == []
+
+
+def test_every_file_that_starts_a_ray_runs_on_the_ray_worker():
+    """`make test` runs two workers (tests/scheduling.py); a file that starts a Ray beside another would give each
+    Ray the machine's CPUs: every such file is in RAY_FILES, and every file there exists."""
+    from tests.scheduling import RAY_FILES
+
+    starts_ray = re.compile(r"^\s*(import|from) ray\b|\bray\.init\(|\"--head\"|\bray_instance\b", re.M)
+    found = {f"tests/{path.name}" for path in (ROOT / "tests").glob("test_*.py") if starts_ray.search(path.read_text())}
+    assert found == set(RAY_FILES)

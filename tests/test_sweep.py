@@ -23,8 +23,6 @@ from train.sweep.runner import resume_sweep, run_sweep
 from train.sweep.spec import load_sweep
 from tests.sweep_files import sweep_file, wait_for_step
 
-pytestmark = pytest.mark.xdist_group("ray")  # one Ray at a time: `make test` runs tests two at a time (--dist loadgroup)
-
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = {"sps", "rollout_sps", "update_sps", "wall_time_s", "torch_threads", "numba_threads"}
 """Columns that describe the machine, not what was learned (the thread counts come from Tune's reports, whose

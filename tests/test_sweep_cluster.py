@@ -11,8 +11,6 @@ from train.sweep.results import read_tables
 from train.sweep.runner import run_sweep
 from train.sweep.spec import load_sweep
 
-pytestmark = pytest.mark.xdist_group("ray")  # one Ray at a time: `make test` runs tests two at a time (--dist loadgroup)
-
 SWEEP = """
 description = "two trials, one per node"
 preset = "default"
