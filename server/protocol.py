@@ -175,10 +175,12 @@ class StudyRef(_Message):
     session: str = Field(max_length=128)
 
 
-class NewGame(_Message):
-    """Start a game (the server answers ``welcome`` then ``state``)."""
+class GameRequest(_Message):
+    """A game's choices, declared once with one set of defaults (the protocol's): what a page's ``new_game`` asks
+    for, or what an application assigns (a study's condition, ``GameSettings.request``). It travels whole to the hub
+    (``GameHub.new_game``), the offer (``Offer.choose``, ``Offer.seat_choice``) and ``make_config``. A choice left
+    None is the server's (its default follower, preset and horizon)."""
 
-    type: Literal["new_game"]
     follower: str | None = None
     """Every AI follower's kind (default: the server's, or the first offered for the team)."""
     followers: list[str] | None = Field(default=None, min_length=1, max_length=8)
@@ -201,6 +203,13 @@ class NewGame(_Message):
     probes: str | None = Field(default=None, max_length=400)
     """The follower seat: when the game asks which color is the goal (``server.stated.ProbePlan``): ``none`` (the
     default), ``steps:10,40,70`` or ``random:0.05``."""
+
+
+class NewGame(GameRequest):
+    """Start a game (the server answers ``welcome`` then ``state``): the game's choices (``GameRequest``), and who
+    plays it."""
+
+    type: Literal["new_game"]
     study: StudyRef | None = None
     viewport: Viewport | None = None
     """The page's inner width and height in CSS pixels (recorded in the replay)."""

@@ -9,6 +9,7 @@ import pytest
 from colorgrid.replay import load, verify
 from server.play import pools as hub_module
 from server.play.hub import GameHub
+from server.protocol import GameRequest
 from server.settings import ServerSettings
 from tests.helpers import Inbox, until
 
@@ -19,7 +20,7 @@ def make_hub(tmp_path, **changes) -> GameHub:
 
 async def start(hub, follower=None, horizon=20):
     client = Inbox()
-    game = await hub.new_game(follower, None, "turn", horizon, True, client)
+    game = await hub.new_game(GameRequest(follower=follower, mode="turn", horizon=horizon), client)
     return game, client
 
 
@@ -199,7 +200,7 @@ def test_a_follower_that_cannot_be_built_is_refused_with_its_reason_and_the_proc
     async def scenario():
         hub = make_hub(tmp_path)
         with pytest.raises(ValueError, match="unknown policy 'nosuch'"):
-            await hub.pool_for("nosuch", hub.make_config("default", hub_module.Mode.TURN, 10))
+            await hub.pool_for("nosuch", hub.make_config(GameRequest(mode="turn", horizon=10), "default"))
         game, client = await start(hub, "copy", horizon=3)
         for t in range(3):
             await hub.key(game, "ArrowUp", t, 0.0)

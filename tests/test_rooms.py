@@ -14,7 +14,7 @@ from websockets.exceptions import ConnectionClosed
 
 from colorgrid.replay import load, verify
 from server.play.hub import GameHub, ServerFull
-from server.protocol import ROOM_CODE_ALPHABET, ROOM_CODE_LENGTH, ROOM_COUNTDOWN_S
+from server.protocol import ROOM_CODE_ALPHABET, ROOM_CODE_LENGTH, ROOM_COUNTDOWN_S, GameRequest
 from server.settings import ServerSettings
 from tests.conftest import start_server, stop_server
 from tests.helpers import Inbox, until
@@ -321,12 +321,12 @@ def test_waiting_rooms_count_as_sessions_and_expire(tmp_path):
         with pytest.raises(ServerFull):
             await hub.create_room("2:1", None, None, "turn", 5, True, Inbox())
         with pytest.raises(ServerFull):
-            await hub.new_game(None, None, "turn", 5, True, Inbox())
+            await hub.new_game(GameRequest(mode="turn", horizon=5), Inbox())
         await hub.lobby.expire(min(room.created for room in rooms) + 0.1)  # the wait (0.2 s) is not over: they stay
         assert len(hub.rooms) == 2
         await hub.lobby.expire(max(room.created for room in rooms) + 0.3)
         assert not hub.rooms
-        game = await hub.new_game(None, None, "turn", 5, True, Inbox(), team="1:2")  # room for games again
+        game = await hub.new_game(GameRequest(mode="turn", horizon=5, team="1:2"), Inbox())  # room for games again
         assert len(game.ai) == 2 and {p.pool.agent_index for p in game.ai.values()} == {1, 2}
         await hub.stop()
         return waiting
@@ -339,7 +339,7 @@ def test_waiting_rooms_count_as_sessions_and_expire(tmp_path):
 def test_followers_of_team_games_share_one_pool_per_agent_index(tmp_path):
     async def scenario():
         hub = GameHub(ServerSettings(replays_dir=tmp_path, follower="copy"))
-        games = [await hub.new_game("bayes", None, "turn", 5, True, Inbox(), team="1:2") for _ in range(3)]
+        games = [await hub.new_game(GameRequest(follower="bayes", mode="turn", horizon=5, team="1:2"), Inbox()) for _ in range(3)]
         calls = []
         for pool in hub.pools.values():
             real = pool.act

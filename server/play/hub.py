@@ -20,7 +20,7 @@ from server.play.offer import Offer, make_config
 from server.play.pools import Pools
 from server.play.sessions import Sessions
 from server.play.source import FreePlay, GameSource
-from server.protocol import GoalView, Mode, RoomClosedReason, SeatKind, Team
+from server.protocol import GameRequest, Mode, RoomClosedReason, Team
 from server.rooms import Room
 from server.settings import ServerSettings
 
@@ -139,23 +139,19 @@ class GameHub:
         return self.live.live_games()
 
     # ------------------------------------------------------------ games and their people
-    async def new_game(self, follower: str | None, preset: str | None, mode: Mode, horizon: int | None,
-                       show_belief: bool, client: Client, tick_hz: float | None = None, study: dict | None = None,
-                       client_info: dict | None = None, team: Team = Team.ONE_TO_ONE,
-                       followers: list[str] | None = None, leader: str | None = None,
-                       seat: SeatKind = SeatKind.LEADER, goal: GoalView | None = None,
-                       probes: str | None = None) -> Game:
-        """Start a game for ``client``, the team's one person; in a team of several leaders, ``leader`` (an offered
-        AI leader, ``team_leaders``) plays every other leader seat. In the follower ``seat`` (``server.seats``),
-        ``leader`` plays every leader seat, ``goal`` says whether the person sees the goal and ``probes`` when the
-        game asks what they believe. ``tick_hz`` (default: the server's) sets a real-time game's clock; ``study`` is
-        what a study's game records about itself (``meta.study``)."""
-        team, seat, mode = Team(team), SeatKind(seat), Mode(mode)
-        choice = self.offer.seat_choice(team, seat, leader, goal, probes)
-        chosen, preset, config = self.offer.choose(team, follower, preset, mode, horizon, followers, seat)
-        return await self.sessions.open_game(config, mode, chosen, preset, show_belief, [(client, client_info or {})],
-                                             tick_hz=tick_hz, study=study, leaders=choice.leaders, seat=seat,
-                                             goal_view=choice.goal_view, probes=choice.probes)
+    async def new_game(self, request: GameRequest, client: Client, client_info: dict | None = None,
+                       tick_hz: float | None = None, study: dict | None = None) -> Game:
+        """Start the game ``request`` asks for, for ``client``, the team's one person; in a team of several leaders,
+        its ``leader`` (an offered AI leader, ``team_leaders``) plays every other leader seat. In the follower
+        ``seat`` (``server.seats``), its ``leader`` plays every leader seat, ``goal`` says whether the person sees the
+        goal and ``probes`` when the game asks what they believe. ``tick_hz`` (default: the server's) sets a
+        real-time game's clock; ``study`` is what a study's game records about itself (``meta.study``)."""
+        choice = self.offer.seat_choice(request)
+        chosen, preset, config = self.offer.choose(request)
+        return await self.sessions.open_game(config, request.mode, chosen, preset, request.show_belief,
+                                             [(client, client_info or {})], tick_hz=tick_hz, study=study,
+                                             leaders=choice.leaders, seat=request.seat, goal_view=choice.goal_view,
+                                             probes=choice.probes)
 
     async def rejoin(self, game_id: str, token: str, client: Client) -> Game:
         """Give the seat whose token it is to ``client`` (``Sessions.rejoin``)."""

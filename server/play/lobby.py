@@ -10,7 +10,7 @@ from colorgrid.enums import Ending
 from server.play.live import Client, Live, send_to
 from server.play.offer import Offer
 from server.play.sessions import Sessions
-from server.protocol import ROOM_COUNTDOWN_S, Mode, RoomClosedReason, RoomErrorCode, Team
+from server.protocol import ROOM_COUNTDOWN_S, GameRequest, Mode, RoomClosedReason, RoomErrorCode, Team
 from server.rooms import Room, RoomError, new_code, parse_code
 
 log = logging.getLogger("colorgrid.server")
@@ -32,7 +32,8 @@ class Lobby:
         if not team.room:
             raise ValueError(f"team {team.value} has one person: start it with new_game (rooms are for teams of "
                              "several people)")
-        chosen, preset, config = self.offer.choose(team, follower, preset, mode, horizon)
+        request = GameRequest(team=team, follower=follower, preset=preset, mode=mode, horizon=horizon)
+        chosen, preset, config = self.offer.choose(request)
         self.live.check_capacity()
         room = Room(code=new_code(self.live.rooms), team=team, config=config, followers=chosen, preset=preset,
                     mode=mode, show_belief=show_belief, tick_hz=self.live.settings.tick_hz)

@@ -11,22 +11,24 @@ from colorgrid.enums import SeatFit
 from colorgrid.policies import policy_teams
 from colorgrid.presets import env_config
 from server.followers import leads, plays
-from server.protocol import GoalView, Mode, SeatKind, Team
+from server.protocol import GameRequest, GoalView, Mode, SeatKind, Team
 from server.seats import SeatChoice, follower_seat, follower_seat_leaders, leader_seat
 from server.settings import ServerSettings
 from server.stated import ProbePlan
 
 
-def make_config(preset: str, mode: Mode, horizon: int | None, team: Team = Team.ONE_TO_ONE) -> EnvConfig:
-    """The env config of a game of ``team`` in ``mode`` from ``preset`` (real time lets a leader stay)."""
+def make_config(request: GameRequest, default_preset: str) -> EnvConfig:
+    """The env config of the game ``request`` asks for: its team in its mode (real time lets a leader stay), from its
+    preset (or ``default_preset``), with its horizon (or the preset's)."""
     changes = {}
+    team = request.team
     if team != Team.ONE_TO_ONE:
         changes.update(num_leaders=team.num_leaders, num_followers=team.num_followers)
-    if mode == Mode.REALTIME:
+    if request.mode == Mode.REALTIME:
         changes["allow_stay"] = True  # the leader stays when no key is pending
-    if horizon is not None:
-        changes["horizon"] = horizon
-    return env_config(preset, **changes)
+    if request.horizon is not None:
+        changes["horizon"] = request.horizon
+    return env_config(request.preset or default_preset, **changes)
 
 
 class Offer:
@@ -71,12 +73,12 @@ class Offer:
         once), or None."""
         return self.team_leaders(team).get(kind) if kind in self.settings.leaders else leads(kind, team)
 
-    def choose(self, team: Team, follower: str | None, preset: str | None, mode: Mode, horizon: int | None,
-               followers: list[str] | None = None,
-               seat: SeatKind = SeatKind.LEADER) -> tuple[tuple[str, ...], str, EnvConfig]:
-        """The followers (one per AI seat, in agent order), preset and config of a new game or room: every seat
-        ``follower``, or each its own of ``followers``; what is not offered raises ``ValueError``. A person in the
-        follower ``seat`` takes the first follower's (the AI followers are the others)."""
+    def choose(self, request: GameRequest) -> tuple[tuple[str, ...], str, EnvConfig]:
+        """The followers (one per AI seat, in agent order), preset and config of the game or room ``request`` asks
+        for: every seat its ``follower``, or each its own of its ``followers``; what is not offered raises
+        ``ValueError``. A person in the follower ``seat`` takes the first follower's (the AI followers are the
+        others)."""
+        team, follower, followers, seat = request.team, request.follower, request.followers, request.seat
         if followers is not None and follower is not None:
             raise ValueError("give either follower (every AI seat) or followers (one per AI seat), not both")
         ai_seats = team.num_followers - (SeatKind(seat) == SeatKind.FOLLOWER)
@@ -94,14 +96,13 @@ class Offer:
                 raise ValueError(f"follower {name!r} does not play in team {team.value} (a trained network plays the "
                                  f"team it was trained in: {'/'.join(policy_teams(name) or ())}); for team "
                                  f"{team.value} choose one of {offered}")
-        preset = preset or self.settings.preset
-        return chosen, preset, make_config(preset, mode, horizon, team)
+        return chosen, request.preset or self.settings.preset, make_config(request, self.settings.preset)
 
-    def seat_choice(self, team: Team, seat: SeatKind, leader: str | None, goal: GoalView | None,
-                    probes: str | None) -> SeatChoice:
-        """The seat of a game of one person in ``team``: in the follower ``seat``, ``leader`` in every leader seat,
-        the goal shown or not, the probes; in a leader's seat, ``leader`` in every other leader seat (a team of
-        several leaders needs one, or a room)."""
+    def seat_choice(self, request: GameRequest) -> SeatChoice:
+        """The seat of the game of one person ``request`` asks for: in the follower ``seat``, its ``leader`` in every
+        leader seat, the goal shown or not, the probes; in a leader's seat, its ``leader`` in every other leader seat
+        (a team of several leaders needs one, or a room)."""
+        team, seat, leader, goal, probes = request.team, request.seat, request.leader, request.goal, request.probes
         if seat == SeatKind.FOLLOWER:
             return follower_seat(team, leader, goal, probes, self.seat_leaders(team), self.settings.leaders)
         leader_seat(goal, probes)

@@ -19,7 +19,7 @@ from colorgrid.enums import Role, SeatFit
 from server.followers import FollowerPool, is_scripted
 from server.inference import InferenceLost, InferenceWorker
 from server.play.offer import Offer, make_config
-from server.protocol import Mode, Team
+from server.protocol import GameRequest, Mode, Team
 from server.seats import leader_seats
 from server.settings import ServerSettings
 
@@ -91,7 +91,7 @@ class Pools:
         timed = set()
         for kind, team, role in self.warm_seats():
             for mode in Mode:
-                config = make_config(self.settings.preset, mode, None, team)
+                config = make_config(GameRequest(mode=mode, team=team), self.settings.preset)
                 agents = (config.followers if role == Warmed.FOLLOWER else config.leaders
                           if role == Warmed.LEADER_OF_A_PERSON else leader_seats(config, config.num_leaders - 1)[1])
                 try:

@@ -11,7 +11,7 @@ from server.play.live import Client
 from server.protocol import NewGame
 
 OpenGame = Callable[..., Awaitable[Game]]
-"""``GameHub.new_game``: opens a game for one person with the given choices."""
+"""``GameHub.new_game``: opens the game a ``GameRequest`` asks for, for one person."""
 
 
 class GameSource(Protocol):
@@ -48,9 +48,7 @@ class FreePlay:
         """The game ``request`` chooses; a study's ticket (``new_game.study``) is refused."""
         if request.study is not None:
             raise ValueError("this server runs no study")
-        return await open_game(request.follower, request.preset, request.mode, request.horizon, request.show_belief,
-                               client, client_info=client_info, team=request.team, followers=request.followers,
-                               leader=request.leader, seat=request.seat, goal=request.goal, probes=request.probes)
+        return await open_game(request, client, client_info)
 
     def game_of(self, key: str) -> Game | None:
         """Free play keeps no game by person."""

@@ -21,7 +21,7 @@ from colorgrid import configkit
 from colorgrid.configkit import ConfigError, check_bool, check_choice, check_int, check_number, check_strings, fail
 from colorgrid.enums import SeatFit
 from colorgrid.presets import PRESETS
-from server.protocol import MAX_HORIZON, GoalView, Mode, SeatKind, Team
+from server.protocol import MAX_HORIZON, GameRequest, GoalView, Mode, SeatKind, Team
 from server.stated import PROBE_FORMS, ProbePlan
 
 PAGE_KINDS = ("consent", "instructions", "practice", "trials", "questionnaire", "debrief")
@@ -108,12 +108,13 @@ class GameSettings:
             out["tick_hz"] = None
         return out
 
-    def seat_settings(self) -> dict:
-        """What a new game takes of the seat (``GameHub.new_game``): nothing more for a leader's; for the follower seat
-        its AI leader, the goal's visibility and the probes."""
-        if self.seat == SeatKind.LEADER.value:
-            return {}
-        return {"seat": SeatKind.FOLLOWER, "leader": self.leader, "goal": GoalView(self.goal), "probes": self.probes}
+    def request(self) -> GameRequest:
+        """This game as the hub takes it (``GameHub.new_game``), every choice stated by the study file: for the
+        follower seat also its AI leader, the goal's visibility and the probes (a leader's seat leaves them unset)."""
+        seat = {} if self.seat == SeatKind.LEADER else {"seat": SeatKind.FOLLOWER, "leader": self.leader,
+                                                        "goal": GoalView(self.goal), "probes": self.probes}
+        return GameRequest(follower=self.follower, preset=self.preset, mode=Mode(self.mode), horizon=self.horizon,
+                           show_belief=self.show_belief, **seat)
 
 
 @dataclass(frozen=True)

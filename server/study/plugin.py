@@ -14,7 +14,7 @@ from server.backend import Backend
 from server.game import Game
 from server.play.live import Client
 from server.play.source import OpenGame
-from server.protocol import Mode, NewGame, Team
+from server.protocol import NewGame, Team
 from server.study.config import Study
 from server.study.routes import Served, install_routes
 from server.study.service import Invalid, Refused, StudyService, study_hash
@@ -54,8 +54,7 @@ class StudyGames:
                 None, self.service.game_for, request.study.participant, request.study.session)
         except (Refused, Invalid) as err:
             raise ValueError(str(err)) from None
-        return await open_game(game.follower, game.preset, Mode(game.mode), game.horizon, game.show_belief, client,
-                               tick_hz=game.tick_hz, study=meta, client_info=client_info, **game.seat_settings())
+        return await open_game(game.request(), client, client_info, tick_hz=game.tick_hz, study=meta)
 
     def game_of(self, key: str) -> Game | None:
         """The live game of participant ``key`` in this process."""
