@@ -45,9 +45,13 @@ def _mean_n(cell: str, row: dict, side: str) -> list[str]:
 
 
 def _difference(cell: str, row: dict) -> list[str]:
+    alone = re.fullmatch(rf"({SIGNED}) \(no interval at one seed\)", cell)  # a side of one seed: no spread
+    if alone is not None:
+        return _figures([("difference", alone.group(1))], row) + (
+            [] if not math.isfinite(row["ci_low"]) else ["a - b printed without the interval the report gives"])
     match = re.fullmatch(rf"({SIGNED}) \[({SIGNED}), ({SIGNED})\] \(({NUM})%\)", cell)
     if match is None:
-        return [f"a - b {cell!r} is not 'D [LOW, HIGH] (LEVEL%)'"]
+        return [f"a - b {cell!r} is not 'D [LOW, HIGH] (LEVEL%)' or 'D (no interval at one seed)'"]
     return _figures(zip(("difference", "ci_low", "ci_high"), match.groups()[:3]), row) + (
         [] if agrees(match.group(4), row["ci_level"], 100) else [f"interval at {match.group(4)}%, the report's "
                                                                   f"{100 * row['ci_level']:g}%"])
@@ -76,7 +80,8 @@ def _level(cell: str, row: dict) -> list[str]:
 
 def _power(cell: str, row: dict) -> list[str]:
     if cell == "-":
-        return [] if row["verdict"] in ("reproduced", "not reproduced") else ["power '-' for a claim not decided"]
+        decided, untested = row["verdict"] in ("reproduced", "not reproduced"), not math.isfinite(row["power"])
+        return [] if decided or untested else ["power '-' for a claim not decided"]
     match = re.fullmatch(rf"({NUM}); (> 1000|\d+)", cell)
     if match is None:
         return [f"power {cell!r} is not 'POWER; SEEDS'"]
