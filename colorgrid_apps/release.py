@@ -10,7 +10,7 @@ from pathlib import Path
 
 from colorgrid.config import EnvConfig
 from colorgrid.extras import require
-from colorgrid.policies import make_policy
+from colorgrid.policies import make_policy, policy_card
 from colorgrid.presets import env_config
 from colorgrid.replay import describe_agent, from_batch, load, save
 from colorgrid.replay.index import index_entry, read_index, write_index
@@ -23,11 +23,8 @@ SETTINGS = {
     "reward_4_1": "goal blocks pay +4, wrong ones cost 1",
     "stationary": "the goal never switches",
 }
-FOLLOWERS = {
-    "copy": "copies the color of the leader's last paying pickup",
-    "oracle": "knows the true goal (upper bound)",
-    "bayes": "infers the goal with a hidden Markov model",
-}
+FOLLOWERS = ("copy", "oracle", "bayes")
+"""The followers released beside the A* leader, each described by its card's summary (``PolicyCard.summary``)."""
 RELEASE_SEED = 2026
 GIF_SETTINGS = ("default", "stationary", "reward_4_1")  # the symmetric episodes look like the default ones
 RECIPE_SETTING = "assistant_recipe"
@@ -185,7 +182,8 @@ def build_release(out: Path, episodes: int = 2, gifs: Path | None = None,
     entries = []
     for setting, setting_text in SETTINGS.items():
         config = env_config(setting)
-        for follower, follower_text in FOLLOWERS.items():
+        for follower in FOLLOWERS:
+            summary = policy_card(follower).summary
             leader_policy, follower_policy = make_policy("astar"), make_policy(follower)
             batch = run_episodes(config, leader_policy, follower_policy, episodes, RELEASE_SEED, record_hashes=True)
             folder = out / setting
@@ -193,7 +191,7 @@ def build_release(out: Path, episodes: int = 2, gifs: Path | None = None,
                                  meta={"setting": setting})
             for path in paths:
                 entries.append(index_entry(load(path), path.relative_to(out).as_posix(), setting=setting,
-                                           description=f"A* leader with the {follower} follower ({follower_text}); "
+                                           description=f"A* leader with the {follower} follower ({summary}); "
                                                        f"{setting_text}."))
             if gifs is not None and follower == "bayes" and setting in GIF_SETTINGS:
                 from colorgrid.replay.export import export

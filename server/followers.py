@@ -1,5 +1,6 @@
 """Follower pools: one policy instance serves one agent index of every live game of the same kind, in one
-batched call; and what the play page calls each AI follower and AI leader, and which teams each plays."""
+batched call; and what the play page shows of each AI follower and AI leader and which teams each plays, read from
+what each policy says of itself (``colorgrid.policies.PolicyCard``)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import numpy as np
 from colorgrid.config import FOLLOWER, EnvConfig
 from colorgrid.enums import SeatFit
 from colorgrid.env import BatchEnv
-from colorgrid.policies import SCRIPTED, IdleFollower, make_policy, policy_teams
+from colorgrid.policies import SCRIPTED, IdleFollower, make_policy, policy_card, policy_teams
 from colorgrid.policies.base import AgentInput
 from colorgrid.policies.names import PolicyKind, read_name
 from colorgrid.replay import describe_agent
@@ -55,93 +56,55 @@ def follower_label(followers: tuple[str, ...]) -> str:
     return followers[0] if len(set(followers)) == 1 else " + ".join(followers)
 
 
-FOLLOWER_INFO = {
-    "ippo": ("Trained assistant (IPPO)", "learned from play beside a scripted leader; reads the goal from your moves",
-             True),
-    "ippo-people": ("Trained assistant for people (IPPO)",
-                    "trained further beside leaders that slip, turn late and make mistakes", True),
-    "ippo-cautious": ("Cautious trained assistant for people (IPPO)",
-                      ("the trained assistant for people, trained further to take fewer wrong blocks and to read "
-                       "where your moves lead; it leaves a block it is unsure of"), True),
-    "ippo-1L2F": ("Trained assistant for two (IPPO, 1:2)",
-                  "trained as one of two AI followers beside a scripted leader; plays only in the 1:2 team", True),
-    "ippo-2L1F": ("Trained assistant for two leaders (IPPO, 2:1)",
-                  "trained beside two scripted leaders; plays only in the 2:1 team", True),
-    "ippo-leader": ("Trained leader (IPPO)", "the trained leader playing the follower's part: for researchers", True),
-    "bayes": ("Bayesian assistant", "works out the goal from your moves and pickups, and collects once it is sure",
-              True),
-    "bayes-people": ("Bayesian assistant for people",
-                     ("the Bayesian assistant, forgiving of late turns and slips, so a wrong move is not taken for "
-                      "a goal switch"), True),
-    "copy": ("Copycat", "collects the color of the last block you took that paid", False),
-    "oracle": ("Oracle", "sees the goal: for researchers", False),
-    "idle": ("Bystander", "walks about and never collects: you play alone", False),
-    "random": ("Random mover", "moves at random and collects whatever it steps on", False),
-}
-"""How the play page names each scripted or shipped follower: label, one-line description, whether it holds a
-belief over the goal (that the page may draw)."""
-
-
-LEADER_INFO = {
-    "astar": ("Scripted leader (A*)", "knows the goal and walks to the nearest block of it by A*", False),
-    "person": ("Person-like scripted leader", "the A* leader with the slips, late turns and mistakes of people", False),
-    "ippo-leader": ("Trained leader (IPPO)", "the network trained to lead beside a follower (1:1)", True),
-    "population": ("A person-like leader from a population",
-                   "each game draws one of the population's leaders (A*, or the A* leader with people's slips, late "
-                   "turns and mistakes)", False),
-    "idle": ("Bystander leader", "walks about and never collects", False),
-    "random": ("Random leader", "moves at random and collects whatever it steps on", False),
-}
-"""How the play page names each scripted or shipped AI leader (the other leader of a 2:1 game): label, one-line
-description, whether it holds a belief over the goal. A scripted policy not listed here is a follower."""
-
-
 def is_leader_kind(name: str) -> bool:
-    """Whether ``name`` may be an AI leader: a scripted leader (``LEADER_INFO``, with parameters: ``person:slip=0.1``),
-    a trained leader's name, a population or a checkpoint path; not a follower's name."""
+    """Whether ``name`` may be an AI leader: a scripted policy whose card says how it leads (``PolicyCard.lead``,
+    with parameters: ``person:slip=0.1``), a trained leader's name, a population or a checkpoint path; not a
+    scripted follower's name."""
     spec = read_name(name)  # what the name means: colorgrid.policies.names
-    return spec is not None and (spec.kind is not PolicyKind.SCRIPTED or spec.target in LEADER_INFO)
+    return spec is not None and (spec.kind is not PolicyKind.SCRIPTED or SCRIPTED[spec.target].card.lead is not None)
 
 
 def leader_kinds_allowed() -> str:
     """What an AI leader's name may be, in words (``is_leader_kind``)."""
-    scripted = sorted(set(SCRIPTED) & set(LEADER_INFO))
+    scripted = sorted(name for name, kind in SCRIPTED.items() if kind.card.lead is not None)
     return (f"a scripted leader ({', '.join(scripted)}), a trained leader's name, a population or a checkpoint path "
             "ending in .pt (not a follower)")
 
 
 def follower_info(name: str) -> dict:
     """``{value, label, description, has_belief}`` for a follower name (``policy_info``)."""
-    return policy_info(name, FOLLOWER_INFO, "follower")
+    return policy_info(name, "follower")
 
 
 def leader_info(name: str, pair_view: bool = False) -> dict:
     """``{value, label, description, has_belief}`` for an AI leader's name (``policy_info``); ``pair_view``: it
     leads through ``SeatFit.PAIR_VIEW``, which its description says."""
-    info = policy_info(name, LEADER_INFO, "leader")
+    info = policy_info(name, "leader")
     if pair_view:
         info["description"] += ("; trained beside one follower (1:1), it sees the game as 1:1: itself and the "
                                 "follower (you are not in its view)")
     return info
 
 
-def policy_info(name: str, known: dict, role: str) -> dict:
-    """``{value, label, description, has_belief}`` for a policy name of ``role``, from ``known`` (a name's label,
-    description, belief). Parameters (``bayes:lapse=0.2``) are added to the label; a name not in ``known`` (a
-    checkpoint path) is labelled by its file name and what its model card's title says of it (``paper_follower.pt
-    (imported from the paper's code)``)."""
-    base, _, params = name.partition(":")
-    entry = known.get(base)
-    if entry is None:
-        label, description, has_belief = name.rsplit("/", 1)[-1], f"the {role} {name}", True
+def policy_info(name: str, role: str) -> dict:
+    """``{value, label, description, has_belief}`` for a policy name of ``role``, from what the policy says of
+    itself (``colorgrid.policies.policy_card``: its ``Part`` in that role, its belief). Parameters
+    (``bayes:lapse=0.2``) are added to the label; a name whose card gives no part in the role (a checkpoint path)
+    is labelled by its file name and what its model card's title says of it (``paper_follower.pt (imported from
+    the paper's code)``); a name that says nothing of itself is taken to hold a belief."""
+    card = policy_card(name)
+    part = card.part(role) if card is not None else None
+    has_belief = card.belief if card is not None else True
+    if part is None:
+        label, description = name.rsplit("/", 1)[-1], f"the {role} {name}"
         if name.endswith(".pt"):
             origin = card_origin(name)
             label += f" ({origin})" if origin else ""
             description = (f"a trained {role}{f', {origin}' if origin else ''}: loaded from {name}"
                            + (f" (its model card: {name[:-3]}.md)" if origin is not None else ""))
     else:
-        label, description, has_belief = entry
-        label += f" ({params})" if params else ""
+        params = name.partition(":")[2]
+        label, description = part.label + (f" ({params})" if params else ""), part.description
     return {"value": name, "label": label, "description": description, "has_belief": has_belief}
 
 

@@ -2,18 +2,19 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import ClassVar
 
-from colorgrid.configkit import check_bool, check_choice, check_int, check_number, check_strings, fail
+from colorgrid.configkit import ConfigBase, check_bool, check_choice, check_int, check_number, check_strings, fail
+from colorgrid.policies import offered_followers
 from colorgrid.presets import PRESETS
 from colorgrid.resources import shipped
 from server.followers import is_leader_kind, leader_kinds_allowed
 
 
 @dataclass(frozen=True)
-class ServerSettings:
+class ServerSettings(ConfigBase):
     """What the play server runs with. Invalid values raise ``ValueError`` saying what is allowed.
     ``colorgrid play`` has one flag per field (``server/cli.py``)."""
 
@@ -26,9 +27,9 @@ class ServerSettings:
     follower: str = "bayes-people"
     """Default follower: the best assistant for people on the held-out population (docs/EVALUATION.md); a
     policy name or a checkpoint path. Players may pick another allowed one."""
-    followers: tuple[str, ...] = ("bayes-people", "ippo-cautious", "ippo-people", "ippo", "ippo-1L2F", "ippo-2L1F",
-                                  "bayes", "copy", "oracle", "idle", "random")
-    """Followers a player may choose from (the default is always allowed); each team offers those that play it."""
+    followers: tuple[str, ...] = field(default_factory=offered_followers)
+    """Followers a player may choose from (the default is always allowed); each team offers those that play it.
+    By default those whose policy asks for a place in the menu (``colorgrid.policies.PolicyCard.menu``)."""
     leaders: tuple[str, ...] = ("astar",)
     """AI leaders a person may lead beside in a team of two leaders (2:1): scripted leaders (``astar``, ``person``
     with its parameters, ``idle``, ``random``), trained leaders by name (``ippo-leader``) or checkpoint path (a

@@ -8,6 +8,7 @@ is imported only when one of these policies is asked for or one of the commands 
 from __future__ import annotations
 
 from colorgrid.extras import Commands, require
+from colorgrid.policies.card import Part, PolicyCard
 from colorgrid.resources import shipped
 from train.acting import ACTING
 from train.model_cache import ModelCache
@@ -23,8 +24,35 @@ SHIPPED = {"ippo": "follower.pt", "ippo-people": "follower_people.pt", "ippo-cau
 """Trained agents that ship in ``checkpoints/``, by name: the IPPO follower (trained beside A*), the same follower
 trained further beside a population of person-like leaders, that one trained further to take fewer wrong blocks,
 the IPPO leader, and the followers of the 1:2 and 2:1 teams (see their model cards)."""
-SHIPPED_TEAMS = {"ippo-1L2F": "1:2", "ippo-2L1F": "2:1"}
-"""The team each shipped agent plays (the rest: 1:1)."""
+SHIPPED_CARDS = {
+    "ippo": PolicyCard(follow=Part("Trained assistant (IPPO)",
+                                   "learned from play beside a scripted leader; reads the goal from your moves"),
+                       belief=True, menu=40, teams=("1:1",)),
+    "ippo-people": PolicyCard(follow=Part("Trained assistant for people (IPPO)",
+                                          "trained further beside leaders that slip, turn late and make mistakes"),
+                              belief=True, menu=30, teams=("1:1",)),
+    "ippo-cautious": PolicyCard(follow=Part("Cautious trained assistant for people (IPPO)",
+                                            ("the trained assistant for people, trained further to take fewer wrong "
+                                             "blocks and to read where your moves lead; it leaves a block it is unsure "
+                                             "of")),
+                                belief=True, menu=20, teams=("1:1",)),
+    "ippo-1L2F": PolicyCard(follow=Part("Trained assistant for two (IPPO, 1:2)",
+                                        ("trained as one of two AI followers beside a scripted leader; plays only in "
+                                         "the 1:2 team")),
+                            belief=True, menu=50, teams=("1:2",)),
+    "ippo-2L1F": PolicyCard(follow=Part("Trained assistant for two leaders (IPPO, 2:1)",
+                                        "trained beside two scripted leaders; plays only in the 2:1 team"),
+                            belief=True, menu=60, teams=("2:1",)),
+    "ippo-leader": PolicyCard(lead=Part("Trained leader (IPPO)", "the network trained to lead beside a follower (1:1)"),
+                              follow=Part("Trained leader (IPPO)",
+                                          "the trained leader playing the follower's part: for researchers"),
+                              belief=True, teams=("1:1",)),
+}
+"""What each shipped agent says of itself (``colorgrid.policies.PolicyCard``): how the play page calls it, the team
+it plays, and its place in the page's follower menu (the trained leader is offered there only when named)."""
+CHECKPOINT_CARD = PolicyCard(belief=True)
+"""What every checkpoint file's policy says of itself: its goal head gives a belief over the goal (the page names
+the file; its team is read from the file, ``checkpoint_teams``)."""
 
 
 def shipped_policy(name: str, role: str | None, cache: ModelCache | None = None, **acting):
@@ -67,6 +95,7 @@ def register_policies() -> None:
         if not (CHECKPOINTS_DIR / file).is_file():
             continue
         register_policy(name, lambda role, name=name, **params: shipped_policy(name, role, cache, **params),
-                        params=tuple(ACTING), teams=(SHIPPED_TEAMS.get(name, "1:1"),))
+                        params=tuple(ACTING), card=SHIPPED_CARDS[name])
     register_loader(".pt", lambda path, role, **params: checkpoint_policy(path, role, cache, **params),
-                    "a checkpoint path ending in .pt", params=tuple(ACTING), teams=checkpoint_teams)
+                    "a checkpoint path ending in .pt", params=tuple(ACTING), teams=checkpoint_teams,
+                    card=CHECKPOINT_CARD)

@@ -5,9 +5,11 @@ from __future__ import annotations
 from colorgrid.policies import registry
 from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
 from colorgrid.policies.bayes import BayesConfig, BayesFollower
-from colorgrid.policies.names import SCRIPTED, PolicyKind, policy_names, read_name
+from colorgrid.policies.card import Part, PolicyCard
+from colorgrid.policies.names import POPULATION_PREFIX, SCRIPTED, PolicyKind, policy_names, read_name
 from colorgrid.policies.people import PersonLeader, PersonStyle
-from colorgrid.policies.population import PopulationPolicy, load_population
+from colorgrid.policies.population import SHIPPED_CARD, PopulationPolicy, load_population
+from colorgrid.policies.registry import scripted
 from colorgrid.policies.scripted import AStarLeader, CopyFollower, IdleFollower, OracleFollower, RandomPolicy
 
 
@@ -81,6 +83,28 @@ def policy_teams(name: str) -> tuple[str, ...] | None:
     return registry.teams_of(spec.target)  # ``x.pt:temperature=0`` plays the teams ``x.pt`` plays
 
 
+def policy_card(name: str) -> PolicyCard | None:
+    """What the policy ``name`` says of itself (``PolicyCard``), whatever parameters the name gives: a scripted
+    policy's (``registry.scripted``), a shipped population's, or what its package registered for it (a name, or
+    every file of a suffix); None for a population file or a name that is no policy."""
+    spec = read_name(name)
+    if spec is None:
+        return None
+    if spec.kind is PolicyKind.SCRIPTED:
+        return SCRIPTED[spec.target].card
+    if spec.kind is PolicyKind.POPULATION:
+        return SHIPPED_CARD if name.startswith(POPULATION_PREFIX) else None
+    return registry.card_of(spec.target)
+
+
+def offered_followers() -> tuple[str, ...]:
+    """The followers the play server offers when not told which: every policy whose card gives it a place in the
+    menu (``PolicyCard.menu``), in that order."""
+    cards = {name: policy_card(name) for name in policy_names()}
+    return tuple(sorted((name for name, card in cards.items() if card is not None and card.menu is not None),
+                        key=lambda name: cards[name].menu))
+
+
 _OPENING: list[str] = []  # populations being built, innermost last (one naming itself would never end)
 
 
@@ -98,5 +122,6 @@ def make_population(spec: str, role: str | None = None) -> PopulationPolicy:
 
 
 __all__ = ["SCRIPTED", "AgentInput", "AStarLeader", "BayesConfig", "BayesFollower", "CopyFollower", "IdleFollower",
-           "OracleFollower", "PersonLeader", "PersonStyle", "Policy", "PolicyOutput", "PopulationPolicy",
-           "RandomPolicy", "make_policy", "policy_teams"]
+           "OracleFollower", "Part", "PersonLeader", "PersonStyle", "Policy", "PolicyCard", "PolicyOutput",
+           "PopulationPolicy", "RandomPolicy", "make_policy", "offered_followers", "policy_card", "policy_teams",
+           "scripted"]

@@ -10,7 +10,9 @@ import numpy as np
 from colorgrid.config import EnvConfig
 from colorgrid.configkit import check_int, check_number
 from colorgrid.policies.base import AgentInput, PolicyOutput
+from colorgrid.policies.card import Part, PolicyCard
 from colorgrid.policies.grid import decode, manhattan_to_nearest
+from colorgrid.policies.registry import scripted
 from colorgrid.policies.rewards import explains_reward
 from colorgrid.policies.scripted import Seeker
 
@@ -123,6 +125,9 @@ after a wrong block now and then. Chosen among four candidates on the training p
 ``populations/people.json`` (docs/EVALUATION.md), never on the held-out part."""
 
 
+@scripted(PolicyCard(follow=Part("Bayesian assistant",
+                                  "works out the goal from your moves and pickups, and collects once it is sure"),
+                     belief=True, summary="infers the goal with a hidden Markov model", menu=70))
 class BayesFollower(Seeker):
     """Keeps a posterior over the goal color and collects only when it is confident.
 
@@ -299,6 +304,10 @@ def _other_leaders(joint: np.ndarray, move: np.ndarray) -> np.ndarray:
     return out
 
 
+@scripted(PolicyCard(follow=Part("Bayesian assistant for people",
+                                  ("the Bayesian assistant, forgiving of late turns and slips, so a wrong move is not "
+                                   "taken for a goal switch")),
+                     belief=True, menu=10))
 class PeopleBayesFollower(BayesFollower):
     """The Bayesian follower with a leader model for people (``PEOPLE``): a belief over the goal and the color
     the leader pursues, so that a slip, a late turn or a wrong pickup is not taken for a goal switch."""

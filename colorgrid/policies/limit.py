@@ -32,7 +32,9 @@ import numpy as np
 from colorgrid.config import EnvConfig
 from colorgrid.policies.base import AgentInput, Policy
 from colorgrid.policies.bayes import BayesConfig, BayesFollower, reward_likelihood
+from colorgrid.policies.card import PolicyCard
 from colorgrid.policies.people import PersonLeader, PersonStyle
+from colorgrid.policies.registry import scripted
 from colorgrid.policies.scripted import AStarLeader
 
 MOVES = 4
@@ -178,6 +180,8 @@ def leader_styles(policy: Policy) -> list[PersonStyle]:
                      "can be given: lead with astar, person:... or a population of them")
 
 
+# offered in no menu of the play page: it needs its leader's model, which only the evaluation harness gives it
+@scripted(PolicyCard(belief=True))
 class LimitFollower(BayesFollower):
     """The Bayesian follower given its leader's true model: the exact posterior over the goal (module docstring),
     acted on by ``bayes``'s rule. ``surprises`` counts the steps where the leader did what its model gives no

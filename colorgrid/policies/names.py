@@ -17,26 +17,8 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-from colorgrid.policies import registry
-from colorgrid.policies.bayes import BayesFollower, PeopleBayesFollower
-from colorgrid.policies.limit import LimitFollower
-from colorgrid.policies.people import PersonLeader
-from colorgrid.policies.scripted import AStarLeader, CopyFollower, IdleFollower, OracleFollower, RandomPolicy
-
-SCRIPTED = {
-    "random": RandomPolicy,
-    "astar": AStarLeader,
-    "idle": IdleFollower,
-    "copy": CopyFollower,
-    "oracle": OracleFollower,
-    "bayes": BayesFollower,
-    "bayes-people": PeopleBayesFollower,
-    "bayes-limit": LimitFollower,
-    "person": PersonLeader,
-}
-"""Scripted policies by name. ``astar`` and ``person`` need the goal (leaders); ``idle`` never collects.
-Those with parameters take them in the name: ``person:slip=0.1,notice_delay=3``, ``bayes:lapse=0.2``.
-``bayes-limit`` is given its leader's true model by the evaluation (``colorgrid.policies.limit``)."""
+from colorgrid.policies import bayes, limit, people, registry, scripted  # noqa: F401 (each registers its policies)
+from colorgrid.policies.registry import SCRIPTED
 
 POPULATION_PREFIX = "population:"
 """The prefix of a shipped population's name (``population:people#held_out``); a population file needs none."""

@@ -19,7 +19,9 @@ import numpy as np
 from colorgrid.config import EnvConfig
 from colorgrid.configkit import check_int, check_number, fail
 from colorgrid.policies.base import AgentInput, PolicyOutput
+from colorgrid.policies.card import Part, PolicyCard
 from colorgrid.policies.grid import INF, decode
+from colorgrid.policies.registry import scripted
 from colorgrid.policies.scripted import Seeker
 
 
@@ -61,6 +63,8 @@ class PersonStyle:
             fail(self, "hesitate", f"at most 1 - slip = {1 - self.slip:g} (they share a step's chance)")
 
 
+@scripted(PolicyCard(lead=Part("Person-like scripted leader",
+                                "the A* leader with the slips, late turns and mistakes of people")))
 class PersonLeader(Seeker):
     """The A* leader with a ``PersonStyle``: each departure is drawn per env and step from its own RNG.
 

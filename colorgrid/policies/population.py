@@ -17,6 +17,7 @@ import numpy as np
 
 from colorgrid.config import EnvConfig
 from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
+from colorgrid.policies.card import Part, PolicyCard
 
 PARTS = ("training", "held_out")
 
@@ -45,6 +46,12 @@ def load_population(spec: str) -> dict[str, str]:
     if not members:
         raise ValueError(f"population {spec!r} has no members")
     return members
+
+
+SHIPPED_CARD = PolicyCard(lead=Part("A person-like leader from a population",
+                                   ("each game draws one of the population's leaders (A*, or the A* leader with "
+                                    "people's slips, late turns and mistakes)")))
+"""What a shipped population (``population:NAME[#PART]``) says of itself: each is one of person-like leaders."""
 
 
 class PopulationPolicy(Policy):

@@ -1,9 +1,11 @@
-"""Policies by name: the scripted ones, and whatever other packages register.
+"""Policies by name, each with its card (``colorgrid.policies.card``): the scripted ones, and whatever other
+packages register.
 
-Applications add policies without the core importing them: a package declares a function
-under the ``colorgrid.policies`` entry point group (see ``pyproject.toml``), and that
-function calls ``register_policy`` (a name, e.g. ``ippo``) or ``register_loader`` (a file
-suffix, e.g. ``.pt``). The trainer registers its shipped agents and checkpoint files this way.
+A scripted policy registers itself where it is written: ``@scripted(PolicyCard(...))`` on its class puts it in
+``SCRIPTED`` under its ``name``. Applications add policies without the core importing them: a package declares
+a function under the ``colorgrid.policies`` entry point group (see ``pyproject.toml``), and that function calls
+``register_policy`` (a name, e.g. ``ippo``) or ``register_loader`` (a file suffix, e.g. ``.pt``). The trainer
+registers its shipped agents and checkpoint files this way.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 from typing import Callable
 
 from colorgrid.policies.base import Policy
+from colorgrid.policies.card import PolicyCard
 
 Factory = Callable[..., Policy]
 """``factory(role, **params) -> Policy``; ``role`` is ``"leader"``, ``"follower"`` or None, ``params`` those
@@ -20,30 +23,52 @@ Loader = Callable[..., Policy]
 Teams = Callable[[str], "tuple[str, ...] | None"]
 """``teams(path) -> ("1:1",)``: the teams (``"LEADERS:FOLLOWERS"``) a file's policy plays, None for any."""
 
+SCRIPTED: dict[str, type[Policy]] = {}
+"""Scripted policies by name, each registered by ``scripted`` where it is written (``colorgrid.policies.names``
+imports their modules). Those with parameters take them in the name: ``person:slip=0.1,notice_delay=3``."""
+
 _NAMED: dict[str, tuple[Factory, tuple[str, ...]]] = {}
 _LOADERS: dict[str, tuple[Loader, str, tuple[str, ...]]] = {}
-_TEAMS: dict[str, "tuple[str, ...] | Teams"] = {}  # by name or suffix; absent: any team
+_CARDS: dict[str, PolicyCard] = {}  # by registered name; absent: the policy says nothing of itself
+_FILE_CARDS: dict[str, PolicyCard] = {}  # by suffix
+_TEAMS: dict[str, Teams] = {}  # by suffix: the teams a file's policy plays
 _discovered = False
 
 
-def register_policy(name: str, factory: Factory, params: tuple[str, ...] = (),
-                    teams: tuple[str, ...] | None = None) -> None:
+def scripted(card: PolicyCard):
+    """Class decorator: register a scripted policy (a ``Policy`` subclass that sets its own ``name``) in
+    ``SCRIPTED`` with its ``card`` (``kind.card``), so that its name works in ``colorgrid eval``, as a training
+    partner and in the play server's menus."""
+
+    def register(kind: type[Policy]) -> type[Policy]:
+        if "name" not in vars(kind):
+            raise TypeError(f"{kind.__name__} must set its own name (a class attribute) to be registered")
+        kind.card = card
+        SCRIPTED[kind.name] = kind
+        return kind
+
+    return register
+
+
+def register_policy(name: str, factory: Factory, params: tuple[str, ...] = (), card: PolicyCard | None = None) -> None:
     """Make ``name`` usable anywhere a policy name is (``colorgrid eval``, training partners, the server);
-    ``params`` are the keyword parameters it takes in the name (``NAME:key=value``); ``teams`` the teams it
-    plays (``("1:2",)``: a network trained in that team), None for any."""
+    ``params`` are the keyword parameters it takes in the name (``NAME:key=value``); ``card`` what it says of
+    itself (its labels, belief, and the teams it plays: ``("1:2",)`` for a network trained in that team)."""
     _NAMED[name] = (factory, tuple(params))
-    if teams is not None:
-        _TEAMS[name] = tuple(teams)
+    if card is not None:
+        _CARDS[name] = card
 
 
 def register_loader(suffix: str, loader: Loader, what: str, params: tuple[str, ...] = (),
-                    teams: Teams | None = None) -> None:
+                    teams: Teams | None = None, card: PolicyCard | None = None) -> None:
     """Load files ending in ``suffix`` (e.g. ``".pt"``) as policies; ``what`` names them in errors
     (e.g. ``"a checkpoint path ending in .pt"``); ``params`` as for ``register_policy``; ``teams(path)`` says
-    which teams a file's policy plays."""
+    which teams a file's policy plays; ``card`` what every such file's policy says of itself (its belief)."""
     _LOADERS[suffix] = (loader, what, tuple(params))
     if teams is not None:
         _TEAMS[suffix] = teams
+    if card is not None:
+        _FILE_CARDS[suffix] = card
 
 
 def registered_spec(spec: str) -> tuple[str, str] | None:
@@ -72,12 +97,20 @@ def teams_of(name: str) -> tuple[str, ...] | None:
     """The teams the registered policy ``name`` (or file) plays, None for any team or an unregistered name."""
     discover()
     if name in _NAMED:
-        found = _TEAMS.get(name)
-        return found if not callable(found) else None
+        card = _CARDS.get(name)
+        return card.teams if card is not None else None
     for suffix, found in _TEAMS.items():
-        if name.endswith(suffix) and callable(found):
+        if name.endswith(suffix):
             return found(name)
     return None
+
+
+def card_of(name: str) -> PolicyCard | None:
+    """What the registered policy ``name`` (or a file of a registered suffix) says of itself, None if nothing."""
+    discover()
+    if name in _NAMED:
+        return _CARDS.get(name)
+    return next((card for suffix, card in _FILE_CARDS.items() if name.endswith(suffix)), None)
 
 
 def discover() -> None:

@@ -11,11 +11,15 @@ import numpy as np
 
 from colorgrid.config import EnvConfig
 from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
+from colorgrid.policies.card import Part, PolicyCard
 from colorgrid.policies.grid import INF, Mover, allowed_cells, decode, distance_field
+from colorgrid.policies.registry import scripted
 from colorgrid.policies.rewards import explains_reward
 from colorgrid.roles import others
 
 
+@scripted(PolicyCard(lead=Part("Random leader", "moves at random and collects whatever it steps on"),
+                     follow=Part("Random mover", "moves at random and collects whatever it steps on"), menu=110))
 class RandomPolicy(Policy):
     """Uniformly random actions (seeded)."""
 
@@ -130,6 +134,7 @@ def at(dist: np.ndarray, cells: np.ndarray) -> np.ndarray:
     return dist.reshape(len(cells), -1)[np.arange(len(cells)), cells]
 
 
+@scripted(PolicyCard(lead=Part("Scripted leader (A*)", "knows the goal and walks to the nearest block of it by A*")))
 class AStarLeader(Seeker):
     """The paper's leader baseline: knows the goal, walks a shortest path to the nearest goal block.
 
@@ -150,6 +155,8 @@ class AStarLeader(Seeker):
         return PolicyOutput(actions)
 
 
+@scripted(PolicyCard(follow=Part("Oracle", "sees the goal: for researchers"),
+                     summary="knows the true goal (upper bound)", menu=90))
 class OracleFollower(Seeker):
     """A* with the true goal, read from privileged ground truth: an upper bound for followers."""
 
@@ -164,6 +171,8 @@ class OracleFollower(Seeker):
         return PolicyOutput(actions, wanted.astype(np.float32))
 
 
+@scripted(PolicyCard(lead=Part("Bystander leader", "walks about and never collects"),
+                     follow=Part("Bystander", "walks about and never collects: you play alone"), menu=100))
 class IdleFollower(Seeker):
     """Moves to free neighbouring cells and never collects: the leaders, in effect, play without it."""
 
@@ -174,6 +183,8 @@ class IdleFollower(Seeker):
         return PolicyOutput(self.mover.wander(block_color, me, other, self.rng))
 
 
+@scripted(PolicyCard(follow=Part("Copycat", "collects the color of the last block you took that paid"),
+                     summary="copies the color of the leader's last paying pickup", menu=80))
 class CopyFollower(Seeker):
     """The paper's A* follower as its text describes it, for any number of leaders.
 

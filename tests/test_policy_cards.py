@@ -1,0 +1,98 @@
+"""A policy describes itself (``colorgrid.policies.PolicyCard``): the server's menus, the release and the docs read
+its card. A toy follower added the way docs/ARCHITECTURE.md says is offered by the server and played by
+``colorgrid eval``."""
+
+import asyncio
+import json
+import re
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from colorgrid.config import ROLES
+from colorgrid.policies import SCRIPTED, Part, PolicyCard, offered_followers, policy_card, scripted
+from colorgrid.policies.base import AgentInput, PolicyOutput
+from colorgrid.policies.scripted import Seeker
+from tests.conftest import ROOT
+
+TOY = "toy-red"
+
+
+class RedFollower(Seeker):
+    """Walks to the nearest red block, whatever the goal."""
+
+    name = TOY
+
+    def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
+        block_color, me, other = self.positions(inp)
+        wanted = np.zeros((len(me), self.config.num_colors), dtype=bool)
+        wanted[:, 0] = True
+        actions, _ = self.seek(wanted, block_color, me, other)
+        return PolicyOutput(actions)
+
+
+@pytest.fixture
+def toy(monkeypatch):
+    """``RedFollower`` registered as docs/ARCHITECTURE.md says, for this test only."""
+    monkeypatch.setitem(SCRIPTED, TOY, None)  # taken out again when the test ends
+    scripted(PolicyCard(follow=Part("Red seeker", "collects red, whatever the goal"), summary="collects red",
+                        menu=85))(RedFollower)
+    return TOY
+
+
+def test_a_toy_follower_is_offered_by_the_server_and_played_by_eval(toy, tmp_path):
+    from colorgrid_apps.cli import main
+    from server.play.offer import Offer
+    from server.protocol import Team
+    from server.routes.play import options
+    from server.settings import ServerSettings
+
+    settings = ServerSettings()
+    assert settings.followers.index("copy") < settings.followers.index(toy) < settings.followers.index("oracle")
+    menu = asyncio.run(options(SimpleNamespace(settings=settings, hub=Offer(settings))))
+    assert toy in menu["followers"]
+    assert {"value": toy, "label": "Red seeker", "description": "collects red, whatever the goal",
+            "has_belief": False} in menu["follower_info"]
+    assert all(toy in team["followers"] for team in menu["teams"] if team["ai_followers"])  # any team
+
+    report = tmp_path / "report.json"
+    assert main(["eval", "--follower", toy, "--episodes", "2", "--set", "horizon=24", "--json", str(report)]) == 0
+    played = json.loads(report.read_text())
+    assert played["follower"]["policy"] == toy and played["episodes"] == 2
+
+
+def test_a_scripted_policy_must_name_itself():
+    class Nameless(Seeker):
+        pass
+
+    with pytest.raises(TypeError, match="Nameless must set its own name"):
+        scripted(PolicyCard())(Nameless)
+    assert "policy" not in SCRIPTED
+
+
+def test_the_docs_table_has_a_row_per_scripted_policy_with_its_roles():
+    """docs/EVALUATION.md's table of scripted policies: one row each; ``any`` for one offered in both roles."""
+    text = (ROOT / "docs" / "EVALUATION.md").read_text()
+    rows = dict(re.findall(r"^\| `([a-z-]+)` \| (any|leader|follower) \|", text, flags=re.M))
+    assert set(rows) == set(SCRIPTED)
+    for name, kind in SCRIPTED.items():
+        roles = kind.card.roles
+        assert rows[name] == ("any" if roles == ROLES else "leader" if roles == ("leader",) else "follower"), name
+
+
+def test_cards_say_belief_and_roles_and_the_menu_reads_them():
+    assert policy_card("bayes:lapse=0.2") is SCRIPTED["bayes"].card and policy_card("bayes").belief
+    assert policy_card("astar").roles == ("leader",) and not policy_card("copy").belief
+    assert policy_card("population:people#held_out").lead is not None
+    assert policy_card("populations/people.json") is None and policy_card("no-such-policy") is None
+    assert offered_followers()[0] == "bayes-people" and "astar" not in offered_followers()
+    assert "bayes-limit" not in offered_followers()  # it needs its leader's model, which only eval gives
+
+
+def test_the_release_describes_each_follower_by_its_card():
+    from colorgrid_apps.release import FOLLOWERS
+
+    assert [policy_card(name).summary for name in FOLLOWERS] == [
+        "copies the color of the leader's last paying pickup", "knows the true goal (upper bound)",
+        "infers the goal with a hidden Markov model"]
