@@ -11,6 +11,7 @@ import viser
 
 from colorgrid.config import EnvConfig
 from colorgrid.replay import ReplayError, load
+from colorgrid.replay.blocks import decode_blocks
 from colorgrid.replay.timeline import timeline
 
 HIDDEN_Z = -50.0  # where unused block instances wait
@@ -47,7 +48,7 @@ def cell_xyz(cell: int, width: int, height: int, z: float) -> np.ndarray:
 def frame_at(data: dict, t: int, capacity: list[int]) -> Frame:
     H, W = data["height"], data["width"]
     board = data["boards"][t]
-    colors = np.frombuffer(board["blocks"].encode(), dtype=np.uint8).astype(np.int64) - ord("0")  # '.' < 0
+    colors = decode_blocks(board["blocks"])
     cells = np.arange(H * W)
     positions = []
     for k, cap in enumerate(capacity):
@@ -83,7 +84,7 @@ def block_capacity(data: dict) -> list[int]:
     """Instances per color: the most blocks of that color on any step."""
     counts = np.zeros(len(data["colors"]), dtype=np.int64)
     for board in data["boards"]:
-        codes = np.frombuffer(board["blocks"].encode(), dtype=np.uint8).astype(np.int64) - ord("0")
+        codes = decode_blocks(board["blocks"])
         counts = np.maximum(counts, np.bincount(codes[codes >= 0], minlength=len(counts)))
     return counts.tolist()
 

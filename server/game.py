@@ -24,6 +24,7 @@ from colorgrid.env import ACTION_DELTAS, BatchEnv
 from colorgrid.policies.base import AgentInput
 from colorgrid.render import look
 from colorgrid.replay import Replay
+from colorgrid.replay.blocks import encode_blocks
 from colorgrid.roles import columns, scores
 from colorgrid.step_inputs import StepInputs
 from server.keylog import PENDING, CappedLog, KeyLog, now_ms
@@ -311,7 +312,7 @@ class Game:
         """The ``state`` after the last step (or at the start), as every person of the game sees it."""
         s, cfg = self.env.state, self.config
         colors = s.block_colors(cfg)[0].ravel()
-        blocks = np.where(colors < 0, ord("."), colors + ord("0")).astype(np.uint8).tobytes().decode("ascii")
+        blocks = encode_blocks(colors)
         fields = {name: int(s.agent_cell[0, i]) for i, name in enumerate(cfg.agent_names)}  # each agent's cell
         if self.solo:
             players = self.followers()

@@ -218,3 +218,12 @@ def test_look_names_the_pictures_colors_and_the_timeline_carries_it(recorded):
     data = timeline(load(paths[0]))
     assert data["look"] == look(CONFIG) and data["look"]["palette"] == full["palette"][:CONFIG.num_colors]
     assert all(set(board) >= set(AGENTS) for board in data["boards"])
+
+
+def test_the_blocks_string_is_written_and_read_by_one_pair_of_functions():
+    from colorgrid.replay.blocks import decode_blocks, encode_blocks
+
+    colors = np.array([-1, -1, 0, -1, 2, 7, 1])
+    assert encode_blocks(colors) == "..0.271"
+    assert decode_blocks("..0.271").tolist() == colors.tolist()
+    assert decode_blocks(encode_blocks(np.full(5, -1))).tolist() == [-1] * 5

@@ -13,7 +13,7 @@ import numpy as np
 
 from colorgrid.config import LEADER, EnvConfig
 from colorgrid.replay.format import Replay, ReplayError
-from colorgrid.replay.simulate import encode_blocks
+from colorgrid.replay.blocks import encode_blocks
 
 
 def import_frames(config: EnvConfig, planes: np.ndarray, goal_info: np.ndarray, meta: dict | None = None,

@@ -7,6 +7,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from colorgrid.env import BatchEnv
+from colorgrid.replay.blocks import decode_blocks
 from colorgrid.replay.format import Replay, ReplayError
 from colorgrid.rollout import EpisodeBatch
 from colorgrid.state import EnvState
@@ -62,8 +63,7 @@ def verify(replay: Replay, path=None, states: list[EnvState] | None = None) -> V
 def frame_state(replay: Replay, t: int) -> EnvState:
     """State ``t`` of a frames replay, rebuilt from the stored cells."""
     cfg, frames = replay.config, replay.frames
-    blocks = frames["blocks"][t]
-    colors = np.array([-1 if ch == "." else int(ch) for ch in blocks], dtype=np.int64)
+    colors = decode_blocks(frames["blocks"][t])
     block_cells = np.concatenate([np.flatnonzero(colors == k) for k in range(cfg.num_colors)])
     block_at = np.full(cfg.height * cfg.width, -1, dtype=np.int32)
     # Blocks are numbered color by color, so block j has color j // blocks_per_color when counts match.
@@ -76,11 +76,6 @@ def frame_state(replay: Replay, t: int) -> EnvState:
         score=np.zeros((1, cfg.num_agents)), goal_pickups=np.zeros((1, cfg.num_agents), dtype=np.int64),
         wrong_pickups=np.zeros((1, cfg.num_agents), dtype=np.int64),
     )
-
-
-def encode_blocks(block_color_row: np.ndarray) -> str:
-    """[H*W] colors (-1 none) -> the frames string ('.' or the color's digit per cell)."""
-    return "".join("." if c < 0 else str(int(c)) for c in block_color_row)
 
 
 def from_batch(batch: EpisodeBatch, agents: dict, source: str, penalty_coef: float = 1.0,

@@ -18,7 +18,8 @@ from colorgrid.config import COLOR_NAMES
 from colorgrid.render import look
 from colorgrid.replay.format import Replay
 from colorgrid.replay.human_follower import human_followers, person_measures
-from colorgrid.replay.simulate import encode_blocks, replay_states, verify
+from colorgrid.replay.blocks import encode_blocks
+from colorgrid.replay.simulate import replay_states, verify
 
 
 def timeline(replay: Replay, path=None) -> dict:
