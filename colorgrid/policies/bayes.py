@@ -8,7 +8,7 @@ from typing import ClassVar
 import numpy as np
 
 from colorgrid.config import EnvConfig
-from colorgrid.configkit import check_int, check_number
+from colorgrid.configkit import ConfigBase, check_int, check_number
 from colorgrid.policies.base import AgentInput, PolicyOutput
 from colorgrid.policies.card import Part, PolicyCard
 from colorgrid.policies.grid import decode, manhattan_to_nearest
@@ -18,7 +18,7 @@ from colorgrid.policies.scripted import Seeker
 
 
 @dataclass(frozen=True)
-class BayesConfig:
+class BayesConfig(ConfigBase):
     """Parameters of the Bayesian follower's leader model and decision rule."""
 
     rationality: float = 2.0

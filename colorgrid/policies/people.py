@@ -17,7 +17,7 @@ from typing import ClassVar
 import numpy as np
 
 from colorgrid.config import EnvConfig
-from colorgrid.configkit import check_int, check_number, fail
+from colorgrid.configkit import ConfigBase, check_int, check_number, fail
 from colorgrid.policies.base import AgentInput, PolicyOutput
 from colorgrid.policies.card import Part, PolicyCard
 from colorgrid.policies.grid import INF, decode
@@ -26,7 +26,7 @@ from colorgrid.policies.scripted import Seeker
 
 
 @dataclass(frozen=True)
-class PersonStyle:
+class PersonStyle(ConfigBase):
     """How a person-like leader departs from the A* leader (every default: not at all)."""
 
     ERROR_STYLE: ClassVar[str] = "PersonStyle.{name} must be {allowed}, got {value!r}"
