@@ -301,3 +301,15 @@ def test_each_policy_says_which_teams_it_plays(tmp_path):
     assert policy_teams("astar") is None and policy_teams("person:slip=0.1") is None
     assert policy_teams("population:people#training") == ("1:1",)
     assert policy_teams("population:people#held_out") is None
+
+
+def test_a_checkpoint_that_names_roles_by_their_enum_loads_with_weights_only(tmp_path):
+    """Roles are ``Role`` members in the configs; torch's ``weights_only`` loader refuses any class, so a checkpoint
+    that kept one as a key or a value could not be read back: they are saved as their plain names."""
+    from colorgrid.enums import Role
+    from train.checkpoint import save_checkpoint
+
+    path = save_checkpoint(tmp_path / "roles.pt", {"plays": {Role.LEADER: [Role.FOLLOWER]}, "pair": (Role.LEADER, 1)})
+    raw = torch.load(path, map_location="cpu", weights_only=True)
+    assert raw["plays"] == {"leader": ["follower"]} and type(next(iter(raw["plays"]))) is str
+    assert raw["pair"] == ("leader", 1)

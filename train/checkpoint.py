@@ -22,6 +22,7 @@ checkpoint is written by ``trainer_payload`` and read back by ``restore_trainer`
 from __future__ import annotations
 
 import dataclasses
+import enum
 import io
 import pickle
 import zipfile
@@ -88,7 +89,7 @@ def find_network(ckpt: dict, env: EnvConfig, name: str | None, what: str) -> tup
 
 def save_checkpoint(path: str | Path, payload: dict) -> Path:
     """Write atomically (a crash mid-write never leaves a truncated checkpoint)."""
-    payload = {"format": FORMAT, "version": VERSION, **payload}
+    payload = without_enums({"format": FORMAT, "version": VERSION, **payload})
     buffer = io.BytesIO()
     torch.save(payload, buffer)
     path = Path(path)
@@ -186,6 +187,20 @@ def export_agent(src: str | Path, role: str, dst: str | Path, temperature: float
     return save_checkpoint(dst, {"config": ckpt["config"], "env_config": ckpt["env_config"], "step": ckpt["step"],
                                  "iteration": ckpt.get("iteration"), "wall_time_s": ckpt.get("wall_time_s"),
                                  "device": ckpt.get("device"), "agents": agents, "trainer_state": None})
+
+
+def without_enums(obj):
+    """``obj`` with every enum member (a ``Role`` as a key or a value) its plain value: ``weights_only=True`` loads
+    no class but the plain containers, so a checkpoint holding a member could not be read back."""
+    if isinstance(obj, enum.Enum):
+        return obj.value
+    if isinstance(obj, dict):
+        return {without_enums(k): without_enums(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [without_enums(v) for v in obj]
+    if isinstance(obj, tuple):
+        return tuple(without_enums(v) for v in obj)
+    return obj
 
 
 def to_tensors(obj):
