@@ -527,7 +527,9 @@ def test_the_admin_page_forgets_a_wrong_token_and_shows_processes_lost_games_and
     arm = page.locator("#arms tr").nth(1).locator("td").all_inner_texts()
     assert arm[5:] == [str(trials["games"]), f"{trials['team_score']:.2f}", f"{trials['follower_net_pickups']:.2f}",
                        f"{trials['follower_wrong_pickups']:.2f}",
-                       f"{trials['belief_accuracy']:.2f}" if trials["belief_accuracy"] is not None else ""]
+                       f"{trials['belief_accuracy']:.2f}" if trials["belief_accuracy"] is not None else "",
+                       "0", "0"]  # trials and participants excluded: this study declares no [exclusions]
+    assert summary["arms"][0]["excluded"]["trials"] == 0 and summary["arms"][0]["excluded"]["participants"] == 0
     assert trials["games"] >= 1
     context.close()
 
