@@ -63,9 +63,12 @@ def join_all(service: StudyService, pids: list[str], threads: int) -> Counter:
         return Counter(pool.map(join, pids))
 
 
-def joins_in_a_process(database: str, quota: int, pids: list[str]) -> Counter:
-    """In a process of its own (``multiprocessing``'s spawn): a play server's study service joining ``pids``."""
+def joins_in_a_process(database: str, quota: int, pids: list[str], start=None) -> Counter:
+    """In a process of its own (``multiprocessing``'s spawn): a play server's study service joining ``pids``, once
+    every process has its service open (``start``, a barrier), so that the processes' joins overlap."""
     service = open_service(example_study(quota), database)
+    if start is not None:
+        start.wait(timeout=300)
     try:
         return join_all(service, pids, threads=8)
     finally:
@@ -95,8 +98,10 @@ def test_two_processes_assigning_the_same_200_participants_on_postgresql_keep_qu
     study = example_study(quota=45)
     StudyStore(database, study.id, study_hash(study)).close()
     pids = [f"p{i}" for i in range(200)]
-    with multiprocessing.get_context("spawn").Pool(2) as pool:
-        ends = pool.starmap(joins_in_a_process, [(database, 45, pids), (database, 45, pids[::-1])])
+    spawn = multiprocessing.get_context("spawn")
+    with spawn.Manager() as manager, spawn.Pool(2) as pool:
+        start = manager.Barrier(2)
+        ends = pool.starmap(joins_in_a_process, [(database, 45, pids, start), (database, 45, pids[::-1], start)])
     service = open_service(study, database)
     try:
         arms, who = assigned(service)
