@@ -5,6 +5,9 @@ questionnaires, a debrief), a set of conditions (the product of its factors' lev
 trial defaults) and an assignment of conditions to participants. ``load_study`` reads a file and
 raises ``StudyError`` with the field's place in the file and what is allowed
 (``pages[3].questions[0].scale=1 is invalid: a whole number in 2..11``). See docs/STUDIES.md.
+
+The file's questions and checks are declared in ``server.study.questions``, its ``[screening]`` in
+``server.study.screening``; this module declares the rest and the study as a whole.
 """
 
 from __future__ import annotations
@@ -12,10 +15,8 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import re
-import statistics
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from colorgrid import configkit
 from colorgrid.configkit import ConfigError, check_bool, check_choice, check_int, check_number, check_strings, fail
@@ -23,14 +24,12 @@ from colorgrid.enums import SeatFit
 from colorgrid.presets import PRESETS
 from server.protocol import MAX_HORIZON, GameRequest, GoalView, Mode, SeatKind, Team
 from server.stated import PROBE_FORMS, ProbePlan
+from server.study.questions import ID_ALLOWED, ID_PATTERN, Question
+from server.study.screening import Screening
 
 PAGE_KINDS = ("consent", "instructions", "practice", "trials", "questionnaire", "debrief")
-QUESTION_KINDS = ("likert", "choice", "text", "check")
-"""``check``: a comprehension or attention check, a choice with one right ``answer`` (``Question.answer``)."""
 FACTORS = ("follower", "show_belief", "mode", "preset", "horizon", "tick_hz", "seat", "leader", "goal", "probes")
 """What a condition may vary: the fields of ``GameSettings``."""
-ID_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
-ID_ALLOWED = "1 to 64 letters, digits, '_', '.' or '-'"
 
 
 class StudyError(ConfigError):
@@ -118,76 +117,6 @@ class GameSettings:
 
 
 @dataclass(frozen=True)
-class Question:
-    """One question of a questionnaire."""
-
-    id: str
-    """Its name in the exported ``answers`` table (unique within its questionnaire)."""
-    kind: str
-    """``likert`` (a scale of ``scale`` points), ``choice`` (one of ``options``) or ``text`` (free text)."""
-    prompt: str
-    """The question as the participant reads it."""
-    required: bool = True
-    """Whether the page can be left without an answer."""
-    scale: int = 7
-    """``likert``: the number of points (answers are 1..scale)."""
-    labels: tuple[str, ...] = ()
-    """``likert``: the words under the lowest and the highest point (two, or none)."""
-    options: tuple[str, ...] = ()
-    """``choice`` and ``check``: the options, in the order shown."""
-    max_length: int = 2000
-    """``text``: the longest answer taken, in characters."""
-    answer: str = ""
-    """``check``: the right option (one of ``options``; the page never sees it)."""
-    tries: int = 2
-    """``check``: answers taken before the participant goes on with a wrong one (a failed check, in the export's
-    ``exclusions`` table when ``[exclusions] failed_checks`` says so); after each wrong one but the last, the page
-    (its instructions, on an instructions page) is shown again."""
-
-    def __post_init__(self):
-        if not isinstance(self.id, str) or not ID_PATTERN.match(self.id):
-            fail(self, "id", ID_ALLOWED)
-        check_choice(self, "kind", QUESTION_KINDS, f"one of {list(QUESTION_KINDS)}")
-        if not isinstance(self.prompt, str) or not self.prompt.strip():
-            fail(self, "prompt", "the question's text (a non-empty string)")
-        check_bool(self, "required")
-        check_int(self, "scale", 2, 11, allowed="a whole number in 2..11")
-        check_strings(self, "labels")
-        if self.kind == "likert" and len(self.labels) not in (0, 2):
-            fail(self, "labels", "two words (the lowest and the highest point) or none")
-        check_strings(self, "options", distinct=True)
-        choosing = self.kind in ("choice", "check")
-        if choosing and len(self.options) < 2:
-            fail(self, "options", f"at least two distinct options for a {self.kind!r} question")
-        if not choosing and self.options:
-            fail(self, "options", "only for kind='choice' or kind='check'")
-        check_int(self, "max_length", 1, 100_000, allowed="a whole number in 1..100000")
-        if not isinstance(self.answer, str) or (self.kind == "check" and self.answer not in self.options):
-            fail(self, "answer", f"the right option, one of {list(self.options)}" if self.kind == "check"
-                 else "only for kind='check' (the right option)")
-        if self.kind != "check" and self.answer:
-            fail(self, "answer", "only for kind='check' (the right option)")
-        check_int(self, "tries", 1, 10, allowed="a whole number in 1..10")
-        if self.kind == "check" and not self.required:
-            fail(self, "required", "true for a 'check' question (a check cannot be skipped)")
-
-    def problem(self, value: Any) -> str | None:
-        """What is wrong with ``value`` as an answer, in words for the participant (None: it is a valid answer,
-        or a skipped optional one)."""
-        if value is None or value == "":
-            return "Please answer this question." if self.required else None
-        if self.kind == "likert":
-            ok = isinstance(value, int) and not isinstance(value, bool) and 1 <= value <= self.scale
-            return None if ok else f"Choose one of the points from 1 to {self.scale}."
-        if self.kind in ("choice", "check"):
-            return None if value in self.options else "Choose one of the options."
-        if not isinstance(value, str):
-            return "Write your answer as text."
-        return None if len(value) <= self.max_length else \
-            f"Keep your answer to {self.max_length} characters (it has {len(value)})."
-
-
-@dataclass(frozen=True)
 class Page:
     """One page of the study, shown in order."""
 
@@ -266,58 +195,6 @@ class Design:
         check_int(self, "trials_per_condition", 1, 100, allowed="a whole number in 1..100")
         check_int(self, "quota", 1, optional=True, allowed="a positive whole number, or leave it out")
         check_int(self, "seed", 0, 2**63 - 1, allowed="a whole number >= 0")
-
-
-@dataclass(frozen=True)
-class Screening:
-    """Who may take part (``[screening]``): checked by the study page before the consent page, from the device, the
-    window and round trips over the play socket; a participant who fails is told why and given ``return_code``, and
-    the refusal is logged with its reason (they take no place in the study)."""
-
-    keyboard: bool = True
-    """Refuse a device with a touch screen and no mouse or trackpad (a phone, a tablet): the games need keys."""
-    min_width: int = 0
-    """The narrowest window taken, in CSS pixels (0: any)."""
-    min_height: int = 0
-    """The lowest window taken, in CSS pixels (0: any)."""
-    pings: int = 5
-    """Round trips measured over the play socket (``ping`` and its ``pong``) before consent."""
-    max_round_trip_ms: float | None = None
-    """The highest median of those round trips taken, in ms (None: not checked)."""
-    return_code: str = ""
-    """Given to a participant who is refused (put into the study's ``redirect_url`` as ``{code}``): the platform's
-    code for a participant screened out."""
-
-    def __post_init__(self):
-        check_bool(self, "keyboard")
-        check_int(self, "min_width", 0, 10_000, allowed="a whole number of CSS pixels in 0..10000")
-        check_int(self, "min_height", 0, 10_000, allowed="a whole number of CSS pixels in 0..10000")
-        check_int(self, "pings", 1, 50, allowed="a whole number in 1..50")
-        check_number(self, "max_round_trip_ms", "a number of milliseconds > 0, or leave it out", lambda v: v > 0,
-                     optional=True)
-        if not isinstance(self.return_code, str):
-            fail(self, "return_code", "a string")
-
-    def problem(self, touch_only: bool, viewport: tuple[int, int], round_trips_ms: list[float]) -> tuple[str, str]:
-        """Why a device and connection cannot take part: ``(reason, words)``, the reason as logged and the words
-        for the participant; ``("", "")`` when they can."""
-        if self.keyboard and touch_only:
-            return "touch_only", ("This study needs a keyboard: its games are played with the arrow keys. Please "
-                                  "open it on a computer with a keyboard.")
-        width, height = viewport
-        if width < self.min_width or height < self.min_height:
-            return "viewport", (f"This study needs a browser window of at least {self.min_width} by "
-                                f"{self.min_height} pixels, and yours is {width} by {height}. Please open it on a "
-                                f"larger screen, or make the window larger and reload the page.")
-        if self.max_round_trip_ms is not None:
-            if len(round_trips_ms) < self.pings:
-                return "round_trip", ("Your connection to our server could not be measured. Please reload the page "
-                                      "on a steady connection.")
-            median = statistics.median(round_trips_ms)
-            if median > self.max_round_trip_ms:
-                return "round_trip", (f"Your connection to our server is too slow for this study's games (a round "
-                                      f"trip of {median:.0f} ms; they need at most {self.max_round_trip_ms:g} ms).")
-        return "", ""
 
 
 @dataclass(frozen=True)

@@ -16,8 +16,9 @@ from server.play.live import Client
 from server.play.source import OpenGame
 from server.protocol import NewGame, Team
 from server.study.config import Study
+from server.study.errors import Invalid, Refused
 from server.study.routes import Served, install_routes
-from server.study.service import Invalid, Refused, StudyService, study_hash
+from server.study.service import StudyService, study_hash
 from server.study.store import StudyStore
 
 STUDY_PAGE = "this server runs a study: games start from the study page"

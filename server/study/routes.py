@@ -25,7 +25,8 @@ from starlette.requests import HTTPConnection
 
 from server.backend import CurrentBackend
 from server.routes.pages import WEB_DIR
-from server.study.service import AnswerProblems, Finished, Invalid, Refused, ScreenedOut, StudyService
+from server.study.errors import AnswerProblems, Finished, Invalid, Refused, ScreenedOut
+from server.study.service import StudyService
 
 NOT_SERVED = ("/replays", "/replay", "/api/replays")
 

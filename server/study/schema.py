@@ -25,8 +25,9 @@ from server.protocol import GoalView, PageEvent, SeatKind
 from server.stated import ProbeKind, ProbeStatus, Via
 from server.study.assign import arm_labels
 from server.study.columns import Column, Table
-from server.study.config import QUESTION_KINDS, GameSettings, Study
+from server.study.config import GameSettings, Study
 from server.study.exclusions import RULES
+from server.study.questions import QUESTION_KINDS
 
 FORMAT_VERSION = 5
 """Bumped whenever a column is added, removed or changes type (3: ``keys.game_id``, and each table's ``unique``; 4: the

@@ -31,8 +31,11 @@ from server.study.assign import arm_labels, arms, choose_arm, trial_order
 from server.followers import follower_info
 from server.protocol import SeatKind
 from server.study.config import ID_PATTERN, GameSettings, Page, Question, Study
+from server.study.errors import Finished, Invalid, Refused
 from server.study.exclusions import exclusion_rows, median_round_trip
 from server.study.figures import game_figures, score_figures
+from server.study.questions import count_checks, taken_answers
+from server.study.screening import screened_out
 from server.study.store import StudyStore
 
 LOST = Ending.lost()
@@ -41,8 +44,6 @@ participant starts a game again whose process stopped without saving it (killed,
 reach."""
 FULL = "full"
 """The reason logged for a participant refused because the study is full (every place or every arm's quota taken)."""
-SCREENED = "screening:"
-"""The prefix of the reason logged for a participant refused by ``[screening]`` (``screening:viewport``, ...)."""
 SESSION_PATTERN = re.compile(r"^[A-Za-z0-9_-]{32,128}$")
 """A session key a browser may propose at its first join: random URL-safe text, 32 to 128 characters."""
 MAX_ROUND_TRIPS = 10_000
@@ -58,48 +59,6 @@ def own_session(proposed: str | None) -> str | None:
     """The key a browser proposed for its first join, when it is one (``SESSION_PATTERN``): the page makes it and
     keeps it before it sends the join, so that the same join sent again resumes instead of being refused."""
     return proposed if isinstance(proposed, str) and SESSION_PATTERN.match(proposed) else None
-
-
-class Refused(Exception):
-    """The participant cannot go on (full, id already used, no id, wrong session); the message says why, in words
-    for the participant."""
-
-
-class Finished(Refused):
-    """The participant finished the study, and comes back from a browser without its session: the message thanks
-    them and repeats the completion code (``completion_code``, ``redirect_url``: as on the debrief page)."""
-
-    def __init__(self, completion_code: str, redirect_url: str):
-        self.completion_code, self.redirect_url = completion_code, redirect_url
-        code = f" Your completion code is {completion_code}." if completion_code else ""
-        super().__init__(f"You have already completed this study: thank you for taking part.{code}")
-
-
-READ_AGAIN = {"instructions": "instructions", "questionnaire": "question", "questions": "question"}
-"""What a participant is asked to read again after a wrong check, by the kind of page."""
-
-
-class ScreenedOut(Refused):
-    """The participant's device or connection cannot take part (``[screening]``): the message says why, and the
-    study's return code comes with it."""
-
-    def __init__(self, words: str, return_code: str, redirect_url: str):
-        self.return_code, self.redirect_url = return_code, redirect_url
-        super().__init__(words)
-
-
-class Invalid(Exception):
-    """The request does not fit the participant's current step; the message names the problem."""
-
-
-class AnswerProblems(Invalid):
-    """Answers that cannot be taken: every problem at once, each ``{question, prompt, problem}`` (its id, its
-    text as the participant reads it, what is wrong in words for them); ``again``: a check was answered wrong, and the
-    page (its instructions) is shown again."""
-
-    def __init__(self, problems: list[dict], again: bool = False):
-        self.problems, self.again = problems, again
-        super().__init__("; ".join(f"{p['question']}: {p['problem']}" for p in problems))
 
 
 @dataclass(frozen=True)
@@ -181,7 +140,8 @@ class StudyService:
             pid = self.participant_id(params)
         with self.store.transaction(assign=True) as tx:  # counts read and row written as one, across processes
             row = tx.participant(pid)
-            refusal = self.screened_out(tx, pid, screen) if row is None else None
+            refusal = (screened_out(self.study.screening, self.study.redirect_url, tx, pid, screen)
+                       if row is None else None)
             if row is None and refusal is None:
                 arm = None
                 if tx.count_participants() < self.study.max_participants:
@@ -210,23 +170,6 @@ class StudyService:
         if isinstance(answer, Refused):
             raise answer  # once the transaction is committed: the refusal stays in the audit log
         return answer
-
-    def screened_out(self, tx, pid: str, screen: dict | None) -> ScreenedOut | None:
-        """The refusal of a new participant whose ``screen`` fails the study's ``[screening]`` (logged with its
-        reason and the measures), or None."""
-        rules = self.study.screening
-        if rules is None:
-            return None
-        if screen is None:
-            reason, words = "not_screened", ("This study checks your browser before it starts, and this page did "
-                                              "not. Please open the study from your link again.")
-        else:
-            reason, words = rules.problem(screen["touch_only"], tuple(screen["viewport"]), screen["round_trips_ms"])
-            if not reason:
-                return None
-        tx.log(pid, "refused", reason=SCREENED + reason, screen=screen)
-        url = self.study.redirect_url
-        return ScreenedOut(words, rules.return_code, url.replace("{code}", rules.return_code) if url else "")
 
     def returning(self, tx, row: dict, session: str | None, user_agent: str) -> dict | Refused:
         """A participant who joined before: their own browser (or any, when the study resumes) gets their session.
@@ -313,17 +256,8 @@ class StudyService:
             raise Invalid("consent: agree to take part (or close the page to leave the study)")
         clean = {}
         if step.questions:
-            if not isinstance(answers, dict):
-                raise Invalid("answers: an object of question id -> answer")
-            unknown = sorted(set(answers) - {q.id for q in step.questions})
-            if unknown:
-                raise Invalid(f"answers: unknown question(s) {unknown}")
-            problems = [{"question": q.id, "prompt": q.prompt, "problem": q.problem(answers.get(q.id))}
-                        for q in step.questions if q.problem(answers.get(q.id))]
-            if problems:
-                raise AnswerProblems(problems)
-            clean = {q.id: answers.get(q.id) if answers.get(q.id) != "" else None for q in step.questions}
-            self.checked(pid, step_index, step, clean)
+            clean = taken_answers(step.questions, answers)
+            count_checks(self.store, pid, step_index, step.kind, step.questions, clean)
         if step.has_game:
             last = self.store.last_game(pid, step_index)
             if last is None or not last["ended"] or last["ended"] in LOST:
@@ -342,29 +276,6 @@ class StudyService:
         if nxt == len(steps):  # no debrief page: the study ends on the last page
             return {**self.view(pid, session), "finished": True}
         return self.view(pid, session)
-
-    def checked(self, pid: str, step_index: int, step: Step, answers: dict) -> None:
-        """Log each check of the page answered (right or wrong, with its try); a wrong one with tries left raises
-        ``AnswerProblems`` with ``again`` (the page, its instructions, is shown again). On the last try a wrong answer
-        is kept: the participant goes on, and the export counts a failed check."""
-        checks = [q for q in step.questions if q.kind == "check"]
-        if not checks:
-            return
-        with self.store.transaction() as tx:
-            tried = tx.check_tries(pid, step_index)
-            again = []
-            for q in checks:
-                attempt = tried.get(q.id, 0) + 1
-                right = answers[q.id] == q.answer
-                tx.log(pid, "check", step=step_index, question=q.id, answer=answers[q.id], right=right, attempt=attempt)
-                if not right and attempt < q.tries:
-                    left = q.tries - attempt
-                    again.append({"question": q.id, "prompt": q.prompt,
-                                  "problem": f"That is not right. Please read the {READ_AGAIN[step.kind]} again, "
-                                             f"then answer once more ({left} {'try' if left == 1 else 'tries'} "
-                                             f"left)."})
-        if again:
-            raise AnswerProblems(again, again=True)
 
     # ---------------------------------------------------------------- games
     def game_for(self, pid: str, session: str) -> tuple[GameSettings, dict]:

@@ -1,7 +1,8 @@
 """Where a study's data lasts: participants, their assignment and progress, games and answers.
 
-The one place that speaks SQL, through SQLAlchemy Core: the tables are declared once below and
-every statement is built from them, so the same code runs on **SQLite** (the default: one file,
+The one place that speaks SQL, through SQLAlchemy Core: the tables are declared once (in
+``server.study.tables``, with the steps that bring an older schema to this one) and every statement is
+built from them, so the same code runs on **SQLite** (the default: one file,
 ``<recordings>/<study id>/study.sqlite``, WAL, ``synchronous=FULL``) and on **PostgreSQL** (one
 database that several play-server processes share). Every change is one transaction, so that a
 crash or a kill loses nothing that was answered.
@@ -26,87 +27,26 @@ from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
-from sqlalchemy import (
-    Column,
-    Float,
-    Integer,
-    MetaData,
-    Table,
-    Text,
-    create_engine,
-    event,
-    func,
-    insert,
-    inspect,
-    select,
-    update,
-)
+from sqlalchemy import create_engine, event, func, insert, inspect, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.engine import URL, Connection, Engine, make_url
 from sqlalchemy.exc import ArgumentError, DBAPIError
 
 from colorgrid.enums import GameKind
-from server.study.figures import FIGURES, SCORES, score_figures
+from server.study.tables import (  # noqa: F401 (FIGURE_COLUMNS: read from here too)
+    FIGURE_COLUMNS,
+    SCHEMA_VERSION,
+    add_figure_columns,
+    answers,
+    events,
+    games,
+    meta,
+    migrate_1_to_2,
+    participants,
+    tables,
+)
 
-SCHEMA_VERSION = 3
-"""Version 2 added the per-game figures (``figures.SCORES`` and ``figures.FIGURES``) to ``games``; version 3 the
-attention figures (``away_s``, ``idle_s``, ``round_trip_ms``: ``server.study.exclusions``)."""
 BACKENDS = ("sqlite", "postgresql")
-SQL_TYPES = {int: Integer, float: Float, str: Text}
-
-tables = MetaData()
-meta = Table("meta", tables, Column("key", Text, primary_key=True), Column("value", Text, nullable=False))
-participants = Table(
-    "participants", tables,
-    Column("pid", Text, primary_key=True),
-    Column("session", Text, nullable=False),
-    Column("arm", Integer, nullable=False),
-    Column("conditions", Text, nullable=False),  # JSON: the condition index of each trial, in play order
-    Column("status", Text, nullable=False),  # active | completed
-    Column("step", Integer, nullable=False, server_default="0"),  # the page (of their expanded pages) they are on
-    Column("url_params", Text, nullable=False),  # JSON: the id and kept parameters of the link they came with
-    Column("user_agent", Text, nullable=False),
-    Column("started", Float, nullable=False),  # seconds since the epoch
-    Column("completed", Float),
-    Column("updated", Float, nullable=False),
-)
-FIGURE_COLUMNS = [Column(name, Float) for name in SCORES] + [Column(name, SQL_TYPES[kind])
-                                                             for name, kind in FIGURES.items()]
-"""The ``games`` columns of schema version 2: null while the game runs, and for games recorded before."""
-games = Table(
-    "games", tables,
-    Column("pid", Text, primary_key=True),
-    Column("step", Integer, primary_key=True),
-    Column("attempt", Integer, primary_key=True),  # 0, then 1, 2... when a game was lost (disconnected, stopped)
-    Column("kind", Text, nullable=False),  # practice | trial
-    Column("trial_index", Integer),  # 0-based among the trials (null for practice)
-    Column("condition", Integer),  # index into the study's conditions (null for practice)
-    Column("settings", Text, nullable=False),  # JSON: the game's settings (follower, show_belief, mode, ...)
-    Column("game_id", Text, nullable=False),
-    Column("replay_id", Text),
-    Column("ended", Text),  # null while live; then the replay's reason (complete, idle, ...)
-    Column("scores", Text),  # JSON: team, leader, follower
-    Column("started", Float, nullable=False),
-    Column("finished", Float),
-    *FIGURE_COLUMNS,
-)
-answers = Table(
-    "answers", tables,
-    Column("pid", Text, primary_key=True),
-    Column("step", Integer, primary_key=True),
-    Column("page", Text, nullable=False),  # the questionnaire's name
-    Column("trial_index", Integer),  # for questions after a trial: which trial
-    Column("question", Text, primary_key=True),
-    Column("value", Text),  # JSON: a number (likert), a string (choice, text) or null (skipped)
-    Column("answered", Float, nullable=False),
-)
-events = Table(
-    "events", tables,
-    Column("pid", Text, nullable=False),
-    Column("t", Float, nullable=False),
-    Column("kind", Text, nullable=False),  # joined, resumed, refused, consented, advanced, completed, check
-    Column("detail", Text, nullable=False),  # JSON
-)
 
 
 # ---------------------------------------------------------------- opening a database
@@ -373,28 +313,6 @@ class StudyStore:
         with self.reading() as tx:
             return {r["arm"]: {k: (float(v) if v is not None and k != "games" else v) for k, v in r.items()
                                if k != "arm"} for r in rows_of(tx.conn.execute(query))}
-
-
-def add_figure_columns(conn: Connection) -> None:
-    """Add the figure columns ``games`` lacks (null for the games recorded before: the export computes what it can
-    from their replays)."""
-    present = {c["name"] for c in inspect(conn).get_columns("games")}
-    quote = conn.dialect.identifier_preparer.quote
-    for column in FIGURE_COLUMNS:
-        if column.name not in present:
-            conn.exec_driver_sql(f"ALTER TABLE games ADD COLUMN {quote(column.name)} "
-                                 f"{column.type.compile(dialect=conn.dialect)}")
-
-
-def migrate_1_to_2(conn: Connection) -> None:
-    """Add the figure columns to ``games`` and fill the scores of games already over from their JSON (the other
-    figures of those games stay null: the export computes them from the replays)."""
-    add_figure_columns(conn)
-    done = conn.execute(select(games.c.pid, games.c.step, games.c.attempt, games.c.scores)
-                        .where(games.c.scores.is_not(None))).all()
-    for pid, step, attempt, scores in done:
-        conn.execute(update(games).where(games.c.pid == pid, games.c.step == step, games.c.attempt == attempt)
-                     .values(**score_figures(json.loads(scores))))
 
 
 def read_tables(database: str | Path, study_id: str) -> dict[str, list[dict]]:
