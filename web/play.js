@@ -216,93 +216,116 @@ function backToSetup(clearLink = true) {  // out of a room (or a game that was n
   $("setup").hidden = false;
 }
 
+// What the page does with each message of the server, by its type (server/messages.py declares them); a type not
+// listed here is left alone.
+const HANDLERS = {
+  room: onRoom,
+  room_closed: onRoomClosed,
+  welcome: onWelcome,
+  state: onState,
+  seats: (msg) => showSeats(game, msg.seats),
+  game_over: onGameOver,
+  error: onRefusal,
+  full: onRefusal,
+  replaced: onReplaced,
+};
+
 function onMessage(msg) {
-  if (msg.type === "room") {
-    onRoom(msg);
-  } else if (msg.type === "room_closed") {
-    backToSetup();
-    status(plainRoomClosed(msg), "error", `room_closed: ${msg.reason}: ${msg.message}`);
-  } else if (msg.type === "welcome") {
-    // "you": the agent this person plays (a team's welcome names it; in 1:1 the leader)
-    game = { ...msg, over: false, agent: msg.agent ?? msg.look.agents.find((a) => a.role === "leader").name };
-    room = null;
-    lastState = null;
-    seq = msg.next_seq;  // keys number on across reloads and reconnects
-    own = new OwnMove(msg, game.agent);  // this person's own moves, drawn before the server's state shows them
-    $("events").textContent = "";
-    if (location.search) history.replaceState(null, "", "/");  // a reload rejoins the game, not the room
-    setLook(msg.look);
-    sessionStorage.setItem("colorgrid-game", JSON.stringify({ game_id: msg.game_id, token: msg.token }));
-    $("setup").hidden = true;
-    $("room").hidden = true;
-    $("over").hidden = true;
-    $("game").hidden = false;
-    $("quit").hidden = false;
-    if (!$("countdown").hidden) {  // "go" stays a moment over the first board
-      $("countdown").textContent = "go";
-      setTimeout(() => { $("countdown").hidden = true; }, 700);
-    }
-    const mode = options.modes.find((m) => m.value === msg.mode)?.label ?? msg.mode;
-    const together = msg.seats?.length > 1;  // turn-based with other people: a step once everyone has moved
-    $("mode-label").textContent = msg.tick_hz ? `${mode}, ${msg.tick_hz} steps/s`
-      : `${mode}: the world moves when ${together ? "everyone has moved" : "you do"}`;
-    const kinds = [...new Set(Object.values(msg.followers ?? { follower: msg.follower }))].map(followerInfo);
-    const follower = { label: kinds.map((k) => k.label).join(" + "), description: kinds.map((k) => k.description).join(" "),
-                       has_belief: kinds.some((k) => k.has_belief) };
-    const assisting = msg.seat === "follower";  // you play the follower, beside an AI leader
-    const followers = game.look.agents.filter((a) => a.role === "follower").length - (assisting ? 1 : 0);
-    $("follower-label").textContent = follower.label;
-    $("follower-label").title = follower.description;
-    $("partner-note").hidden = followers === 0;
-    $("partner-note").firstChild.textContent = followers > 1 ? "your AI partners: " : "your AI partner: ";
-    const leaders = [...new Set(Object.values(msg.leaders ?? {}))].map(leaderInfo);  // AI leaders beside you
-    $("leader-note").hidden = !leaders.length;
-    $("leader-words").textContent = assisting ? "the leader (AI)" : "the other leader (AI)";
-    $("leader-label").textContent = leaders.map((l) => l.label).join(" + ");
-    $("leader-label").title = leaders.map((l) => l.description).join(" ");
-    showAgents(game);
-    $("belief-whose").textContent = followers > 1 ? "your AI partners believe" : "your AI partner believes";
-    $("belief-panel").hidden = !(msg.show_belief && follower.has_belief && followers > 0);
-    if (!assisting) status(`your move: ${moveKeys(options.keys)}`);
-    startSeat(game, (message) => connection.send(message), seatStatus);  // in the seat: the hint follows the probe
-  } else if (msg.type === "state") {
-    lastState = msg;
-    render(msg);
-    if (game.team && game.mode === "turn") {
-      if (game.seat === "follower") seatStatus(seatHint(game));
-      else status(`your move: ${moveKeys(options.keys)}`);
-    }
-  } else if (msg.type === "seats") {
-    showSeats(game, msg.seats);
-  } else if (msg.type === "game_over") {
-    game.over = true;
-    connection.close();  // one connection a game (the server closes it too)
-    sessionStorage.removeItem("colorgrid-game");
-    $("quit").hidden = true;
-    $("over").hidden = false;
-    $("over-scores").textContent = `team ${fmt(msg.scores.team)} (${agentScores(msg.scores)}) after ${msg.steps} steps`;
-    showStatedRecord(game, msg.stated);  // the follower seat: the goal's history against what you said
-    const link = $("replay-link");
-    link.hidden = !msg.replay_id;
-    if (msg.replay_id) link.href = `/replay?id=${encodeURIComponent(msg.replay_id)}`;
-    status(plainEnding(msg.reason), "", `game_over: ${msg.reason}`);
-  } else if (msg.type === "error" || msg.type === "full") {
-    const detail = msg.type === "full" ? `full: ${msg.message}` : `${msg.code}: ${msg.message}`;
-    console.info(detail);
-    if (game?.over) return;  // about a key on its way when the game ended: the game's end stays on screen
-    if (msg.code === "bad_probe") probeRefused(game, plainError(msg, options.horizon.max));
-    const roomWords = plainRoomError(msg);
-    if (game && msg.code === "rejected" && connection.first?.type === "rejoin") game = null;  // lost while away
-    if (!game && (!room || roomWords)) {  // the game or room was not made (or could not be resumed): back to the setup
-      sessionStorage.removeItem("colorgrid-game");
-      backToSetup(Boolean(roomWords));
-    }
-    status(roomWords ?? plainError(msg, options.horizon.max), "error", detail);
-  } else if (msg.type === "replaced") {
-    game.replaced = true;  // another tab rejoined this game: it plays there now, so do not take it back
-    connection.close();
-    status("this game continues in another tab or window", "warn");
+  HANDLERS[msg.type]?.(msg);
+}
+
+function onRoomClosed(msg) {
+  backToSetup();
+  status(plainRoomClosed(msg), "error", `room_closed: ${msg.reason}: ${msg.message}`);
+}
+
+function onWelcome(msg) {
+  // "you": the agent this person plays (a team's welcome names it; in 1:1 the leader)
+  game = { ...msg, over: false, agent: msg.agent ?? msg.look.agents.find((a) => a.role === "leader").name };
+  room = null;
+  lastState = null;
+  seq = msg.next_seq;  // keys number on across reloads and reconnects
+  own = new OwnMove(msg, game.agent);  // this person's own moves, drawn before the server's state shows them
+  $("events").textContent = "";
+  if (location.search) history.replaceState(null, "", "/");  // a reload rejoins the game, not the room
+  setLook(msg.look);
+  sessionStorage.setItem("colorgrid-game", JSON.stringify({ game_id: msg.game_id, token: msg.token }));
+  $("setup").hidden = true;
+  $("room").hidden = true;
+  $("over").hidden = true;
+  $("game").hidden = false;
+  $("quit").hidden = false;
+  if (!$("countdown").hidden) {  // "go" stays a moment over the first board
+    $("countdown").textContent = "go";
+    setTimeout(() => { $("countdown").hidden = true; }, 700);
   }
+  const mode = options.modes.find((m) => m.value === msg.mode)?.label ?? msg.mode;
+  const together = msg.seats?.length > 1;  // turn-based with other people: a step once everyone has moved
+  $("mode-label").textContent = msg.tick_hz ? `${mode}, ${msg.tick_hz} steps/s`
+    : `${mode}: the world moves when ${together ? "everyone has moved" : "you do"}`;
+  const kinds = [...new Set(Object.values(msg.followers ?? { follower: msg.follower }))].map(followerInfo);
+  const follower = { label: kinds.map((k) => k.label).join(" + "), description: kinds.map((k) => k.description).join(" "),
+                     has_belief: kinds.some((k) => k.has_belief) };
+  const assisting = msg.seat === "follower";  // you play the follower, beside an AI leader
+  const followers = game.look.agents.filter((a) => a.role === "follower").length - (assisting ? 1 : 0);
+  $("follower-label").textContent = follower.label;
+  $("follower-label").title = follower.description;
+  $("partner-note").hidden = followers === 0;
+  $("partner-note").firstChild.textContent = followers > 1 ? "your AI partners: " : "your AI partner: ";
+  const leaders = [...new Set(Object.values(msg.leaders ?? {}))].map(leaderInfo);  // AI leaders beside you
+  $("leader-note").hidden = !leaders.length;
+  $("leader-words").textContent = assisting ? "the leader (AI)" : "the other leader (AI)";
+  $("leader-label").textContent = leaders.map((l) => l.label).join(" + ");
+  $("leader-label").title = leaders.map((l) => l.description).join(" ");
+  showAgents(game);
+  $("belief-whose").textContent = followers > 1 ? "your AI partners believe" : "your AI partner believes";
+  $("belief-panel").hidden = !(msg.show_belief && follower.has_belief && followers > 0);
+  if (!assisting) status(`your move: ${moveKeys(options.keys)}`);
+  startSeat(game, (message) => connection.send(message), seatStatus);  // in the seat: the hint follows the probe
+}
+
+function onState(msg) {
+  lastState = msg;
+  render(msg);
+  if (game.team && game.mode === "turn") {
+    if (game.seat === "follower") seatStatus(seatHint(game));
+    else status(`your move: ${moveKeys(options.keys)}`);
+  }
+}
+
+function onGameOver(msg) {
+  game.over = true;
+  connection.close();  // one connection a game (the server closes it too)
+  sessionStorage.removeItem("colorgrid-game");
+  $("quit").hidden = true;
+  $("over").hidden = false;
+  $("over-scores").textContent = `team ${fmt(msg.scores.team)} (${agentScores(msg.scores)}) after ${msg.steps} steps`;
+  showStatedRecord(game, msg.stated);  // the follower seat: the goal's history against what you said
+  const link = $("replay-link");
+  link.hidden = !msg.replay_id;
+  if (msg.replay_id) link.href = `/replay?id=${encodeURIComponent(msg.replay_id)}`;
+  status(plainEnding(msg.reason), "", `game_over: ${msg.reason}`);
+}
+
+function onRefusal(msg) {
+  // an error, or a full game or room: the game or room may not have been made
+  const detail = msg.type === "full" ? `full: ${msg.message}` : `${msg.code}: ${msg.message}`;
+  console.info(detail);
+  if (game?.over) return;  // about a key on its way when the game ended: the game's end stays on screen
+  if (msg.code === "bad_probe") probeRefused(game, plainError(msg, options.horizon.max));
+  const roomWords = plainRoomError(msg);
+  if (game && msg.code === "rejected" && connection.first?.type === "rejoin") game = null;  // lost while away
+  if (!game && (!room || roomWords)) {  // the game or room was not made (or could not be resumed): back to the setup
+    sessionStorage.removeItem("colorgrid-game");
+    backToSetup(Boolean(roomWords));
+  }
+  status(roomWords ?? plainError(msg, options.horizon.max), "error", detail);
+}
+
+function onReplaced() {
+  game.replaced = true;  // another tab rejoined this game: it plays there now, so do not take it back
+  connection.close();
+  status("this game continues in another tab or window", "warn");
 }
 
 const fmt = (x) => (x > 0 ? "+" : "") + x;
@@ -364,8 +387,13 @@ window.addEventListener("blur", () => pageEvent("blur"));
 window.addEventListener("focus", () => pageEvent("focus"));
 document.addEventListener("visibilitychange", () => pageEvent("visibilitychange"));
 
+function keyMessage(key) {
+  // a key (a move, or a color the follower seat states), numbered on with the others: every key message is this one
+  return { type: "key", key, seq: seq++, t_client: performance.timeOrigin + performance.now() };
+}
+
 function sendKey(key) {
-  return connection.send({ type: "key", key, seq: seq++, t_client: performance.timeOrigin + performance.now() });
+  return connection.send(keyMessage(key));
 }
 
 document.addEventListener("keydown", (event) => {
@@ -376,8 +404,9 @@ document.addEventListener("keydown", (event) => {
   }
   if (!Object.hasOwn(options.keys, event.key)) return;
   event.preventDefault();
-  connection.send({ type: "key", key: event.key, seq, t_client: performance.timeOrigin + performance.now() });
-  own.press(event.key, seq++);
+  const message = keyMessage(event.key);
+  connection.send(message);
+  own.press(event.key, message.seq);
   if (lastState) render(lastState);  // the move at once; the server's state corrects it
   if (game.team && game.mode === "turn" && game.seats.filter((s) => s.status !== "left").length > 1) {
     status("waiting for the other person to move...");
