@@ -278,8 +278,6 @@ class Connection:
     async def on_ping(self, msg: Ping) -> None:
         await self.send(Pong(type="pong", t_server=time.time() * 1000).wire())
         if msg.round_trip_ms is not None and self.game is not None and self.hub.controls(self.game, self):
-            self.hub.round_trip(self.game, msg.round_trip_ms)
-        if msg.round_trip_ms is not None and self.game is not None and self.hub.controls(self.game, self):
             self.hub.round_trip(self.game, msg.round_trip_ms)  # during a game: a study keeps it (its exclusions)
 
     def check_start(self, room: bool = False, counted: bool = True) -> None:

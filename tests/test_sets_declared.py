@@ -18,8 +18,6 @@ DECLARED = {Role: "colorgrid/enums.py", Mode: "server/protocol.py", SeatStatus: 
             RoomSeatStatus: "server/protocol.py", RoomClosedReason: "server/protocol.py"}
 WORDS = {member.value: enum.__name__ for enum in DECLARED for member in enum} | {"lead a person": "Role"}
 """Each value of the sets (and the role once spelled ``"lead a person"``), with the enum to compare it as."""
-PENDING = {"colorgrid/policies/"}
-"""Folders whose sets move into their own declarations with the policies describing themselves."""
 
 
 def literal_comparisons(tree: ast.AST) -> list[tuple[int, str]]:
@@ -44,9 +42,7 @@ def literal_comparisons(tree: ast.AST) -> list[tuple[int, str]]:
 def package_modules():
     for package in PACKAGES:
         for path in sorted((ROOT / package).rglob("*.py")):
-            where = path.relative_to(ROOT).as_posix()
-            if not any(where.startswith(folder) for folder in PENDING):
-                yield where, path
+            yield path.relative_to(ROOT).as_posix(), path
 
 
 def test_no_role_mode_seat_status_or_room_closed_reason_is_compared_as_a_string_literal():

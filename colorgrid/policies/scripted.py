@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from colorgrid.config import EnvConfig
+from colorgrid.enums import Role
 from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
 from colorgrid.policies.card import Part, PolicyCard
 from colorgrid.policies.grid import INF, Mover, allowed_cells, decode, distance_field
@@ -44,7 +45,7 @@ class Seeker(Policy):
         self.rng = np.random.default_rng([seed, agent_index, 7])
         # the leaders before this one, if it is a leader: whose blocks it leaves alone (``claims``); an agent in
         # a follower's seat (an A* follower in the symmetric setting) respects no claims
-        is_leader = config.roles[agent_index] == "leader"
+        is_leader = config.roles[agent_index] == Role.LEADER
         self.claimants = [j for j in config.leaders if j < agent_index] if is_leader else []
         self.claimant_movers = [Mover(config, j) for j in self.claimants]
         self.claimant_cells = [allowed_cells(config, j) for j in self.claimants]
