@@ -6,8 +6,9 @@ message as its model where it is made (``Game.welcome``, ``Game.state_message``,
 sent), and ``messages_table`` writes the declaration as docs/SERVER_PROTOCOL.md's table "From the server". Every
 model forbids fields it does not declare, so a new field or message type must be declared here before it is built.
 
-``ENDING_WORDS`` says each ending (``colorgrid.enums.Ending``) in a player's words; ``/api/options`` sends them and
-the pages show them, so the pages hold no list of endings of their own.
+``ENDING_WORDS`` says each ending (``colorgrid.enums.Ending``) in a player's words, and ``ROOM_ERROR_WORDS``,
+``ROOM_CLOSED_WORDS`` and ``SEAT_WORDS`` each room error, room-closed reason and seat status; ``/api/options`` sends
+them and the pages show them, so the pages hold no list of endings or room words of their own.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from typing import Annotated, Literal, Union
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
 
 from colorgrid.enums import Ending, Role
-from server.protocol import GoalView, Mode, RoomClosedReason, RoomSeatStatus, SeatKind, SeatStatus
+from server.protocol import GoalView, Mode, RoomClosedReason, RoomErrorCode, RoomSeatStatus, SeatKind, SeatStatus
 
 ENDING_WORDS: dict[Ending, str] = {
     Ending.COMPLETE: "Game over.",
@@ -33,6 +34,35 @@ ENDING_WORDS: dict[Ending, str] = {
     Ending.SERVER_LOST: "The game was cut short when its server stopped; you will play it again.",
 }
 """Each ending as a page says it (``/api/options``' ``endings``)."""
+ROOM_ERROR_WORDS: dict[RoomErrorCode, str] = {
+    RoomErrorCode.BAD_ROOM_CODE: "That is not a room code: check the link or the code you were sent.",
+    RoomErrorCode.ROOM_NOT_FOUND: "No room with that code is waiting: it may have expired. Ask for a new link.",
+    RoomErrorCode.ROOM_FULL: "That room is full: everyone it needs has joined.",
+    RoomErrorCode.ROOM_STARTED: "That room's game has already started.",
+}
+"""Each room request's ``error`` code as a page says it (``/api/options``' ``room_words.errors``)."""
+ROOM_CLOSED_WORDS: dict[RoomClosedReason, str] = {
+    RoomClosedReason.EXPIRED: "The room closed: its game did not start in time. Open a new one.",
+    RoomClosedReason.SERVER_SHUTDOWN: "The server is restarting: try again in a minute.",
+    RoomClosedReason.FAILED: "The room's game could not start: open a new room.",
+}
+"""Each reason a ``room_closed`` gives as a page says it (``/api/options``' ``room_words.closed``)."""
+SEAT_WORDS: dict[RoomSeatStatus | SeatStatus, str] = {
+    RoomSeatStatus.OPEN: "waiting for a person",
+    RoomSeatStatus.JOINED: "joined",
+    RoomSeatStatus.READY: "ready",
+    SeatStatus.PLAYING: "playing",
+    SeatStatus.RECONNECTING: "reconnecting...",
+    SeatStatus.LEFT: "left: a scripted leader plays on",
+}
+"""Each status of a room's seat (``room``) and of a team game's seat (``seats``) as a page says it beside the seat
+(``/api/options``' ``room_words.seats``)."""
+
+
+def room_words() -> dict[str, dict[str, str]]:
+    """The room's words as ``/api/options`` sends them: ``errors``, ``closed`` and ``seats``, each by its value."""
+    return {name: {member.value: words for member, words in table.items()}
+            for name, table in (("errors", ROOM_ERROR_WORDS), ("closed", ROOM_CLOSED_WORDS), ("seats", SEAT_WORDS))}
 
 AGENT_NAME = re.compile(r"(leader|follower)(_\d+)?")
 """An agent's name (``colorgrid.config.EnvConfig.agent_names``): ``leader``, ``follower_1``, ..."""

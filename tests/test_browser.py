@@ -7,7 +7,8 @@ from playwright.sync_api import expect
 
 from colorgrid.config import COLOR_NAMES
 from colorgrid.enums import Ending
-from server.messages import ENDING_WORDS
+from server.messages import ENDING_WORDS, ROOM_ERROR_WORDS, SEAT_WORDS
+from server.protocol import ROOM_CODE_LENGTH, RoomErrorCode, RoomSeatStatus
 
 
 BAR_COLORS = "els => els.map(e => getComputedStyle(e).backgroundColor)"
@@ -605,6 +606,24 @@ def test_in_a_room_each_person_is_you_in_their_own_seat_and_only_the_opener_shar
     expect(opener.locator("#status")).to_have_text(ENDING_WORDS[Ending.QUIT])
     for context in contexts:
         context.close()
+
+
+def test_the_page_says_room_errors_and_seats_in_the_servers_words(server, browser):
+    """The room's words come from the server (``/api/options``' ``room_words``): the page holds none of its own."""
+    page = browser.new_page()
+    page.goto(server.url + "/?room=" + "A" * ROOM_CODE_LENGTH)  # a code no room has
+    expect(page.locator("#status")).to_have_text(ROOM_ERROR_WORDS[RoomErrorCode.ROOM_NOT_FOUND])
+    page.goto(server.url + "/?room=nope")
+    expect(page.locator("#status")).to_have_text(ROOM_ERROR_WORDS[RoomErrorCode.BAD_ROOM_CODE])
+    expect(page.locator("#setup")).to_be_visible()
+    page.select_option("#team", "2:1")
+    page.click("#start")
+    seats = page.locator("#room-seats li")
+    expect(seats).to_have_count(2)
+    expect(seats.nth(1)).to_contain_text(SEAT_WORDS[RoomSeatStatus.OPEN])
+    page.click("#leave-room")
+    expect(page.locator("#setup")).to_be_visible()
+    page.close()
 
 
 def set_visibility(page, visible: bool) -> None:

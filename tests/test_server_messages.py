@@ -11,8 +11,17 @@ import pytest
 from pydantic import ValidationError
 
 from colorgrid.enums import Ending
-from server.messages import ENDING_WORDS, SERVER_TYPES, messages_table, server_message
+from server.messages import (
+    ENDING_WORDS,
+    ROOM_CLOSED_WORDS,
+    ROOM_ERROR_WORDS,
+    SEAT_WORDS,
+    SERVER_TYPES,
+    messages_table,
+    server_message,
+)
 from server.play.hub import GameHub
+from server.protocol import RoomClosedReason, RoomErrorCode, RoomSeatStatus, SeatStatus
 from server.settings import ServerSettings
 from tests.conftest import ROOT, start_server, stop_server
 from tests.helpers import Inbox
@@ -203,3 +212,13 @@ def test_every_ending_has_words_and_the_options_send_them(server):
     assert set(ENDING_WORDS) == set(Ending) and all(ENDING_WORDS.values())
     options = server.get("/api/options")[0]
     assert options["endings"] == {ending.value: words for ending, words in ENDING_WORDS.items()}
+
+
+def test_every_room_error_closing_and_seat_status_has_words_and_the_options_send_them(server):
+    tables = {"errors": (ROOM_ERROR_WORDS, {*RoomErrorCode}), "closed": (ROOM_CLOSED_WORDS, {*RoomClosedReason}),
+              "seats": (SEAT_WORDS, {*RoomSeatStatus, *SeatStatus})}
+    for table, members in tables.values():
+        assert set(table) == members and all(words.strip() for words in table.values())
+    options = server.get("/api/options")[0]
+    assert options["room_words"] == {name: {member.value: words for member, words in table.items()}
+                                     for name, (table, _) in tables.items()}

@@ -7,7 +7,7 @@ import { PlaySocket } from "./socket.js";
 import { OwnMove } from "./predict.js";
 import { plainEnding, plainError, setEndings, stepsMessage } from "./messages.js";
 import { queryParam } from "./params.js";
-import { drawBeliefs, markYou, openedRoom, plainRoomClosed, plainRoomError, showAgents, showRoom,
+import { drawBeliefs, markYou, openedRoom, plainRoomClosed, plainRoomError, setRoomWords, showAgents, showRoom,
          showScores, showSeats, whoIs } from "./room.js";
 import { answerProbe, drawStated, followerSeat, probeRefused, seatHint, seatKey, seatRequest, showProbeChoice,
          showProbeConfidence, showSeatChoice, showStatedRecord, startSeat } from "./follower_seat.js";
@@ -20,6 +20,7 @@ async function loadOptions() {
   options = await (await fetch("/api/options")).json();
   setLook(options.look);
   setEndings(options.endings);
+  setRoomWords(options.room_words);
   fill($("team"), options.teams, options.teams[0].value);
   fill($("follower"), options.follower_info, options.default_follower);
   fill($("preset"), options.presets.map((v) => ({ value: v, label: v })), options.default_preset);

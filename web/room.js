@@ -5,8 +5,13 @@
 import { agentBadge } from "./board.js";
 
 const $ = (id) => document.getElementById(id);
-const SEAT_WORDS = { open: "waiting for a person", joined: "joined", ready: "ready", playing: "playing",
-                     reconnecting: "reconnecting...", left: "left: a scripted leader plays on" };
+// The room's words: the server's (/api/options' `room_words`: each room error, why a room closed, each seat's
+// status), set once the page has its options. The page keeps no list of them of its own.
+let words = { errors: {}, closed: {}, seats: {} };
+
+export function setRoomWords(roomWords) {
+  words = { ...words, ...roomWords };
+}
 
 // Whether this page opened the room (the opener sits in the first seat): only they are asked to share its link.
 export function openedRoom(msg) {
@@ -29,7 +34,7 @@ export function showRoom(msg, options) {
     const item = document.createElement("li");
     item.dataset.status = seat.status;
     const you = seat.agent === msg.you ? " (you)" : "";
-    item.textContent = `${seat.symbol}${you}: ${SEAT_WORDS[seat.status] ?? seat.status}`;
+    item.textContent = `${seat.symbol}${you}: ${words.seats[seat.status] ?? seat.status}`;
     return item;
   }));
   const mine = msg.seats.find((seat) => seat.agent === msg.you);
@@ -81,7 +86,7 @@ export function showSeats(game, seats) {
   for (const agent of game.look.agents) {
     const seat = seats.find((s) => s.agent === agent.name);
     if (seat && seat.status !== "playing" && agent.name !== game.agent) {
-      notes.push(`${agent.symbol} ${SEAT_WORDS[seat.status]}`);
+      notes.push(`${agent.symbol} ${words.seats[seat.status] ?? seat.status}`);
     }
     document.querySelector(`#agent-scores [data-agent="${agent.name}"] .who`).textContent = whoIs(game, agent.name);
   }
@@ -128,19 +133,10 @@ export function markYou(canvas, cell, width, index) {
 
 // The server's room errors as sentences (null: not a room error).
 export function plainRoomError(msg) {
-  return {
-    bad_room_code: "That is not a room code: check the link or the code you were sent.",
-    room_not_found: "No room with that code is waiting: it may have expired. Ask for a new link.",
-    room_full: "That room is full: everyone it needs has joined.",
-    room_started: "That room's game has already started.",
-  }[msg.code] ?? null;
+  return Object.hasOwn(words.errors, msg.code ?? "") ? words.errors[msg.code] : null;
 }
 
 // A `room_closed` reason as a sentence.
 export function plainRoomClosed(msg) {
-  return {
-    expired: "The room closed: its game did not start in time. Open a new one.",
-    server_shutdown: "The server is restarting: try again in a minute.",
-    failed: "The room's game could not start: open a new room.",
-  }[msg.reason] ?? `The room closed (${msg.reason}).`;
+  return Object.hasOwn(words.closed, msg.reason ?? "") ? words.closed[msg.reason] : `The room closed (${msg.reason}).`;
 }

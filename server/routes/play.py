@@ -14,7 +14,7 @@ from colorgrid.render import look
 from server.backend import CurrentBackend
 from server.connection import Connection
 from server.followers import follower_info, leader_info
-from server.messages import ENDING_WORDS
+from server.messages import ENDING_WORDS, room_words
 from server.protocol import BELIEF_KEYS, KEY_ACTIONS, MAX_HORIZON, ROOM_CODE_LENGTH, GoalView, Mode, SeatKind, Team
 from server.stated import ProbeKind
 
@@ -52,7 +52,7 @@ async def options(backend: CurrentBackend):
             "goal_views": [{"value": g.value, "label": g.label} for g in GoalView],
             "probe_kinds": [{"value": k.value, "label": k.label} for k in ProbeKind],
             "belief_keys": BELIEF_KEYS,
-            "room_code_length": ROOM_CODE_LENGTH,
+            "room_code_length": ROOM_CODE_LENGTH, "room_words": room_words(),
             "horizon": {"default": presets[settings.preset].horizon, "max": MAX_HORIZON},
             "keys": KEY_ACTIONS, "look": look(), "endings": {e.value: words for e, words in ENDING_WORDS.items()},
             "tick_hz": settings.tick_hz, "show_belief": settings.show_belief}
