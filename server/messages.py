@@ -267,7 +267,7 @@ class RoomMessage(_Outgoing):
     horizon: int
     seats: list[RoomSeat]
     you: str = Field(description="this tab's agent")
-    starting_in_s: float | None = Field(description="null; once everyone is ready, the seconds until the game "
+    starting_in_s: int | None = Field(description="null; once everyone is ready, the whole seconds until the game "
                                                     "starts: 3 in real time, 0 turn-based")
 
 
