@@ -20,8 +20,15 @@ RAY_FILES = frozenset({
 
 
 class FileScheduling(LoadScopeScheduling):
-    """Each test file one unit of work, and the Ray files together one unit."""
+    """Each test file one unit of work, and the Ray files together one unit, handed out first: it is the longest
+    (about half the suite's wall time on a 2-core machine), so the other worker runs the rest beside it rather than
+    after it."""
 
     def _split_scope(self, nodeid: str) -> str:
         path = nodeid.split("::", 1)[0]
         return "ray" if path in RAY_FILES else path
+
+    def _assign_work_unit(self, node) -> None:
+        if "ray" in self.workqueue:
+            self.workqueue.move_to_end("ray", last=False)
+        super()._assign_work_unit(node)
