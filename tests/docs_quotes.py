@@ -18,7 +18,7 @@ import re
 
 NUM = r"\d[\d.]*(?:e[+-]?\d+)?"
 SIGNED = r"[+-]\d[\d.]*"
-VERDICTS = ("not reproduced", "in direction only", "inconclusive", "exploratory", "reproduced")
+VERDICTS = ("not reproduced", "in direction only", "inconclusive", "exploratory", "interim", "reproduced")
 QUOTE = re.compile(r"\*{0,2}\b(" + "|".join(VERDICTS) + r")\b\*{0,2} \(([^()]*)\)")
 
 

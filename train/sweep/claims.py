@@ -56,7 +56,7 @@ from train.sweep.baselines import baseline_finals
 from train.sweep.claim_spec import Baseline, Claim, Direction, matches
 from train.sweep.claim_stats import Power, Test, Comparison
 from train.sweep.declared import Declared, read_record, record_folder, status
-from train.sweep.looks import count_looks, read_history
+from train.sweep.looks import count_looks, is_interim, read_history
 
 ALPHA = 0.05
 """The significance level of the family of a file's claims, each tested once (``level``)."""
@@ -69,6 +69,9 @@ class Verdict(str, Enum):
     INCONCLUSIVE = "inconclusive"
     EXPLORATORY = "exploratory"
     """Declared or changed after trials of its configurations finished: printed, never decided."""
+    INTERIM = "interim"
+    """Its sides have fewer seeds than the look the file plans: printed, decided at the planned look (a verdict
+    read on the way would be a look the plan did not make)."""
 
 
 @dataclass(frozen=True)
@@ -141,6 +144,8 @@ class Outcome:
     single_b: int | None = None
     declared: Declared = Declared.UNRECORDED
     """Whether the claim was declared before the data (``train.sweep.declared``)."""
+    interim: bool = False
+    """Its seeds are not a look the file plans (fewer than the plan asks): the verdict waits (``Verdict.INTERIM``)."""
 
     difference = property(lambda self: self.test.difference)
     low = property(lambda self: self.test.low)
@@ -228,8 +233,11 @@ def adjust(outcome: Outcome, p_adjusted: float) -> Outcome:
     after its data)."""
     c = outcome.claim
     decided = verdict(c.direction, outcome.difference, p_adjusted, c.margin, outcome.level)
-    return replace(outcome, p_adjusted=p_adjusted,
-                   verdict=Verdict.EXPLORATORY if outcome.declared is Declared.AFTER else decided)
+    if outcome.declared is Declared.AFTER:
+        decided = Verdict.EXPLORATORY
+    elif outcome.interim:
+        decided = Verdict.INTERIM
+    return replace(outcome, p_adjusted=p_adjusted, verdict=decided)
 
 
 def sides(spec, claim: Claim, trials: pd.DataFrame, results) -> tuple[Side, Side | float, Comparison]:
@@ -262,6 +270,7 @@ def evaluate(spec, trials: pd.DataFrame, history: pd.DataFrame | None = None) ->
         a, b, kind = sides(spec, claim, trials, results)
         seeds_b = () if isinstance(b, float) else b.seeds
         decided = decide(claim, a, b, kind, count_looks(spec, claim, a.seeds, seeds_b, history))
-        outcomes.append(replace(decided, declared=status(spec, claim, trials, declarations)))
+        outcomes.append(replace(decided, declared=status(spec, claim, trials, declarations),
+                                interim=is_interim(spec, claim, a.seeds, seeds_b)))
     adjusted = st.holm([o.decisive_p for o in outcomes])
     return [adjust(o, p) for o, p in zip(outcomes, adjusted)]

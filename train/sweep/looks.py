@@ -84,6 +84,16 @@ def is_look(spec, claim: Claim, seeds_a, seeds_b, planned_a=None, planned_b=None
     return any(a == ra and b == rb for ra, rb in rounds(spec, claim))
 
 
+def is_interim(spec, claim: Claim, seeds_a, seeds_b) -> bool:
+    """Whether a report on these seeds is on the way to a look the file plans: every seed of each side within the
+    plan, some of them not finished yet, and not a look itself (a round's seeds all in). Its verdict waits."""
+    a, b = frozenset(seeds_a), frozenset(seeds_b)
+    if not a or is_look(spec, claim, a, b):
+        return False
+    plan_a, plan_b = rounds(spec, claim)[-1]
+    return a <= plan_a and b <= plan_b
+
+
 def count_looks(spec, claim: Claim, seeds_a=(), seeds_b=(), history: pd.DataFrame | None = None) -> int:
     """``claim``'s looks: the file's plan, or the distinct sets of seeds the record and this report (on ``seeds_a``
     and ``seeds_b``) decided at a look, whichever is more."""

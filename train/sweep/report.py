@@ -184,7 +184,8 @@ def render(spec: SweepSpec, trials: pd.DataFrame, curves: pd.DataFrame, out: Pat
         f"direction, adjusted p < level), in direction only (the paper's direction, not shown: undecided), not "
         f"reproduced (the opposite, adjusted p < level), inconclusive otherwise. A claim declared or changed after "
         f"trials of its configurations finished ({DECLARED_FILE}, written by sweep run) is exploratory: its "
-        f"figures are printed, its verdict is not given.", "",
+        f"figures are printed, its verdict is not given. A claim whose seeds fall short of the look the file plans "
+        f"(trials still to run) is interim: its figures are printed, its verdict waits for that look.", "",
         format_claims(outcomes), ""]
     text = "\n".join([
         f"# Sweep {spec.name}", "",
