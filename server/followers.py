@@ -139,6 +139,9 @@ class FollowerPool:
         self.worker = worker
         self.policy = self._new_policy()
         self.policy.reset(config, capacity, agent_index=agent_index, seed=seed)
+        # whether its moves come with a belief over the goal (its card says; a checkpoint is taken to): a missed
+        # deadline repeats the last belief, or before the first, the uniform one it starts from (``Game.apply``)
+        self.has_belief = policy_info(name, config.roles[agent_index])["has_belief"]
         self.idle = IdleFollower()
         self.idle.reset(config, capacity, agent_index=agent_index, seed=seed + 1)
         self.capacity = capacity

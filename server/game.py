@@ -237,8 +237,10 @@ class Game:
             joint[0, agent] = action
             player = self.ai[agent]
             player.fresh = False
-            if belief is None and miss and player.beliefs:
-                belief = player.beliefs[-1]  # the deadline was missed: the belief repeats the last one
+            if belief is None and miss and player.pool.has_belief:  # the deadline was missed: the belief repeats
+                # the last one, or before the first, is the uniform one the follower starts from (no step seen),
+                # so the belief track keeps a row a step (the replay's ``meta.deadline_misses`` says which)
+                belief = player.beliefs[-1] if player.beliefs else [1.0 / self.config.num_colors] * self.config.num_colors
             if belief is not None:
                 player.beliefs.append([round(float(p), 5) for p in belief])
             missed |= miss

@@ -445,13 +445,14 @@ def test_real_time_starts_after_a_3_2_1_countdown(server, browser):
     page.select_option("#follower", "copy")
     page.select_option("#mode", "realtime")
     page.fill("#horizon", "200")
+    before = server.get("/api/health")[0]["games"]  # games other pages of this server left going, if any
     page.click("#start")
     countdown = page.locator("#countdown")
     expect(countdown).to_have_text("3")
     expect(page.locator("#setup")).to_be_hidden()
     page.keyboard.press("ArrowUp")  # keys before "go" count for nothing
     expect(countdown).to_have_text("2")
-    assert server.get("/api/health")[0]["games"] == 0, "no world moves during the countdown"
+    assert server.get("/api/health")[0]["games"] == before, "no world moves during the countdown"
     expect(countdown).to_have_text("1")
     expect(page.locator("#game")).to_be_hidden()
     expect(countdown).to_have_text("go")

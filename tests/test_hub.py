@@ -158,6 +158,59 @@ def test_inference_runs_in_its_own_process_and_a_killed_one_costs_one_step_not_t
     assert replay.meta["deadline_misses"] == [4]
 
 
+def test_a_follower_that_misses_its_first_step_starts_its_belief_uniform_and_keeps_a_row_a_step(tmp_path):
+    """Kill the inference process before the first step: that step's move is the fallback and the follower has no
+    belief yet, so its belief is the uniform one it starts from; the replay keeps a belief for every step (a
+    loaded machine that misses the first deadline lost the whole belief track before)."""
+    import os
+    import signal
+
+    async def scenario():
+        hub = make_hub(tmp_path, inference_deadline_ms=30_000)  # only the dead process may cost a move, not load
+        game, client = await start(hub, "bayes", horizon=6)
+        os.kill(hub.inference.pid, signal.SIGKILL)
+        await until(lambda: not hub.inference._process.is_alive())
+        await hub.key(game, "ArrowRight", 0, 0.0)  # the fallback move, with no belief of its own
+        first_state = client.last("state")
+        await asyncio.get_running_loop().run_in_executor(hub.executor, hub.inference.call, "ping")
+        for t in range(1, 6):
+            await hub.key(game, "ArrowLeft" if t % 2 else "ArrowDown", t, 0.0)
+        await hub.stop()
+        return game, client, first_state
+
+    game, client, first_state = asyncio.run(scenario())
+    over = client.last("game_over")
+    assert over["reason"] == "complete" and game.deadline_misses == [0]
+    third = pytest.approx([1 / 3] * 3, abs=1e-5)  # beliefs are kept to 5 decimals
+    assert first_state["belief"] == third  # the page shows it from the first step
+    replay = load(tmp_path / f"{over['replay_id']}.replay.json")
+    beliefs = replay.goal_probs["follower"]
+    assert len(beliefs) == 6 and beliefs[0] == third
+    assert all(sum(b) == pytest.approx(1.0, abs=1e-4) for b in beliefs)
+
+
+def test_a_follower_without_a_belief_gets_none_for_a_missed_step(tmp_path):
+    """The copy follower holds no belief: a missed step gives it none (not a made-up uniform one)."""
+    import os
+    import signal
+
+    async def scenario():
+        hub = make_hub(tmp_path, inference_deadline_ms=30_000)
+        game, client = await start(hub, "copy", horizon=2)
+        if hub.inference.pid is not None:
+            os.kill(hub.inference.pid, signal.SIGKILL)
+            await until(lambda: not hub.inference._process.is_alive())
+        for t in range(2):
+            await hub.key(game, "ArrowRight", t, 0.0)
+        await hub.stop()
+        return client
+
+    client = asyncio.run(scenario())
+    over = client.last("game_over")
+    assert client.last("state")["belief"] is None
+    assert "follower" not in load(tmp_path / f"{over['replay_id']}.replay.json").goal_probs
+
+
 def test_an_inference_process_that_cannot_start_is_tried_again_after_a_growing_wait():
     """Not spawned again on every call (each spawn costs a second of CPU): calls fail at once while it waits."""
     from server.inference import InferenceLost, InferenceWorker
