@@ -50,3 +50,101 @@ def baseline_finals(results: Path | None, name: str, metric: str) -> dict[int, f
         raise SweepError(f"baseline {name!r} in {path} has no {figure} for each of its seeds (the claim's column "
                          f"{metric!r})")
     return {int(s) - EVALUATION_SEED_OFFSET: float(v) for s, v in zip(kept["seeds"], values)}
+
+
+FIGURES = ("net_pickups", "wrong_pickups", "goal_pickups", "block_reward")
+"""The follower's figures kept per seed for each baseline (``<figure>_per_seed``), and their means."""
+
+
+def declared_baselines(spec) -> list:
+    """The baselines (``claim_spec.Baseline``) the claims of sweep ``spec`` compare with, then those its
+    ``baselines`` list adds, each once, in file order."""
+    from train.sweep.claim_spec import Baseline
+
+    return list(dict.fromkeys([*(claim.b for claim in spec.claims if isinstance(claim.b, Baseline)), *spec.baselines]))
+
+
+def partner_of(baseline, config) -> str:
+    """The policy name of ``baseline``'s partner: the one of the trials' ``eval_partners`` whose evaluation stream it
+    names (``population_people_held_out``: ``population:people#held_out``), or else a policy name itself (``ippo-leader``:
+    a training partner, whose trials' main ``eval`` stream plays the same seeds); a one-line ``SweepError`` otherwise."""
+    from colorgrid.policies.names import read_name
+    from train.config import eval_stream
+
+    streams = {eval_stream(partner).removeprefix("eval_"): partner for partner in config.eval_partners}
+    if baseline.partner in streams:
+        return streams[baseline.partner]
+    if read_name(baseline.partner) is not None:
+        return baseline.partner
+    raise SweepError(f"baseline {baseline.name!r}: its partner {baseline.partner!r} is neither a policy name nor one "
+                     f"of the trials' evaluation partners ({sorted(streams) or 'eval_partners is empty'})")
+
+
+def compute_baselines(spec, say=print) -> dict:
+    """What ``colorgrid sweep baselines FILE`` keeps as ``baselines.json``: each baseline the file's claims name,
+    its policy as the follower beside its partner, evaluated on each trial seed's evaluation seed with the trials'
+    environment and episode count (``colorgrid.evaluate.evaluate``, as ``colorgrid eval --leader PARTNER --follower
+    POLICY --episodes E --seed S``): the same episodes a trial of that seed is evaluated on."""
+    from colorgrid.evaluate import evaluate
+
+    baselines = declared_baselines(spec)
+    if not baselines:
+        raise SweepError(f"{spec.path}: no claim compares with a baseline (b = {{ baseline = '<partner>/<policy>' }}) "
+                         "and it lists no baselines = ['<partner>/<policy>', ...]")
+    config = spec.config(spec.configurations()[0], spec.all_seeds[0])
+    seeds = [evaluation_seed(s) for s in spec.all_seeds]
+    kept = {}
+    for baseline in baselines:
+        partner = partner_of(baseline, config)
+        per_seed = {figure: [] for figure in FIGURES}
+        for seed in seeds:
+            report = evaluate(config.env, partner, baseline.policy, config.eval_episodes, seed)
+            follower = report["agents"]["follower"]
+            for figure in FIGURES:
+                per_seed[figure].append(float(follower[figure]["mean"]))
+            say(f"{baseline.name}: seed {seed}: net pickups {per_seed['net_pickups'][-1]:+.2f}, "
+                f"wrong pickups {per_seed['wrong_pickups'][-1]:.2f}")
+        kept[baseline.name] = {**{f"{figure}_per_seed": values for figure, values in per_seed.items()},
+                               **{figure: sum(values) / len(values) for figure, values in per_seed.items()}}
+    return {"command": f"colorgrid sweep baselines {spec.path.name} ({config.eval_episodes} episodes a seed, env "
+                       "seeded as each trial's evaluation: 1,000,000 + the trial's seed)",
+            "seeds": seeds, "episodes": config.eval_episodes, "baselines": kept}
+
+
+def baseline_differences(computed: dict, kept: dict) -> list[str]:
+    """Where a kept ``baselines.json`` differs from what the command gives now: one line each (a figure of a
+    baseline at a seed, a baseline or seed missing); empty when every kept figure is reproduced."""
+    out = []
+    if kept.get("seeds") != computed["seeds"]:
+        out.append(f"seeds: kept {kept.get('seeds')}, computed {computed['seeds']}")
+    for name, figures in computed["baselines"].items():
+        old = kept.get("baselines", {}).get(name)
+        if old is None:
+            out.append(f"{name}: not kept")
+            continue
+        for key, values in figures.items():
+            if key in old and old[key] != values:
+                out.append(f"{name} {key}: kept {old[key]}, computed {values}")
+    return out
+
+
+def write_baselines(spec, check: bool = False, say=print) -> int:
+    """``colorgrid sweep baselines FILE [--check]``: compute the file's baselines and write them to its results
+    folder's ``baselines.json`` (0), or with ``check`` compare them with the kept file and say what differs (1 if
+    anything does, 0 if every kept figure is reproduced)."""
+    if spec.results is None:
+        raise SweepError(f"{spec.path}: no results folder ('results = ...'): baselines are kept beside its results")
+    path = Path(spec.results) / BASELINES_FILE
+    if check and not path.is_file():
+        raise SweepError(f"{path} does not exist: run colorgrid sweep baselines {spec.path} first")
+    computed = compute_baselines(spec, say)
+    if check:
+        differences = baseline_differences(computed, json.loads(path.read_text()))
+        for line in differences:
+            say(line)
+        say(f"{path}: " + (f"{len(differences)} difference(s)" if differences else "every kept figure reproduced"))
+        return 1 if differences else 0
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(computed, indent=1) + "\n")
+    say(f"wrote {path}; commit it with the file's results")
+    return 0

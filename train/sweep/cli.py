@@ -10,10 +10,11 @@ def add_sweep_commands(sub) -> None:
                                        "and the seeds; each trial is an ordinary training run. Example: colorgrid "
                                        "sweep run sweeps/paper_table1_small.toml, then colorgrid sweep report "
                                        "runs/sweeps/paper_table1_small")
-    sweep.add_argument("action", choices=["run", "resume", "report", "publish", "check"],
+    sweep.add_argument("action", choices=["run", "resume", "report", "publish", "check", "baselines"],
                        help="run FILE | resume DIR | report DIR or FILE | publish DIR (keep its finished trials' "
                             "results in the file's results folder, and report them there) | check FILE (validate "
-                            "and list the trials)")
+                            "and list the trials) | baselines FILE (evaluate the baselines its claims name on each "
+                            "trial seed's evaluation episodes, into its results folder's baselines.json)")
     sweep.add_argument("path", help="run, check: a sweep file (.toml) or a shipped one's name (paper_table1_small); "
                                     "resume, publish: a sweep's folder; report: a sweep's folder, or a sweep file "
                                     "(the results kept in its results folder)")
@@ -26,6 +27,9 @@ def add_sweep_commands(sub) -> None:
     sweep.add_argument("--stop-after", type=float, metavar="SECONDS",
                        help="run --local: stop every trial with a checkpoint after this many seconds")
     sweep.add_argument("--num-cpus", type=int, help="run, resume: CPUs of the local Ray instance (default: all)")
+    sweep.add_argument("--check", action="store_true",
+                       help="baselines: compare with the kept baselines.json instead of writing it (exit 1 if a "
+                            "figure differs)")
     sweep.set_defaults(func=cmd_sweep)
 
 
@@ -34,6 +38,8 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
     if args.num_cpus is not None and args.num_cpus < 1:
         raise ValueError(f"--num-cpus must be >= 1, got {args.num_cpus}")
+    if args.check and args.action != "baselines":
+        raise ValueError("--check is for sweep baselines")
     if args.action == "check":
         spec = load_sweep(args.path, args.out)
         spec.check_files()
@@ -41,6 +47,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
               + (f", {len(spec.claims)} claims" if spec.claims else "")
               + (f", results kept in {spec.results}" if spec.results else ""))
         return 0
+    if args.action == "baselines":
+        from train.sweep.baselines import write_baselines
+
+        return write_baselines(load_sweep(args.path, args.out), check=args.check)
     if args.action == "report":
         from train.sweep.report import write_report
 

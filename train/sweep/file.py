@@ -250,6 +250,9 @@ class SweepFile(Table):
     """``[[claim]]``: the paper's claims to decide (``train.sweep.claim_spec``)."""
     results: str | None = None
     """A folder of finished trials' results kept with the project (``sweep publish`` writes it)."""
+    baselines: tuple[str, ...] = ()
+    """Baselines (``<partner>/<policy>``) kept beside the results besides those the claims name, to show beside the
+    arms: ``colorgrid sweep baselines`` evaluates both into the results folder's ``baselines.json``."""
 
     def __post_init__(self):
         for name in ("description", "preset", "out"):
@@ -274,6 +277,8 @@ class SweepFile(Table):
         if not isinstance(self.claim, tuple):
             refuse(self, "claim", "a list of tables: [[claim]] name = ..., a = {...}, b = {...} or a number, "
                                   "expect = '>', '<' or '~'")
+        if not isinstance(self.baselines, tuple) or not all(isinstance(b, str) for b in self.baselines):
+            refuse(self, "baselines", "a list of '<partner>/<policy>' strings, e.g. ['astar/copy']")
         if self.results is not None and (not isinstance(self.results, str) or not self.results.strip()):
             refuse(self, "results", "a folder for the finished trials' results, e.g. 'docs/reproduction/x'")
 

@@ -22,7 +22,7 @@ from pathlib import Path
 from colorgrid.configkit import ConfigError, from_dict, read_toml, resolve_data
 from train.config import TrainConfig, load_preset, parse_override, resolve
 from train.sweep.checks import SweepError, bad
-from train.sweep.claim_spec import matches, parse_claims
+from train.sweep.claim_spec import Baseline, matches, parse_claims
 from train.sweep.file import KINDS, RANDOM_KINDS, MoreSeeds, PaperFigure, ParamTable, Resources, Scheduler, SweepFile
 from train.sweep.spec_checks import check_configs, check_metric, more_seeds, paper_figure, summarised_columns
 
@@ -91,6 +91,9 @@ class SweepSpec:
     results: Path | None = None
     """A folder of finished trials' results kept with the project (``sweep publish`` writes it): ``sweep run``
     skips the trials whose results it holds, and ``sweep report`` reads them with the sweep's own."""
+    baselines: tuple = ()
+    """Baselines kept beside the results besides those the claims name (``claim_spec.Baseline``): rows to show
+    beside the arms (``colorgrid sweep baselines`` evaluates both)."""
     description: str = ""
     text: str = ""
     """The file as read (kept in the sweep's folder, so that ``sweep resume`` rebuilds the same trials)."""
@@ -274,7 +277,8 @@ def parse_sweep(data: dict, path: Path, text: str = "", out: str | Path | None =
         mode=file.mode, final_window=file.final_window, num_samples=file.num_samples,
         out=Path(out if out is not None else file.out or f"runs/sweeps/{path.stem}"), resources=file.resources,
         scheduler=file.scheduler, description=file.description, text=text,
-        results=Path(file.results) if file.results else None)
+        results=Path(file.results) if file.results else None,
+        baselines=tuple(Baseline(name) for name in file.baselines))
     check_configs(spec)
     check_metric(spec)
     spec = dataclasses.replace(spec, paper=tuple(paper_figure(spec, i, row) for i, row in enumerate(file.paper)),
