@@ -726,6 +726,25 @@ def test_the_shipped_leader_reproduces_its_card_and_collects_goal_blocks():
     assert net["mean"] - net["ci95"] > 0, net
 
 
+@pytest.mark.parametrize("stage", ["0.2M", "0.4M", "0.8M", "2.5M"])
+def test_each_leader_stage_reproduces_its_card(stage):
+    """The training partners at several skill levels (checkpoints/leader_stages): each card's row beside the idle
+    follower, by the name the trainer registers for it."""
+    from colorgrid.evaluate import evaluate
+
+    report = evaluate(EnvConfig(), f"ippo-leader-{stage}", "idle", episodes=100, seed=0)
+    assert_reproduces(report, card_report(f"leader_stages/leader_{stage}",
+                                          f"checkpoints/leader_stages/leader_{stage}.pt", "idle"))
+
+
+def test_the_leader_stages_rise_in_skill():
+    """Saved along one run, each later stage collects more net goal blocks than the one before (the cards' rows:
+    100 episodes each, intervals apart), so a population of them is partners at several skill levels."""
+    nets = [card_report(f"leader_stages/leader_{stage}", f"checkpoints/leader_stages/leader_{stage}.pt",
+                        "idle")["agents"]["leader"]["net_pickups"] for stage in ("0.2M", "0.4M", "0.8M", "2.5M")]
+    assert all(a["mean"] + a["ci95"] < b["mean"] - b["ci95"] for a, b in zip(nets, nets[1:])), nets
+
+
 EXACT_TRAINING_TESTS = ["test_fast_encoder_patches", "test_lstm_log_probs_recomputed",
                         "test_resume_continues_exactly", "test_two_learners_updating_side_by_side",
                         "test_resume_with_the_follower_updating_in_its_process",

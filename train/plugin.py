@@ -24,6 +24,13 @@ SHIPPED = {"ippo": "follower.pt", "ippo-people": "follower_people.pt", "ippo-cau
 """Trained agents that ship in ``checkpoints/``, by name: the IPPO follower (trained beside A*), the same follower
 trained further beside a population of person-like leaders, that one trained further to take fewer wrong blocks,
 the IPPO leader, and the followers of the 1:2 and 2:1 teams (see their model cards)."""
+LEADER_STAGES = {"0.2M": "an early stage: heads for blocks, a third of its pickups wrong",
+                 "0.4M": "a novice: about one wrong block in five pickups",
+                 "0.8M": "an intermediate stage: about 3 wrong blocks an episode",
+                 "2.5M": "the end of its run: as good as the trained leader"}
+"""Leaders saved along one training run (``checkpoints/leader_stages/``, their model cards beside them), shipped as
+training partners at several skill levels: ``ippo-leader-0.2M`` and so on, by the steps each had trained."""
+SHIPPED.update({f"ippo-leader-{stage}": f"leader_stages/leader_{stage}.pt" for stage in LEADER_STAGES})
 SHIPPED_CARDS = {
     "ippo": PolicyCard(follow=Part("Trained assistant (IPPO)",
                                    "learned from play beside a scripted leader; reads the goal from your moves"),
@@ -47,6 +54,8 @@ SHIPPED_CARDS = {
                               follow=Part("Trained leader (IPPO)",
                                           "the trained leader playing the follower's part: for researchers"),
                               belief=True, teams=("1:1",)),
+    **{f"ippo-leader-{stage}": PolicyCard(lead=Part(f"Trained leader (IPPO) at {stage} steps", words),
+                                          belief=True, teams=("1:1",)) for stage, words in LEADER_STAGES.items()},
 }
 """What each shipped agent says of itself (``colorgrid.policies.PolicyCard``): how the play page calls it, the team
 it plays, and its place in the page's follower menu (the trained leader is offered there only when named)."""
