@@ -1,6 +1,6 @@
 """What every agent may see of the previous step: the bookkeeping behind ``AgentInput``, in one place.
 
-Rollouts, the trainer, the play server's games and its follower pools all keep the same
+Rollouts, the trainer, the play server's games and its policy pools all keep the same
 four things between steps (the reward each agent saw, the color each collected, everyone's
 actions, which envs start an episode) and build each agent's ``AgentInput`` from them.
 """

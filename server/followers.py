@@ -1,4 +1,4 @@
-"""Follower pools: one policy instance serves one agent index of every live game of the same kind, in one
+"""Policy pools: one policy instance serves one agent index of every live game of the same kind, in one
 batched call; and what the play page shows of each AI follower and AI leader and which teams each plays, read from
 what each policy says of itself (``colorgrid.policies.PolicyCard``)."""
 
@@ -121,7 +121,7 @@ def card_origin(checkpoint: str) -> str | None:
     return found.group(1).partition(", ")[2] if found else None
 
 
-class FollowerPool:
+class PolicyPool:
     """A policy playing agent ``agent_index`` (a follower, an AI leader beside a person, or the scripted leader in
     the seat of a person who left), with one row ("slot") per concurrent game of one config.
 
@@ -191,7 +191,7 @@ class FollowerPool:
 
     def acquire(self) -> int:
         if not self.free:
-            raise RuntimeError(f"follower pool {self.name!r} is full")
+            raise RuntimeError(f"policy pool {self.name!r} is full")
         return self.free.pop()
 
     def release(self, slot: int) -> None:

@@ -127,7 +127,7 @@ class Game:
         self.ai[agent] = AIPlayer(agent, pool, slot, view=view)
 
     def describe_ai(self) -> dict[int, dict]:
-        """Each AI player's ``agents`` entry for this game's replay (``FollowerPool.describe`` of its slot): asked
+        """Each AI player's ``agents`` entry for this game's replay (``PolicyPool.describe`` of its slot): asked
         before the slots are given back, while each still holds what this game had (a population's member)."""
         return {agent: player.pool.describe(player.slot) for agent, player in self.ai.items()}
 

@@ -1,6 +1,6 @@
 """Follower inference in a process of its own.
 
-Every follower pool's policy lives in one worker process; the server's inference thread sends it
+Every policy pool's policy lives in one worker process; the server's inference thread sends it
 a batch and waits on the pipe (without the GIL) for the actions. A batched call then never waits
 for the event loop to hand back the GIL between torch operations, and the event loop never waits
 for inference: the two share no interpreter lock, only the CPUs.
@@ -142,7 +142,7 @@ _ids = count()
 
 
 class RemotePolicy(Policy):
-    """A policy built and run in the worker, behind the ``Policy`` interface the follower pools use."""
+    """A policy built and run in the worker, behind the ``Policy`` interface the policy pools use."""
 
     def __init__(self, worker: InferenceWorker, name: str, role: str | None):
         self.worker, self.name, self.role = worker, name, role

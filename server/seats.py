@@ -65,7 +65,7 @@ class AIPlayer:
     """An agent played by a policy: its slot in the pool built for its agent index."""
 
     agent: int
-    pool: object = field(repr=False)  # the FollowerPool serving this agent index
+    pool: object = field(repr=False)  # the PolicyPool serving this agent index
     slot: int
     beliefs: list = field(default_factory=list)  # [t][C] the policy's belief when acting, when it gives one
     fresh: bool = True  # no step acted yet: its first input starts an episode (clears the slot's memory)

@@ -79,15 +79,15 @@ def test_follower_pools_nobody_uses_are_freed_but_the_default_stays(tmp_path):
         for follower in ("copy", "bayes"):
             game, _ = await start(hub, follower)
             await hub.finish(game, "quit")
-        assert len(hub.pools) == 2
+        assert len(hub.pools.by_key) == 2
         await hub.sweep()
-        assert len(hub.pools) == 2  # just used: kept
-        for pool in hub.pools.values():
+        assert len(hub.pools.by_key) == 2  # just used: kept
+        for pool in hub.pools.by_key.values():
             pool.last_release -= hub_module.POOL_IDLE_S + 1
         busy, _ = await start(hub, "oracle")
-        list(hub.pools.values())[-1].last_release -= hub_module.POOL_IDLE_S + 1  # idle long, but a game runs
+        list(hub.pools.by_key.values())[-1].last_release -= hub_module.POOL_IDLE_S + 1  # idle long, but a game runs
         await hub.sweep()
-        kept = sorted(key[0] for key in hub.pools)
+        kept = sorted(key[0] for key in hub.pools.by_key)
         await hub.stop()
         return kept
 

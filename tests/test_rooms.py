@@ -341,14 +341,14 @@ def test_followers_of_team_games_share_one_pool_per_agent_index(tmp_path):
         hub = GameHub(ServerSettings(replays_dir=tmp_path, follower="copy"))
         games = [await hub.new_game(GameRequest(follower="bayes", mode="turn", horizon=5, team="1:2"), Inbox()) for _ in range(3)]
         calls = []
-        for pool in hub.pools.values():
+        for pool in hub.pools.by_key.values():
             real = pool.act
             pool.act = lambda inputs, slots, real=real, pool=pool: calls.append((pool.agent_index, len(slots))) \
                 or real(inputs, slots)
         for game in games:
             game.press("ArrowUp", 0, 0.0)
         await hub.step_games(games)
-        keys = sorted((k[0], k[2]) for k in hub.pools)
+        keys = sorted((k[0], k[2]) for k in hub.pools.by_key)
         await hub.stop()
         return calls, keys, games
 

@@ -1,4 +1,4 @@
-"""The clock: real-time games step together on one tick per rate, each step one batched call per follower pool
+"""The clock: real-time games step together on one tick per rate, each step one batched call per policy pool
 within the inference deadline (a miss takes the fallback move and is recorded); the tick's lateness is measured."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import logging
 import time
 
 from colorgrid.enums import Ending
-from server.followers import FollowerPool
+from server.followers import PolicyPool
 from server.game import Game
 from server.inference import InferenceLost
 from server.play.ending import Finisher
@@ -67,7 +67,7 @@ class Clock:
                 elif g.finished:
                     await self.finisher.finish(g, Ending.COMPLETE)  # never raises: one game's failure is its own
 
-    async def _infer(self, pool: FollowerPool, inputs, slots):
+    async def _infer(self, pool: PolicyPool, inputs, slots):
         """Run the pool within the deadline; on a miss, fall back to idle moves and say so."""
         deadline = self.live.settings.inference_deadline_ms / 1000.0
         if pool.pending is None or pool.pending.done():

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from colorgrid.config import FOLLOWER, EnvConfig
 from colorgrid.enums import Ending, SeatFit
-from server.followers import FollowerPool
+from server.followers import PolicyPool
 from server.game import Game, Seat
 from server.play.clock import Clock
 from server.play.ending import Finisher
@@ -31,7 +31,7 @@ SWEEP_EVERY_S = 0.5
 
 class GameHub:
     """Owns all games and waiting rooms. Real-time games advance together on one clock (``tick_hz``), with one
-    batched call per follower pool per tick; turn-based games advance once every person has moved.
+    batched call per policy pool per tick; turn-based games advance once every person has moved.
 
     An application plugs in through ``source`` (who chooses a new game: the player, or a study) and ``listeners``
     (told of each game's start and end)."""
@@ -40,10 +40,10 @@ class GameHub:
         self.settings = settings
         self.live = Live(settings)
         self.offer = Offer(settings)
-        self.pool_keeper = Pools(settings, self.offer, self.live.stats)
+        self.pools = Pools(settings, self.offer, self.live.stats)
         self.finisher = Finisher(self.live)
-        self.clock = Clock(self.live, self.pool_keeper, self.finisher)
-        self.sessions = Sessions(self.live, self.pool_keeper, self.clock, self.finisher)
+        self.clock = Clock(self.live, self.pools, self.finisher)
+        self.sessions = Sessions(self.live, self.pools, self.clock, self.finisher)
         self.lobby = Lobby(self.live, self.offer, self.sessions)
         self.source: GameSource = FreePlay()
         self._tasks: list[asyncio.Task] = []  # the sweeper and the warm-up
@@ -54,17 +54,16 @@ class GameHub:
     stats = property(lambda self: self.live.stats, doc="Ticks, lateness, deadline misses, games saved (health).")
     stopped = property(lambda self: self.live.stopped, doc="Whether ``stop`` ran: no game starts any more.")
     lateness_ms = property(lambda self: self.clock.lateness_ms, doc="The last ticks' lateness.")
-    pools = property(lambda self: self.pool_keeper.pools, doc="(kind, config, agent index) -> each follower pool.")
-    inference = property(lambda self: self.pool_keeper.inference, doc="The process every pool's policy runs in.")
-    executor = property(lambda self: self.pool_keeper.executor, doc="The thread that waits on the inference process.")
-    ready = property(lambda self: self.pool_keeper.ready, doc="Whether the offered followers are warmed up.")
+    inference = property(lambda self: self.pools.inference, doc="The process every pool's policy runs in.")
+    executor = property(lambda self: self.pools.executor, doc="The thread that waits on the inference process.")
+    ready = property(lambda self: self.pools.ready, doc="Whether the offered followers are warmed up.")
     listeners = property(lambda self: self.finisher.listeners, doc="Told of each game's start and end.")
 
     # ------------------------------------------------------------ lifecycle
     def start(self) -> None:
         """Start the sweeper, the followers' warm-up and the server's clock (in the event loop)."""
         Path(self.settings.replays_dir).mkdir(parents=True, exist_ok=True)
-        self._tasks = [asyncio.create_task(self._sweep_loop()), asyncio.create_task(self.pool_keeper.warm_up())]
+        self._tasks = [asyncio.create_task(self._sweep_loop()), asyncio.create_task(self.pools.warm_up())]
         self.clock.run(self.settings.tick_hz)
 
     async def stop(self) -> list[Client]:
@@ -95,7 +94,7 @@ class GameHub:
                 await self.finish(game, Ending.SERVER_SHUTDOWN)
             except Exception:
                 log.exception("could not finish game %s at shutdown", game.game_id)
-        await self.pool_keeper.close()
+        await self.pools.close()
         self.finisher.close()
         return told
 
@@ -109,11 +108,11 @@ class GameHub:
 
     async def sweep(self) -> None:
         """People gone past the rejoin grace or idle too long leave their games (the last one's leaving ends
-        it); rooms waiting too long close; follower pools nobody uses are freed."""
+        it); rooms waiting too long close; policy pools nobody uses are freed."""
         now = time.monotonic()
         await self.sessions.sweep(now)
         await self.lobby.expire(now)
-        self.pool_keeper.free_idle()
+        self.pools.free_idle()
 
     # ------------------------------------------------------------ what a player may choose
     make_config = staticmethod(make_config)
@@ -130,9 +129,9 @@ class GameHub:
         """The offered AI leaders beside a person in ``team``'s follower seat (``Offer.seat_leaders``)."""
         return self.offer.seat_leaders(team)
 
-    async def pool_for(self, follower: str, config: EnvConfig, agent_index: int = FOLLOWER) -> FollowerPool:
+    async def pool_for(self, follower: str, config: EnvConfig, agent_index: int = FOLLOWER) -> PolicyPool:
         """The pool for this follower, config and agent index (``Pools.pool_for``)."""
-        return await self.pool_keeper.pool_for(follower, config, agent_index)
+        return await self.pools.pool_for(follower, config, agent_index)
 
     def live_games(self) -> int:
         """Games in play or past their last step but not yet saved (each holds its followers' slots)."""

@@ -1,7 +1,8 @@
-"""Follower pools: built on the inference thread, warmed and timed at start-up, freed when no game uses them.
+"""Policy pools (AI followers, AI leaders, stand-ins): built on the inference thread, warmed and timed at start-up,
+freed when no game uses them.
 
 One pool serves one policy at one agent index of one config, for every live game that plays it, in one batched call
-(``server.followers.FollowerPool``); every pool's policy runs in the inference process (``server.inference``).
+(``server.followers.PolicyPool``); every pool's policy runs in the inference process (``server.inference``).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from functools import partial
 
 from colorgrid.config import FOLLOWER, LEADER, EnvConfig
 from colorgrid.enums import Role, SeatFit
-from server.followers import FollowerPool, is_scripted
+from server.followers import PolicyPool, is_scripted
 from server.inference import InferenceLost, InferenceWorker
 from server.play.offer import Offer, make_config
 from server.protocol import GameRequest, Mode, Team
@@ -24,7 +25,7 @@ from server.seats import leader_seats
 from server.settings import ServerSettings
 
 log = logging.getLogger("colorgrid.server")
-POOL_IDLE_S = 120.0  # a follower pool with no game for this long is freed (the default follower's stay)
+POOL_IDLE_S = 120.0  # a policy pool with no game for this long is freed (the default follower's stay)
 
 
 class Warmed(StrEnum):
@@ -36,14 +37,15 @@ class Warmed(StrEnum):
 
 
 class Pools:
-    """This process's follower pools, the thread that waits on them and the inference process that runs them.
+    """This process's policy pools (``by_key``), the thread that waits on them and the inference process that runs
+    them.
 
     Pools of ``kept_kinds`` are never freed: the default follower's, and the trained followers' and AI leaders'
     (building one again would stall the inference thread)."""
 
     def __init__(self, settings: ServerSettings, offer: Offer, stats: dict):
         self.settings, self.offer, self.stats = settings, offer, stats
-        self.pools: dict[tuple, FollowerPool] = {}  # (kind, config, agent index) -> its pool
+        self.by_key: dict[tuple, PolicyPool] = {}  # (kind, config, agent index) -> its pool
         self._loading: dict[tuple, asyncio.Future] = {}
         self.ready = False  # the default follower and the compiled env step are loaded
         self.executor = ThreadPoolExecutor(max_workers=1, thread_name_prefix="follower")  # waits on the worker
@@ -51,16 +53,16 @@ class Pools:
         self.warmed_followers = {settings.follower, *(f for f in settings.follower_choices if not is_scripted(f))}
         self.kept_kinds = {*self.warmed_followers, *(kind for kind in settings.leaders if not is_scripted(kind))}
 
-    async def pool_for(self, follower: str, config: EnvConfig, agent_index: int = FOLLOWER) -> FollowerPool:
+    async def pool_for(self, follower: str, config: EnvConfig, agent_index: int = FOLLOWER) -> PolicyPool:
         """The pool for this follower, config and agent index, built on the inference thread (loading never
         blocks the loop)."""
         key = (follower, config, agent_index)
-        if key in self.pools:
-            return self.pools[key]
+        if key in self.by_key:
+            return self.by_key[key]
         loading = self._loading.get(key)
         if loading is None:  # the first game to ask builds it; games arriving meanwhile wait for the same one
             loading = asyncio.get_running_loop().run_in_executor(
-                self.executor, partial(FollowerPool, follower, config, self.settings.max_sessions,
+                self.executor, partial(PolicyPool, follower, config, self.settings.max_sessions,
                                        agent_index=agent_index, worker=self.inference))
             self._loading[key] = loading
         try:
@@ -68,10 +70,10 @@ class Pools:
         finally:
             if loading.done():
                 self._loading.pop(key, None)
-        self.pools.setdefault(key, pool)
-        return self.pools[key]
+        self.by_key.setdefault(key, pool)
+        return self.by_key[key]
 
-    async def seat_pool(self, kind: str, config: EnvConfig, agent: int) -> tuple[FollowerPool, tuple[int, int] | None]:
+    async def seat_pool(self, kind: str, config: EnvConfig, agent: int) -> tuple[PolicyPool, tuple[int, int] | None]:
         """The pool that plays ``kind`` at agent ``agent`` of ``config``, and the agents it sees when it sees the game
         as a 1:1 game (``SeatFit.PAIR_VIEW``: a network trained in 1:1 in a leader seat of a larger team; its pool is
         built for the 1:1 team's leader), else None."""
@@ -124,7 +126,7 @@ class Pools:
                       if leader in self.offer.seat_leaders(team)]
         return seats
 
-    def time_calls(self, pool: FollowerPool) -> None:
+    def time_calls(self, pool: PolicyPool) -> None:
         """Time one call of ``pool``'s policy for one game and for ``max_sessions`` games on this machine, record
         it (``stats["policy_call_ms"]``, in ``/api/health``) and warn when a full server's call would miss the
         inference deadline: past about ``within_deadline`` games at once, every step of every game it plays takes
@@ -144,9 +146,9 @@ class Pools:
     # ------------------------------------------------------------ freed
     def free_idle(self) -> None:
         """Free the pools no game has used for ``POOL_IDLE_S`` (but never those of ``kept_kinds``)."""
-        for key, pool in list(self.pools.items()):
+        for key, pool in list(self.by_key.items()):
             if key[0] not in self.kept_kinds and pool.idle_for() > POOL_IDLE_S:
-                del self.pools[key]
+                del self.by_key[key]
                 self.executor.submit(pool.close)  # queued behind inference; the sweep does not wait for it
 
     async def close(self) -> None:

@@ -33,7 +33,7 @@ def backend_health(backend: Backend) -> dict:
             "games": hub.live_games(),
             "rooms": len(hub.rooms),
             "max_sessions": settings.max_sessions, "connections": len(backend.sockets.open),
-            "follower_pools": len(hub.pools), "tick_hz": settings.tick_hz,
+            "follower_pools": len(hub.pools.by_key), "tick_hz": settings.tick_hz,
             "inference_pid": hub.inference.pid, "inference_restarts": max(0, hub.inference.generation - 1),
             "inference_failed_starts": hub.inference.failed_starts,
             "tick_lateness_p50_ms": percentile(lateness, 0.5), "tick_lateness_p99_ms": percentile(lateness, 0.99),
