@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from colorgrid.config import EnvConfig
-from colorgrid.enums import Ending, KeyStatus, SeatFit
+from colorgrid.enums import Ending, KeyStatus, Role, SeatFit
 from colorgrid.env import ACTION_DELTAS, BatchEnv
 from colorgrid.policies.base import AgentInput
 from colorgrid.render import look
@@ -29,7 +29,7 @@ from colorgrid.roles import columns, scores
 from colorgrid.step_inputs import StepInputs
 from server.keylog import PENDING, CappedLog, KeyLog, now_ms
 from server.messages import SeatView, State, Welcome
-from server.protocol import KEY_ACTIONS, GoalView, Mode, SeatKind, belief_keys
+from server.protocol import KEY_ACTIONS, GoalView, Mode, belief_keys
 from server.seats import STAND_IN, AIPlayer, Seat, lineup, pair_view
 from server.stated import ProbePlan, StatedBeliefs, Via
 
@@ -55,17 +55,17 @@ class Game:
     room: str | None = None  # the room's code, for a game of several people
     follower_kinds: tuple[str, ...] = ()  # each AI follower's kind, in agent order (all ``follower`` if empty)
     leader_kinds: tuple[str, ...] = ()  # each AI leader's kind: they play the last leader seats, people the first
-    seat: SeatKind = SeatKind.LEADER  # the people's seat: leaders, or the first follower beside AI leaders
+    seat: Role = Role.LEADER  # the people's seat: leaders, or the first follower beside AI leaders
     goal_view: GoalView = GoalView.SHOWN  # the follower seat: whether its person sees the goal (a leader always does)
     probes: ProbePlan = field(default_factory=ProbePlan)  # the follower seat: when the game asks what they believe
 
     def __post_init__(self) -> None:
-        self.mode, self.seat, self.goal_view = Mode(self.mode), SeatKind(self.seat), GoalView(self.goal_view)
+        self.mode, self.seat, self.goal_view = Mode(self.mode), Role(self.seat), GoalView(self.goal_view)
         cfg = self.config
         # AI leaders in ``leader_kinds`` order, AI followers in ``follower_kinds`` order
         people, self.ai_leaders, self.ai_followers = lineup(cfg, self.seat, len(self.leader_kinds))
         self.seats = [Seat(i, cfg.agent_names[i]) for i in people]
-        self.stated = None if self.seat == SeatKind.LEADER else StatedBeliefs(
+        self.stated = None if self.seat == Role.LEADER else StatedBeliefs(
             cfg, cfg.agent_names[people[0]], self.probes, self.seed, tagged=not cfg.one_to_one)
         self.ai: dict[int, AIPlayer] = {}  # agent index -> its policy's slot (followers, AI and stand-in leaders)
         self.env = BatchEnv(cfg, num_envs=1, seed=self.seed, autoreset=False)

@@ -20,7 +20,7 @@ from typing import Annotated, Literal, Union
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, model_validator
 
 from colorgrid.enums import Ending, Role
-from server.protocol import GoalView, Mode, RoomClosedReason, RoomErrorCode, RoomSeatStatus, SeatKind, SeatStatus
+from server.protocol import GoalView, Mode, RoomClosedReason, RoomErrorCode, RoomSeatStatus, SeatStatus
 
 ENDING_WORDS: dict[Ending, str] = {
     Ending.COMPLETE: "Game over.",
@@ -168,7 +168,7 @@ class Welcome(_Outgoing):
                                          "(`\"leader_1\"`, `\"follower\"`)")
     seats: list[SeatView] = Field(None, description="a team other than 1:1: the people's seats, as in `seats`")
     room: str | None = Field(None, description="a team other than 1:1: the room's code, or null")
-    seat: SeatKind = Field(None, description="the follower seat: `\"follower\"`")
+    seat: Role = Field(None, description="the follower seat: `\"follower\"`")
     goal_view: GoalView = Field(None, description="the follower seat: `hidden` or `shown`")
     belief_keys: dict[str, int] = Field(None, description="the follower seat: the keys that state a belief "
                                                           "(`{\"1\": 0, \"2\": 1, \"3\": 2}`)")

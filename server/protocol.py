@@ -11,6 +11,7 @@ from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
+from colorgrid.enums import Role
 from colorgrid.env import ACTION_NAMES
 
 _KEYS = {"up": ("ArrowUp", "w", "W"), "down": ("ArrowDown", "s", "S"), "left": ("ArrowLeft", "a", "A"),
@@ -41,18 +42,10 @@ class Mode(StrEnum):
         return {Mode.TURN: "turn-based", Mode.REALTIME: "real time"}[self]
 
 
-class SeatKind(StrEnum):
-    """The seat a person takes: a leader's (they know the goal; the default) or a follower's, the assistant's seat,
-    beside AI leaders (the goal hidden from them unless a game shows it). The values are ``colorgrid.config.ROLES``."""
-
-    LEADER = "leader"
-    FOLLOWER = "follower"
-
-    @property
-    def label(self) -> str:
-        """How a page names the seat."""
-        return {SeatKind.LEADER: "you lead (you know the goal)",
-                SeatKind.FOLLOWER: "you assist: follow an AI leader and work out the goal"}[self]
+SEAT_LABELS: dict[Role, str] = {Role.LEADER: "you lead (you know the goal)",
+                                 Role.FOLLOWER: "you assist: follow an AI leader and work out the goal"}
+"""How a page names the seat a person takes, by its role (``Role``): a leader's (they know the goal; the default) or
+a follower's, the assistant's seat, beside AI leaders (the goal hidden from them unless a game shows it)."""
 
 
 class GoalView(StrEnum):
@@ -96,10 +89,10 @@ class Team(StrEnum):
         return self.people > 1
 
     @property
-    def seats(self) -> tuple[SeatKind, ...]:
+    def seats(self) -> tuple[Role, ...]:
         """The seats a person may take: a leader's in every team, and a follower's (the first follower, beside AI
         leaders) in a team of one leader; a team of several leaders is theirs to lead, its follower the AI's."""
-        return (SeatKind.LEADER, SeatKind.FOLLOWER) if self.num_leaders == 1 else (SeatKind.LEADER,)
+        return (Role.LEADER, Role.FOLLOWER) if self.num_leaders == 1 else (Role.LEADER,)
 
     @property
     def label(self) -> str:
@@ -196,7 +189,7 @@ class GameRequest(_Message):
     """In a team of several leaders (``"2:1"``): the AI leader that plays every leader seat but this person's (one
     of ``/api/options``' team ``leaders``); without it the team's people meet in a room. In the follower seat: the AI
     leader in every leader seat (one of the team's ``follower_seat_leaders``; default the first)."""
-    seat: SeatKind = SeatKind.LEADER
+    seat: Role = Role.LEADER
     """The person's seat: ``leader``, or ``follower`` (the team's first follower seat, beside AI leaders)."""
     goal: GoalView | None = None
     """The follower seat: whether the goal is ``hidden`` from the person (the default) or ``shown``."""

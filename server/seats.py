@@ -17,11 +17,11 @@ import time
 from dataclasses import dataclass, field
 
 from colorgrid.config import EnvConfig
-from colorgrid.enums import Ending, SeatFit
+from colorgrid.enums import Ending, Role, SeatFit
 from colorgrid.env import ACTION_NAMES
 from colorgrid.policies.base import AgentInput
 from server.followers import leads
-from server.protocol import GoalView, SeatKind, SeatStatus, Team
+from server.protocol import GoalView, SeatStatus, Team
 from server.stated import ProbePlan
 
 STAY = ACTION_NAMES.index("stay")
@@ -79,11 +79,11 @@ def leader_seats(config: EnvConfig, ai_leaders: int) -> tuple[range, range]:
     return config.leaders[:people], config.leaders[people:]
 
 
-def lineup(config: EnvConfig, seat: SeatKind, ai_leaders: int) -> tuple[tuple[int, ...], ...]:
+def lineup(config: EnvConfig, seat: Role, ai_leaders: int) -> tuple[tuple[int, ...], ...]:
     """Who plays each agent: the agent indices of the people, of the AI leaders and of the AI followers. A person in
     the follower seat plays the first follower, beside an AI leader in every leader seat; people in leader seats play
     the first leaders, ``ai_leaders`` AI leaders the last ones (``leader_seats``), AI followers every follower."""
-    if SeatKind(seat) == SeatKind.FOLLOWER:
+    if Role(seat) == Role.FOLLOWER:
         return (config.followers[0],), tuple(config.leaders), tuple(config.followers[1:])
     people, ai = leader_seats(config, ai_leaders)
     return tuple(people), tuple(ai), tuple(config.followers)
@@ -114,7 +114,7 @@ def follower_seat_leaders(leaders: tuple[str, ...], team: Team) -> list[str]:
     """The AI leaders among ``leaders`` (the server's ``--leaders``) that lead beside a person in ``team``'s follower
     seat: a scripted leader or population in any team of one leader, a trained network in the team it was trained in
     (``followers.leads``; a network trained in 1:1 does not lead two followers)."""
-    if SeatKind.FOLLOWER not in team.seats:
+    if Role.FOLLOWER not in team.seats:
         return []
     return [kind for kind in leaders if leads(kind, team) == SeatFit.DIRECT]
 
@@ -123,10 +123,10 @@ def follower_seat(team: Team, leader: str | None, goal: GoalView | None, probes:
                   offered: list[str], known: tuple[str, ...]) -> SeatChoice:
     """The follower seat of ``team`` with AI leader ``leader`` (default: the first ``offered``), the goal ``goal``
     (default hidden) and ``probes`` (default none); ``known``: every leader the server has (for the messages)."""
-    if SeatKind.FOLLOWER not in team.seats:
+    if Role.FOLLOWER not in team.seats:
         raise ValueError(f"team {team.value} has no follower seat for a person: its {team.num_leaders} leaders are "
                          f"people's and its follower is the AI's; take the follower seat in team "
-                         f"{' or '.join(t.value for t in Team if SeatKind.FOLLOWER in t.seats)}")
+                         f"{' or '.join(t.value for t in Team if Role.FOLLOWER in t.seats)}")
     if not offered:
         raise ValueError(f"no AI leader of this server ({list(known)}) leads beside a person in the follower seat of "
                          f"team {team.value}")

@@ -16,11 +16,11 @@ resolved from a preset, a file and overrides.
 from colorgrid.configkit.build import (Presets, apply_overrides, from_dict, keys_named, merge, override_dict,
                                        read_toml, resolve, resolve_data, split_override, to_dict)
 from colorgrid.configkit.checks import (FIELD_FIRST, UNKNOWN_FIELDS, ConfigBase, ConfigError, check_bool,
-                                        check_choice, check_int, check_number, check_strings, fail, hooks, is_int,
-                                        is_number)
+                                        check_choice, check_int, check_member, check_number, check_strings, fail,
+                                        hooks, is_int, is_number)
 from colorgrid.configkit.cli import Flag, add_arguments, field_docs, from_args
 
 __all__ = ["FIELD_FIRST", "UNKNOWN_FIELDS", "ConfigBase", "ConfigError", "Flag", "Presets", "add_arguments",
-           "apply_overrides", "check_bool", "check_choice", "check_int", "check_number", "check_strings",
-           "field_docs", "fail", "from_args", "from_dict", "hooks", "is_int", "is_number", "keys_named", "merge",
-           "override_dict", "read_toml", "resolve", "resolve_data", "split_override", "to_dict"]
+           "apply_overrides", "check_bool", "check_choice", "check_int", "check_member", "check_number",
+           "check_strings", "field_docs", "fail", "from_args", "from_dict", "hooks", "is_int", "is_number",
+           "keys_named", "merge", "override_dict", "read_toml", "resolve", "resolve_data", "split_override", "to_dict"]

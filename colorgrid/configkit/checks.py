@@ -10,7 +10,8 @@ import dataclasses
 import functools
 import math
 import typing
-from typing import Any, Callable, ClassVar
+from enum import StrEnum
+from typing import Any, Callable, ClassVar, Iterable
 
 FIELD_FIRST = "{name}={value!r} is invalid: {allowed}"
 """The default error style: the field, its value, what is allowed (``ppo.lr=-1 is invalid: ...``)."""
@@ -131,6 +132,17 @@ def check_bool(owner, name: str, allowed: str = "true or false") -> None:
 def check_choice(owner, name: str, choices, allowed: str | None = None) -> None:
     if getattr(owner, name) not in choices:
         fail(owner, name, allowed or f"one of {list(choices)}")
+
+
+def check_member(owner, name: str, members: Iterable[StrEnum], allowed: str | None = None) -> None:
+    """``owner.name`` is one of ``members`` (an enum, or some of its members in the order the message lists them),
+    as the member or as its text (a file's), and is then kept as the member: the frozen dataclass's field is set in
+    place."""
+    members, value = tuple(members), getattr(owner, name)
+    member = next((m for m in members if m == value), None)
+    if member is None:
+        fail(owner, name, allowed or " or ".join(repr(m.value) for m in members))
+    object.__setattr__(owner, name, member)
 
 
 def check_strings(owner, name: str, choices=None, *, distinct: bool = False, allowed: str | None = None) -> None:

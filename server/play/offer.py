@@ -7,11 +7,11 @@ says the team it was trained in); every refusal is a ``ValueError`` whose words 
 from __future__ import annotations
 
 from colorgrid.config import EnvConfig
-from colorgrid.enums import SeatFit
+from colorgrid.enums import Role, SeatFit
 from colorgrid.policies import policy_teams
 from colorgrid.presets import env_config
 from server.followers import leads, plays
-from server.protocol import GameRequest, GoalView, Mode, SeatKind, Team
+from server.protocol import GameRequest, GoalView, Mode, Team
 from server.seats import SeatChoice, follower_seat, follower_seat_leaders, leader_seat
 from server.settings import ServerSettings
 from server.stated import ProbePlan
@@ -81,7 +81,7 @@ class Offer:
         team, follower, followers, seat = request.team, request.follower, request.followers, request.seat
         if followers is not None and follower is not None:
             raise ValueError("give either follower (every AI seat) or followers (one per AI seat), not both")
-        ai_seats = team.num_followers - (SeatKind(seat) == SeatKind.FOLLOWER)
+        ai_seats = team.num_followers - (Role(seat) == Role.FOLLOWER)
         if followers is not None and len(followers) != ai_seats:
             beside = " beside a person in its follower seat" if ai_seats < team.num_followers else ""
             raise ValueError(f"followers: team {team.value} has {ai_seats} AI follower(s){beside}; give one name "
@@ -103,7 +103,7 @@ class Offer:
         leader seat, the goal shown or not, the probes; in a leader's seat, its ``leader`` in every other leader seat
         (a team of several leaders needs one, or a room)."""
         team, seat, leader, goal, probes = request.team, request.seat, request.leader, request.goal, request.probes
-        if seat == SeatKind.FOLLOWER:
+        if seat == Role.FOLLOWER:
             return follower_seat(team, leader, goal, probes, self.seat_leaders(team), self.settings.leaders)
         leader_seat(goal, probes)
         choice = SeatChoice(self.choose_leaders(team, leader), GoalView.SHOWN, ProbePlan())

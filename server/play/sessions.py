@@ -9,7 +9,7 @@ import logging
 import time
 
 from colorgrid.config import EnvConfig
-from colorgrid.enums import Ending
+from colorgrid.enums import Ending, Role
 from server.followers import follower_label
 from server.game import Game
 from server.messages import Replaced
@@ -17,7 +17,7 @@ from server.play.clock import Clock
 from server.play.ending import Finisher, game_over_message
 from server.play.live import Client, Live, ServerFull, send_to
 from server.play.pools import Pools
-from server.protocol import GoalView, Mode, SeatKind
+from server.protocol import GoalView, Mode
 from server.seats import STAND_IN, Seat, lineup
 from server.stated import ProbePlan
 
@@ -41,7 +41,7 @@ class Sessions:
     async def open_game(self, config: EnvConfig, mode: Mode, followers: tuple[str, ...], preset: str,
                         show_belief: bool, people: list[tuple[Client, dict]], tick_hz: float | None = None,
                         study: dict | None = None, room: str | None = None, leaders: tuple[str, ...] = (),
-                        seat: SeatKind = SeatKind.LEADER, goal_view: GoalView = GoalView.SHOWN,
+                        seat: Role = Role.LEADER, goal_view: GoalView = GoalView.SHOWN,
                         probes: ProbePlan | None = None) -> Game:
         """Make a game for ``people`` (connection and page info, one per person's seat, in agent order), with a
         slot in each AI follower's pool (``followers``: one kind per AI follower, in agent order) and each AI

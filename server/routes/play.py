@@ -8,14 +8,14 @@ import logging
 
 from fastapi import APIRouter, WebSocket, WebSocketDisconnect
 
-from colorgrid.enums import SeatFit
+from colorgrid.enums import Role, SeatFit
 from colorgrid.presets import PRESETS, env_config
 from colorgrid.render import look
 from server.backend import CurrentBackend
 from server.connection import Connection
 from server.followers import follower_info, leader_info
 from server.messages import ENDING_WORDS, room_words
-from server.protocol import BELIEF_KEYS, KEY_ACTIONS, MAX_HORIZON, ROOM_CODE_LENGTH, GoalView, Mode, SeatKind, Team
+from server.protocol import BELIEF_KEYS, KEY_ACTIONS, MAX_HORIZON, ROOM_CODE_LENGTH, SEAT_LABELS, GoalView, Mode, Team
 from server.stated import ProbeKind
 
 log = logging.getLogger("colorgrid.server")
@@ -45,10 +45,10 @@ async def options(backend: CurrentBackend):
             "teams": [{"value": t.value, "label": t.label, "people": t.people, "ai_followers": t.num_followers,
                        "room": t.room,
                        "followers": team_followers[t], "leaders": list(team_leaders[t]),
-                       "seats": [s.value for s in t.seats if s == SeatKind.LEADER or seat_leaders[t]],
+                       "seats": [s.value for s in t.seats if s == Role.LEADER or seat_leaders[t]],
                        "follower_seat_leaders": seat_leaders[t]}
                       for t in Team if team_followers[t] or seat_leaders[t]],
-            "seats": [{"value": s.value, "label": s.label} for s in SeatKind],
+            "seats": [{"value": r.value, "label": SEAT_LABELS[r]} for r in Role],
             "goal_views": [{"value": g.value, "label": g.label} for g in GoalView],
             "probe_kinds": [{"value": k.value, "label": k.label} for k in ProbeKind],
             "belief_keys": BELIEF_KEYS,

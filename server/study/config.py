@@ -19,10 +19,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from colorgrid import configkit
-from colorgrid.configkit import ConfigError, check_bool, check_choice, check_int, check_number, check_strings, fail
-from colorgrid.enums import SeatFit
+from colorgrid.configkit import (ConfigError, check_bool, check_choice, check_int, check_member, check_number,
+                                 check_strings, fail)
+from colorgrid.enums import Role, SeatFit
 from colorgrid.presets import PRESETS
-from server.protocol import MAX_HORIZON, GameRequest, GoalView, Mode, SeatKind, Team
+from server.protocol import MAX_HORIZON, GameRequest, GoalView, Mode, Team
 from server.stated import PROBE_FORMS, ProbePlan
 from server.study.questions import ID_ALLOWED, ID_PATTERN, Question
 from server.study.screening import Screening
@@ -30,6 +31,8 @@ from server.study.screening import Screening
 PAGE_KINDS = ("consent", "instructions", "practice", "trials", "questionnaire", "debrief")
 FACTORS = ("follower", "show_belief", "mode", "preset", "horizon", "tick_hz", "seat", "leader", "goal", "probes")
 """What a condition may vary: the fields of ``GameSettings``."""
+STUDY_MODES = tuple(sorted(Mode))
+"""The game modes in the order a study file's messages and its export list them (``realtime``, ``turn``)."""
 
 
 class StudyError(ConfigError):
@@ -44,7 +47,7 @@ class GameSettings:
     """The AI follower: any name ``colorgrid play --follower`` takes (``ippo-people``, ``copy``, a ``.pt``)."""
     show_belief: bool = True
     """Whether the participant sees what the follower believes the goal is."""
-    mode: str = "realtime"
+    mode: Mode = Mode.REALTIME
     """``realtime`` (the world moves ``tick_hz`` steps a second; a 3-2-1 countdown first) or ``turn``."""
     preset: str = "default"
     """The environment preset (``colorgrid presets``)."""
@@ -52,13 +55,13 @@ class GameSettings:
     """Steps in the game."""
     tick_hz: float = 5.0
     """Steps a second in real time."""
-    seat: str = "leader"
+    seat: Role = Role.LEADER
     """The participant's seat: ``leader`` (they know the goal; the AI ``follower`` assists them) or ``follower`` (they
     assist the AI ``leader`` and work out the goal; no AI follower plays)."""
     leader: str = "astar"
     """The follower seat: the AI leader (any name ``colorgrid play --leaders`` takes: ``astar``, ``person:slip=0.1``,
     ``population:people#held_out``, ``ippo-leader``, a ``.pt``)."""
-    goal: str = "hidden"
+    goal: GoalView = GoalView.HIDDEN
     """The follower seat: whether the goal is ``hidden`` from the participant (their task) or ``shown`` (a control)."""
     probes: str = "none"
     """The follower seat: when the game asks which color is the goal and how sure they are: ``none``,
@@ -68,16 +71,16 @@ class GameSettings:
         if not isinstance(self.follower, str) or not self.follower:
             fail(self, "follower", "a follower name (e.g. 'bayes-people', 'ippo-people', 'copy')")
         check_bool(self, "show_belief")
-        check_choice(self, "mode", ("realtime", "turn"), "'realtime' or 'turn'")
+        check_member(self, "mode", STUDY_MODES)
         check_choice(self, "preset", PRESETS, f"one of {sorted(PRESETS)}")
         check_int(self, "horizon", 1, MAX_HORIZON, allowed=f"a whole number in 1..{MAX_HORIZON}")
         check_number(self, "tick_hz", "a number in [0.5, 60]", lambda v: 0.5 <= v <= 60)
-        check_choice(self, "seat", [s.value for s in SeatKind], "'leader' or 'follower'")
+        check_member(self, "seat", Role)
         from server.followers import is_leader_kind, leader_kinds_allowed
 
         if not isinstance(self.leader, str) or not is_leader_kind(self.leader):
             fail(self, "leader", leader_kinds_allowed())
-        check_choice(self, "goal", [g.value for g in GoalView], "'hidden' or 'shown'")
+        check_member(self, "goal", GoalView)
         try:
             ProbePlan.parse(self.probes if isinstance(self.probes, str) else None)
         except ValueError:
@@ -99,7 +102,7 @@ class GameSettings:
         whether its belief was shown (no AI follower plays beside the participant); in a leader's seat the AI leader,
         the goal's visibility and the probes (the follower seat's); turn-based, the clock's ``tick_hz``."""
         out = dict(settings)
-        if out["seat"] == SeatKind.FOLLOWER.value:
+        if out["seat"] == Role.FOLLOWER:
             out.update(follower=None, show_belief=None)
         else:
             out.update(leader=None, goal=None, probes=None)
@@ -110,9 +113,9 @@ class GameSettings:
     def request(self) -> GameRequest:
         """This game as the hub takes it (``GameHub.new_game``), every choice stated by the study file: for the
         follower seat also its AI leader, the goal's visibility and the probes (a leader's seat leaves them unset)."""
-        seat = {} if self.seat == SeatKind.LEADER else {"seat": SeatKind.FOLLOWER, "leader": self.leader,
-                                                        "goal": GoalView(self.goal), "probes": self.probes}
-        return GameRequest(follower=self.follower, preset=self.preset, mode=Mode(self.mode), horizon=self.horizon,
+        seat = {} if self.seat == Role.LEADER else {"seat": self.seat, "leader": self.leader, "goal": self.goal,
+                                                    "probes": self.probes}
+        return GameRequest(follower=self.follower, preset=self.preset, mode=self.mode, horizon=self.horizon,
                            show_belief=self.show_belief, **seat)
 
 
@@ -320,11 +323,11 @@ class Study:
         """Every AI leader of a game in the follower seat, with the field of the study file that names it first."""
         places = {}
         for condition in self.conditions:
-            if condition.seat == SeatKind.FOLLOWER.value:
+            if condition.seat == Role.FOLLOWER:
                 places.setdefault(condition.leader, "factors.leader" if "leader" in self.factors else "defaults.leader")
         for i, page in enumerate(self.pages):
             game = self.practice_game(page) if page.kind == "practice" else None
-            if game is not None and game.seat == SeatKind.FOLLOWER.value:
+            if game is not None and game.seat == Role.FOLLOWER:
                 places.setdefault(game.leader, f"pages[{i}].game.leader" if page.game is not None
                                   else "defaults.leader")
         return places

@@ -19,13 +19,13 @@ import pandas as pd
 import pyarrow as pa
 
 from colorgrid.config import AGENTS
-from colorgrid.enums import Ending, GameKind, KeyStatus
+from colorgrid.enums import Ending, GameKind, KeyStatus, Role
 from colorgrid.presets import PRESETS, env_config
-from server.protocol import GoalView, PageEvent, SeatKind
+from server.protocol import GoalView, PageEvent
 from server.stated import ProbeKind, ProbeStatus, Via
 from server.study.assign import arm_labels
 from server.study.columns import Column, Table
-from server.study.config import GameSettings, Study
+from server.study.config import STUDY_MODES, GameSettings, Study
 from server.study.exclusions import RULES
 from server.study.questions import QUESTION_KINDS
 
@@ -62,13 +62,14 @@ def _condition(study: Study, whose: str) -> list[Column]:
                            tuple(followers)),
         "show_belief": Column("condition_show_belief", "boolean", "",
                               "whether the follower's belief was shown; empty in the follower seat"),
-        "mode": Column("condition_mode", "category", "name", "`realtime` or `turn`", ("realtime", "turn")),
+        "mode": Column("condition_mode", "category", "name", " or ".join(f"`{m}`" for m in STUDY_MODES),
+                       tuple(m.value for m in STUDY_MODES)),
         "preset": Column("condition_preset", "category", "name", "the environment preset", tuple(PRESETS)),
         "horizon": Column("condition_horizon", "Int64", "steps", "steps in the game"),
         "tick_hz": Column("condition_tick_hz", "float64", "steps/s", "steps a second in real time; empty turn-based"),
         "seat": Column("condition_seat", "category", "name", "the participant's seat: `leader` (they know the goal) or "
                                                              "`follower` (they assist an AI leader)",
-                       tuple(s.value for s in SeatKind)),
+                       tuple(s.value for s in Role)),
         "leader": Column("condition_leader", "category", "name", "the AI leader of the follower seat (the study's "
                                                                  "leaders); empty in a leader's seat",
                          tuple(sorted({g.leader for g in games}))),

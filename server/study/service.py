@@ -24,12 +24,11 @@ from dataclasses import dataclass
 
 from markdown_it import MarkdownIt
 
-from colorgrid.enums import Ending, GameKind
+from colorgrid.enums import Ending, GameKind, Role
 from colorgrid.presets import env_config
 from colorgrid.render import look
 from server.study.assign import arm_labels, arms, choose_arm, trial_order
 from server.followers import follower_info
-from server.protocol import SeatKind
 from server.study.config import ID_PATTERN, GameSettings, Page, Question, Study
 from server.study.errors import Finished, Invalid, Refused
 from server.study.exclusions import exclusion_rows, median_round_trip
@@ -219,7 +218,7 @@ class StudyService:
         settings = self.game_settings(step) if step.has_game else self.study.defaults
         config = env_config(settings.preset)
         out["look"] = look(config)  # who is who: the page's legend draws each disc as the board will
-        assisting = settings.seat == SeatKind.FOLLOWER  # the participant plays the follower, beside an AI leader
+        assisting = settings.seat == Role.FOLLOWER  # the participant plays the follower, beside an AI leader
         out["agent"] = config.agent_names[config.followers[0] if assisting else config.leaders[0]]  # a study game: 1:1
         if step.has_game:  # has_belief: the follower forms a belief the page may show (copy has none)
             out["game"] = {"mode": settings.mode, "show_belief": settings.show_belief, "horizon": settings.horizon,
