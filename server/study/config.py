@@ -29,8 +29,6 @@ from server.study.questions import ID_ALLOWED, ID_PATTERN, Question
 from server.study.screening import Screening
 
 PAGE_KINDS = ("consent", "instructions", "practice", "trials", "questionnaire", "debrief")
-FACTORS = ("follower", "show_belief", "mode", "preset", "horizon", "tick_hz", "seat", "leader", "goal", "probes")
-"""What a condition may vary: the fields of ``GameSettings``."""
 STUDY_MODES = tuple(sorted(Mode))
 """The game modes in the order a study file's messages and its export list them (``realtime``, ``turn``)."""
 
@@ -117,6 +115,10 @@ class GameSettings:
                                                     "probes": self.probes}
         return GameRequest(follower=self.follower, preset=self.preset, mode=self.mode, horizon=self.horizon,
                            show_belief=self.show_belief, **seat)
+
+
+FACTORS = tuple(f.name for f in dataclasses.fields(GameSettings))
+"""What a condition may vary: every field of ``GameSettings`` (a new field is a new factor)."""
 
 
 @dataclass(frozen=True)

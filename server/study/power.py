@@ -64,10 +64,11 @@ class Comparison:
 
 def measures(study: Study) -> list[str]:
     """The ``trials`` columns a sample size can be computed for: the numeric ones, but the indices and counters of
-    the record (``arm``, ``trial_index``, ``attempt``, ...)."""
-    record = {"arm", "trial_index", "condition_index", "condition_horizon", "condition_tick_hz", "attempt",
-              "page_step"}
-    return [c.name for c in export_schema(study)["trials"].columns if c.type in NUMERIC and c.name not in record]
+    the record (``arm``, ``trial_index``, ``attempt``, ...) and the condition's settings (``condition_*``: the
+    factors, not measures)."""
+    record = {"arm", "trial_index", "attempt", "page_step"}
+    return [c.name for c in export_schema(study)["trials"].columns
+            if c.type in NUMERIC and c.name not in record and not c.name.startswith("condition_")]
 
 
 def read_trials(folder: Path) -> pd.DataFrame:
