@@ -20,6 +20,7 @@ import pandas as pd
 import pytest
 from websockets.sync.client import connect
 
+from colorgrid.enums import Ending
 from colorgrid.replay import load, verify
 from server.study import service as service_module
 from server.study.assign import williams
@@ -255,6 +256,8 @@ def test_the_summary_counts_games_by_ending_and_those_played_again(study_databas
             tx.end_game("p1", 3, attempt, {"ended": ended, "finished": time.time(), "team_score": 2.0})
     summary = service.summary(0)
     assert summary["endings"] == {"counted": {"complete": 1}, "played_again": {"disconnected": 1, "server_lost": 1}}
+    assert set(summary["ending_words"]) == {e.value for e in Ending}  # the admin page's words come from here
+    assert summary["ending_words"]["server_lost"] == "lost with a process that stopped (server_lost)"
     assert summary["arms"][summary["recent"][0]["arm"]]["trials"]["games"] == 1  # the lost ones are not figures
 
 

@@ -38,7 +38,7 @@ async function refresh() {
   const median = s.completion_minutes.median;
   $("times").textContent = median === null ? "no one has completed yet"
     : `completion time: median ${median.toFixed(1)} min (all: ${s.completion_minutes.values.join(", ")})`;
-  $("endings").textContent = endings(s.endings);
+  $("endings").textContent = endings(s.endings, s.ending_words);
   $("refused").textContent = refused(s.refused);
   const mean = (value, digits = 2) => (value == null ? "" : value.toFixed(digits));
   table($("arms"), ["arm", "trials (conditions in order)", "in progress", "completed", "quota", "trials ended",
@@ -63,13 +63,10 @@ async function refresh() {
     s.recent.map((p) => [p.pid, p.arm, p.status, p.step + 1, when(p.started), when(p.updated), when(p.completed)]));
 }
 
-const ENDING_WORDS = { server_lost: "lost with a process that stopped (server_lost)",
-                       server_shutdown: "stopped with the server (server_shutdown)" };
-
-function endings({ counted, played_again: again }) {
+function endings({ counted, played_again: again }, words) {
   // "Games that count: 40 complete, 1 idle. Played again: 1 lost with a process that stopped (server_lost), ..."
-  const list = (counts) => Object.entries(counts).map(([ended, n]) => `${n} ${ENDING_WORDS[ended] ?? ended}`)
-    .join(", ");
+  // in the server's words for each ending (the summary's ending_words)
+  const list = (counts) => Object.entries(counts).map(([ended, n]) => `${n} ${words[ended] ?? ended}`).join(", ");
   return `Games that count: ${list(counted) || "none yet"}. Played again: ${list(again) || "none"}.`;
 }
 

@@ -41,6 +41,10 @@ LOST = Ending.lost()
 """Game endings that do not count: the participant plays that game again. ``Ending.SERVER_LOST`` is written when the
 participant starts a game again whose process stopped without saving it (killed, crashed), on whichever process they
 reach."""
+ADMIN_ENDING_WORDS: dict[Ending, str] = {ending: ending.value for ending in Ending} | {
+    Ending.SERVER_LOST: "lost with a process that stopped (server_lost)",
+    Ending.SERVER_SHUTDOWN: "stopped with the server (server_shutdown)"}
+"""Each ending as the admin page counts games by it (``summary``' ``ending_words``): its name, or what happened."""
 FULL = "full"
 """The reason logged for a participant refused because the study is full (every place or every arm's quota taken)."""
 SESSION_PATTERN = re.compile(r"^[A-Za-z0-9_-]{32,128}$")
@@ -383,6 +387,7 @@ class StudyService:
             "refused": self.store.refusals(),
             "endings": {"counted": {k: n for k, n in endings.items() if k not in LOST},
                         "played_again": {k: n for k, n in endings.items() if k in LOST}},
+            "ending_words": {ending.value: words for ending, words in ADMIN_ENDING_WORDS.items()},
             "recent": [{"pid": r["pid"], "arm": r["arm"], "status": r["status"], "step": r["step"],
                         "started": r["started"], "updated": r["updated"], "completed": r["completed"]}
                        for r in sorted(rows, key=lambda r: -r["updated"])[:200]],
