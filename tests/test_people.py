@@ -43,13 +43,14 @@ def test_a_late_leader_pursues_the_old_goal_for_exactly_k_steps_after_a_switch(d
     assert len(lags) > 20 and set(lags) == {delay}, lags
 
 
-def notice_lags(leader: PersonLeader, config: EnvConfig, longest: int) -> list[int]:
+def notice_lags(leader, config: EnvConfig, longest: int, pursuing=lambda leader: leader.target) -> list[int]:
     """Steps from each switch until the leader pursues the new goal, over switches it had settled before and
-    whose goal then held for ``longest + 1`` steps."""
+    whose goal then held for ``longest + 1`` steps. ``pursuing(leader)``: the color each env's leader pursued at
+    the step it just took (its ``target``, unless told)."""
     goals, pursued = [], []
     for inp, _, _, _ in drive(leader, config):
         goals.append(inp.goal_info.argmax(axis=1))
-        pursued.append(leader.target.copy())
+        pursued.append(np.array(pursuing(leader)))
     goals, pursued = np.array(goals), np.array(pursued)
     lags = []
     for e in range(goals.shape[1]):

@@ -7,10 +7,11 @@ from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
 from colorgrid.policies.bayes import BayesConfig, BayesFollower
 from colorgrid.policies.card import Part, PolicyCard
 from colorgrid.policies.names import POPULATION_PREFIX, SCRIPTED, PolicyKind, policy_names, read_name
-from colorgrid.policies.people import PersonLeader, PersonStyle
+from colorgrid.policies.people import BASES, PersonLeader, PersonStyle
 from colorgrid.policies.population import SHIPPED_CARD, PopulationPolicy, load_population
 from colorgrid.policies.registry import scripted
 from colorgrid.policies.scripted import AStarLeader, CopyFollower, IdleFollower, OracleFollower, RandomPolicy
+from colorgrid.policies.styled import StyledLeader
 
 
 def make_policy(name: str, role: str | None = None) -> Policy:
@@ -19,7 +20,8 @@ def make_policy(name: str, role: str | None = None) -> Policy:
     trainer's shipped agents ``ippo``, ``ippo-cautious``, ... and checkpoint files ``*.pt``, which take their
     acting settings the same way: ``ippo-cautious:temperature=1``, ``x.pt:min_belief=0.5``).
 
-    For a checkpoint holding both agents, ``role`` (``"leader"``/``"follower"``) says which to load.
+    For a checkpoint holding both agents, ``role`` (``"leader"``/``"follower"``) says which to load. A person
+    leader with another base than A* (``person:base=ippo-leader,slip=0.1``) is a ``StyledLeader`` (``make_styled``).
     """
     spec = read_name(name)  # what the name means: colorgrid.policies.names
     if spec is None:
@@ -29,8 +31,43 @@ def make_policy(name: str, role: str | None = None) -> Policy:
         return make_population(spec.target, role)
     if spec.kind is PolicyKind.SCRIPTED:
         kind = SCRIPTED[spec.target]
-        return kind() if spec.params is None else kind(parse_params(kind, spec.params, name))
+        if spec.params is None:
+            return kind()
+        params = parse_params(kind, spec.params, name)
+        if isinstance(params, PersonStyle) and not params.around_astar:
+            return make_styled(params, role, name)
+        return kind(params)
     return registry.find(spec.target, role, read_params(spec.params or "", name), spec=name)
+
+
+def make_styled(style: PersonStyle, role: str | None, name: str) -> StyledLeader:
+    """The person leader ``name`` around its base (``style.base``, built for ``role``, a leader when None), once the
+    base is known to be a leader: a policy whose card offers it as one, or a checkpoint (whose loader finds its
+    leader network). A population is no base: its members are person leaders, or may each be one."""
+    base = read_name(style.base)
+    card = policy_card(style.base)
+    if base is None:
+        why = "no policy"
+    elif base.kind is PolicyKind.POPULATION:
+        why = "a population; give each member its own base instead"
+    elif registry.file_of(style.base) is None and (card is None or card.lead is None):
+        why = "not a leader policy"
+    else:
+        try:
+            return StyledLeader(make_policy(style.base, role or "leader"), style)
+        except ValueError as err:  # a checkpoint without a leader network, a base's own parameter
+            raise ValueError(f"{name!r}: base {style.base!r}: {err}") from None
+    raise ValueError(f"{name!r}: PersonStyle.base must be {BASES}, got {style.base!r} ({why})")
+
+
+def person_base(name: str) -> str | None:
+    """The base of a person leader with one other than A* (``ippo-leader`` of ``person:base=ippo-leader,slip=0.1``),
+    None for any other name."""
+    spec = read_name(name)
+    if spec is None or spec.target != PersonLeader.name or spec.params is None:
+        return None
+    base = read_params(spec.params, name).get("base", AStarLeader.name)
+    return base if isinstance(base, str) and base != AStarLeader.name else None
 
 
 def read_params(text: str, name: str) -> dict:
@@ -68,11 +105,15 @@ def parse_params(kind, text: str, name: str):
 def policy_teams(name: str) -> tuple[str, ...] | None:
     """The teams (``"LEADERS:FOLLOWERS"``) that the policy ``name`` plays: None for any team (the scripted
     policies play any agent of any team), those its package registered for a trained network (``ippo``:
-    ``("1:1",)``), and for a population those every member plays. Acting settings change nothing here:
+    ``("1:1",)``), for a person leader around one (``person:base=ippo-leader``) those its base plays, and for a
+    population those every member plays. Acting settings change nothing here:
     ``x.pt:temperature=0`` plays the teams ``x.pt`` plays."""
     spec = read_name(name)
-    if spec is None or spec.kind is PolicyKind.SCRIPTED:
+    if spec is None:
         return None
+    if spec.kind is PolicyKind.SCRIPTED:
+        base = person_base(name)  # a person leader around a trained leader plays the teams its base plays
+        return None if base is None else policy_teams(base)
     if spec.kind is PolicyKind.POPULATION:
         teams = None
         for member in load_population(spec.target).values():
@@ -123,5 +164,5 @@ def make_population(spec: str, role: str | None = None) -> PopulationPolicy:
 
 __all__ = ["SCRIPTED", "AgentInput", "AStarLeader", "BayesConfig", "BayesFollower", "CopyFollower", "IdleFollower",
            "OracleFollower", "Part", "PersonLeader", "PersonStyle", "Policy", "PolicyCard", "PolicyOutput",
-           "PopulationPolicy", "RandomPolicy", "make_policy", "offered_followers", "policy_card", "policy_teams",
-           "scripted"]
+           "PopulationPolicy", "RandomPolicy", "StyledLeader", "make_policy", "offered_followers", "policy_card",
+           "policy_teams", "scripted"]

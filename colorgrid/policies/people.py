@@ -6,6 +6,10 @@ detours. ``PersonLeader`` has one parameter for each (``PersonStyle``; all off, 
 A* leader), so that populations of such leaders can be written as named specs
 (``person:slip=0.1,notice_delay=3``) and split into training and held-out parts
 (``colorgrid.policies.population``).
+
+The departures are written once (``PersonDepartures``): what a person pursues before the intended move is chosen,
+and what becomes of that move after. ``PersonLeader`` chooses it by A*; ``colorgrid.policies.styled`` lets any
+leader policy choose it (``person:base=ippo-leader,slip=0.1``).
 """
 
 from __future__ import annotations
@@ -18,19 +22,28 @@ import numpy as np
 
 from colorgrid.config import EnvConfig
 from colorgrid.configkit import ConfigBase, check_int, check_number, fail
-from colorgrid.policies.base import AgentInput, PolicyOutput
+from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
 from colorgrid.policies.card import Part, PolicyCard
 from colorgrid.policies.grid import INF, decode
 from colorgrid.policies.registry import scripted
-from colorgrid.policies.scripted import Seeker
+from colorgrid.policies.scripted import AStarLeader, Seeker
+
+PERSON = "person"
+"""The person leaders' policy name (``person:slip=0.1``)."""
+BASES = "astar, a leader policy's name (ippo-leader, ippo-leader-0.8M, random) or a checkpoint path ending in .pt"
+"""What ``PersonStyle.base`` may be, in the words of its errors."""
 
 
 @dataclass(frozen=True)
 class PersonStyle(ConfigBase):
-    """How a person-like leader departs from the A* leader (every default: not at all)."""
+    """How a person-like leader departs from its base leader, A* unless told (every default: not at all)."""
 
     ERROR_STYLE: ClassVar[str] = "PersonStyle.{name} must be {allowed}, got {value!r}"
 
+    base: str = AStarLeader.name
+    """The leader whose moves the person departs from: ``astar`` (``PersonLeader``), or any leader policy by name
+    or checkpoint path (``ippo-leader``, ``runs/x/leader_200k.pt``; ``StyledLeader``), shown the goal the person
+    pursues. Not a person leader itself, nor a population."""
     slip: float = 0.0
     """Probability, each step, of a uniformly random move instead of the intended one."""
     notice_delay: int = 0
@@ -61,33 +74,42 @@ class PersonStyle(ConfigBase):
             check_number(self, "rationality", "a number > 0, or null for shortest steps", lambda v: v > 0)
         if self.slip + self.hesitate > 1.0:
             fail(self, "hesitate", f"at most 1 - slip = {1 - self.slip:g} (they share a step's chance)")
+        if not isinstance(self.base, str) or not self.base:
+            fail(self, "base", BASES)
+        if self.base.partition(":")[0] == PERSON:
+            fail(self, "base", f"{BASES}, not a person leader itself")
+        if self.rationality is not None and not self.around_astar:
+            fail(self, "rationality", f"unset with base {self.base!r} (a Boltzmann choice over A* distances: base "
+                 f"{AStarLeader.name} only)")
+
+    @property
+    def around_astar(self) -> bool:
+        """Whether the base is the A* leader (``PersonLeader``), not another leader policy (``StyledLeader``)."""
+        return self.base == AStarLeader.name
+
+    def described(self) -> dict:
+        """The style as replays and reports name it: every field, less those at a default that came after the
+        first replays (``notice_delay_max`` unset, ``base`` astar), so those replays still match."""
+        params = asdict(self)
+        if params["notice_delay_max"] is None:
+            del params["notice_delay_max"]
+        if self.around_astar:
+            del params["base"]
+        return params
 
 
-@scripted(PolicyCard(lead=Part("Person-like scripted leader",
-                                "the A* leader with the slips, late turns and mistakes of people")))
-class PersonLeader(Seeker):
-    """The A* leader with a ``PersonStyle``: each departure is drawn per env and step from its own RNG.
+class PersonDepartures(Policy):
+    """The departures of a ``PersonStyle`` around whatever chooses the intended move, each drawn per env and step
+    from the policy's ``rng``: ``pursue`` says which color the person goes for (the goal noticed late, or a wrong
+    color now and then), and ``depart`` turns the intended move into the one made (a detour, a repeated move or a
+    slip). Between them the subclass chooses the intended move toward the pursued color."""
 
-    In a team it walks around every other agent, and while it pursues the goal it leaves the blocks that
-    lower-index leaders go for as the A* leaders do (``Seeker.claims``), so that with every departure off
-    it is the A* leader in any team.
-    """
-
-    name = "person"
-    Params = PersonStyle
+    style: PersonStyle
+    rng: np.random.Generator
     state_fields = ("target", "pending", "delay", "distracted", "last_action", "detour_left", "detour_dir")
 
-    def __init__(self, style: PersonStyle | None = None):
-        self.style = style or PersonStyle()
-
-    def describe(self) -> dict:
-        params = asdict(self.style)
-        if params["notice_delay_max"] is None:  # as described before the field existed
-            del params["notice_delay_max"]
-        return {"policy": self.name, "params": params}
-
-    def reset(self, config: EnvConfig, num_envs: int, agent_index: int, seed: int = 0) -> None:
-        super().reset(config, num_envs, agent_index, seed)
+    def reset_departures(self, num_envs: int) -> None:
+        """Clear the departures' state for a batch of ``num_envs`` (called by the subclass's ``reset``)."""
         self.target = np.full(num_envs, -1, dtype=np.int64)  # the goal it pursues (lags the true one when late)
         self.pending = np.zeros(num_envs, dtype=np.int64)  # steps since it could have seen a new goal
         self.delay = np.full(num_envs, self.style.notice_delay, dtype=np.int64)  # the pending switch's delay
@@ -101,18 +123,18 @@ class PersonLeader(Seeker):
             state = {**state, "delay": np.full(self.num_envs, self.style.notice_delay, dtype=np.int64)}
         super().load_state_dict(state)
 
-    def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
+    def pursue(self, inp: AgentInput, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Begin the step of envs ``rows``: ``(goal [n], pursued [n], draws [n, 6])``, the true goal, the color the
+        person goes for, and the step's uniform draws (one per departure, for ``depart``)."""
         style, C = self.style, self.config.num_colors
-        rows = self._rows(rows)
         n = len(rows)
         goal = inp.goal_info.argmax(axis=1)
         if not (inp.goal_info > 0.5).any(axis=1).all():
             raise ValueError("the person leader needs the goal: use it as the leader or with asymmetric=False")
-        target, pending = self.target[rows], self.pending[rows]
-        distracted, last = self.distracted[rows], self.last_action[rows]
-        detour_left, detour_dir = self.detour_left[rows], self.detour_dir[rows]
+        target, pending, distracted = self.target[rows], self.pending[rows], self.distracted[rows]
         start = inp.episode_start | (target < 0)
-        target[start], pending[start], distracted[start], last[start], detour_left[start] = goal[start], 0, -1, -1, 0
+        target[start], pending[start], distracted[start] = goal[start], 0, -1
+        self.last_action[rows[start]], self.detour_left[rows[start]] = -1, 0
         u = self.rng.random((n, 6))  # one draw per departure, per env and step
 
         # late noticing: a new goal is pursued only after notice_delay steps (or a delay drawn for this switch)
@@ -131,18 +153,15 @@ class PersonLeader(Seeker):
         if tempted.any():
             offset = 1 + (u[tempted, 1] * (C - 1)).astype(np.int64)
             distracted[tempted] = (target[tempted] + offset) % C
-        pursued = np.where(distracted >= 0, distracted, target)
+        self.target[rows], self.pending[rows], self.delay[rows] = target, pending, delay
+        self.distracted[rows] = distracted
+        return goal, np.where(distracted >= 0, distracted, target), u
 
-        block_color, agent_cell = decode(inp.observation, self.config)
-        me, other = agent_cell[:, self.agent_index], agent_cell[:, self.other_indices]
-        wanted = np.eye(C, dtype=bool)[pursued]
-        claimed = self.claims(np.eye(C, dtype=bool)[goal], block_color, agent_cell)  # None for the first leader
-        if claimed is not None:  # the lower-index leaders' goal blocks matter only while it pursues the goal
-            claimed &= (pursued == goal)[:, None, None]
-        if style.rationality is None:
-            actions, _ = self.seek(wanted, block_color, me, other, claimed=claimed)
-        else:
-            actions = self.boltzmann(wanted, block_color, me, other, style.rationality, claimed)
+    def depart(self, actions: np.ndarray, u: np.ndarray, rows: np.ndarray) -> np.ndarray:
+        """``[n]``: the moves made in envs ``rows`` instead of the intended ``actions`` (changed in place), with the
+        step's draws ``u`` from ``pursue``: a detour's step, the last move repeated, or a slip's random move."""
+        style = self.style
+        last, detour_left, detour_dir = self.last_action[rows], self.detour_left[rows], self.detour_dir[rows]
 
         # detours: a few steps in one random direction
         begin = (detour_left == 0) & (u[:, 2] < style.detour)
@@ -158,10 +177,51 @@ class PersonLeader(Seeker):
         slips = (u[:, 3] >= 1.0 - style.slip)
         actions[slips] = (u[slips, 4] * 4).astype(np.int64)
 
-        self.target[rows], self.pending[rows], self.delay[rows] = target, pending, delay
-        self.distracted[rows] = distracted
         self.last_action[rows], self.detour_left[rows], self.detour_dir[rows] = actions, detour_left, detour_dir
-        return PolicyOutput(actions)
+        return actions
+
+
+@scripted(PolicyCard(lead=Part("Person-like scripted leader",
+                                "the A* leader with the slips, late turns and mistakes of people")))
+class PersonLeader(PersonDepartures, Seeker):
+    """The A* leader with a ``PersonStyle``: each departure is drawn per env and step from its own RNG.
+
+    In a team it walks around every other agent, and while it pursues the goal it leaves the blocks that
+    lower-index leaders go for as the A* leaders do (``Seeker.claims``), so that with every departure off
+    it is the A* leader in any team.
+    """
+
+    name = PERSON
+    Params = PersonStyle
+
+    def __init__(self, style: PersonStyle | None = None):
+        self.style = style or PersonStyle()
+        if not self.style.around_astar:
+            raise ValueError(f"PersonLeader departs from A*, not {self.style.base!r}: make_policy builds "
+                             "person:base=... as a StyledLeader")
+
+    def describe(self) -> dict:
+        return {"policy": self.name, "params": self.style.described()}
+
+    def reset(self, config: EnvConfig, num_envs: int, agent_index: int, seed: int = 0) -> None:
+        super().reset(config, num_envs, agent_index, seed)
+        self.reset_departures(num_envs)
+
+    def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
+        C = self.config.num_colors
+        rows = self._rows(rows)
+        goal, pursued, u = self.pursue(inp, rows)
+        block_color, agent_cell = decode(inp.observation, self.config)
+        me, other = agent_cell[:, self.agent_index], agent_cell[:, self.other_indices]
+        wanted = np.eye(C, dtype=bool)[pursued]
+        claimed = self.claims(np.eye(C, dtype=bool)[goal], block_color, agent_cell)  # None for the first leader
+        if claimed is not None:  # the lower-index leaders' goal blocks matter only while it pursues the goal
+            claimed &= (pursued == goal)[:, None, None]
+        if self.style.rationality is None:
+            actions, _ = self.seek(wanted, block_color, me, other, claimed=claimed)
+        else:
+            actions = self.boltzmann(wanted, block_color, me, other, self.style.rationality, claimed)
+        return PolicyOutput(self.depart(actions, u, rows))
 
     def boltzmann(self, wanted, block_color, me, other, beta: float, claimed=None) -> np.ndarray:
         """Moves drawn with probability proportional to exp(-beta * distance to a wanted block after the move)
