@@ -7,10 +7,19 @@ from pathlib import Path
 from typing import ClassVar
 
 from colorgrid.configkit import ConfigBase, check_bool, check_choice, check_int, check_number, check_strings, fail
-from colorgrid.policies import offered_followers
+from colorgrid.policies import offered_followers, policy_card
 from colorgrid.presets import PRESETS
 from colorgrid.resources import shipped
 from server.followers import is_leader_kind, leader_kinds_allowed
+
+
+def yardstick_reason(name: str) -> str | None:
+    """Why the policy ``name`` may not be chosen as a person's partner, in words: its card says it is a yardstick for
+    evaluation (``PolicyCard.yardstick``); None when it may be."""
+    card = policy_card(name)
+    if card is None or card.yardstick is None:
+        return None
+    return f"{name.partition(':')[0]} is a yardstick for evaluation: {card.yardstick}"
 
 
 @dataclass(frozen=True)
@@ -91,6 +100,10 @@ class ServerSettings(ConfigBase):
 
     def __post_init__(self) -> None:
         check_strings(self, "followers", allowed="a tuple of follower names")
+        for field_name, names in (("follower", (self.follower,)), ("followers", self.followers)):
+            for name in names:
+                if isinstance(name, str) and (reason := yardstick_reason(name)) is not None:
+                    fail(self, field_name, f"a follower a person may play beside ({reason})", name)
         check_strings(self, "leaders", allowed="a tuple of leader names")
         for name in self.leaders:
             if not is_leader_kind(name):

@@ -96,3 +96,41 @@ def test_the_release_describes_each_follower_by_its_card():
     assert [policy_card(name).summary for name in FOLLOWERS] == [
         "copies the color of the leader's last paying pickup", "knows the true goal (upper bound)",
         "infers the goal with a hidden Markov model"]
+
+
+class StickFollower(RedFollower):
+    """A toy yardstick: collects red, as the toy follower does."""
+
+    name = "toy-stick"
+
+
+def test_a_yardstick_is_refused_wherever_a_person_chooses_a_partner_saying_why(monkeypatch):
+    """``bayes-limit``'s card says it is a yardstick (``PolicyCard.yardstick``): the play server's ``--follower`` and
+    ``--followers``, a page's ``new_game`` and a study's follower refuse it in one line saying why, and so they do any
+    policy whose card says so (a toy's), whatever its name."""
+    from colorgrid.configkit import ConfigError
+    from server.play.offer import Offer
+    from server.protocol import GameRequest
+    from server.settings import ServerSettings
+    from server.study.config import GameSettings
+
+    monkeypatch.setitem(SCRIPTED, StickFollower.name, None)  # taken out again when the test ends
+    scripted(PolicyCard(follow=Part("Stick", "a toy yardstick"), yardstick="it is a toy"))(StickFollower)
+    why = {"bayes-limit": "bayes-limit is a yardstick for evaluation: it is given its leader's true model, which "
+                          "only colorgrid eval gives it",
+           "toy-stick": "toy-stick is a yardstick for evaluation: it is a toy"}
+    for name, reason in why.items():
+        with pytest.raises(ConfigError) as refused:
+            ServerSettings(follower=name)
+        assert str(refused.value) == f"follower must be a follower a person may play beside ({reason}), got {name!r}"
+        with pytest.raises(ConfigError, match=re.escape(f"followers must be a follower a person may play beside "
+                                                        f"({reason}), got '{name}:lapse=0.2'")):
+            ServerSettings(followers=("copy", f"{name}:lapse=0.2"))
+        with pytest.raises(ValueError, match=re.escape(f"follower {name!r} is not offered ({reason}); choose one of")):
+            Offer(ServerSettings()).choose(GameRequest(follower=name))
+        with pytest.raises(ConfigError) as refused:
+            GameSettings(follower=name)
+        assert str(refused.value) == f"follower={name!r} is invalid: a follower a person may play beside ({reason})"
+        assert "\n" not in str(refused.value)
+    with pytest.raises(ValueError, match="a yardstick .* has no place in the play server's follower menu"):
+        PolicyCard(yardstick="it reads the goal", menu=10)

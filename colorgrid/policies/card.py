@@ -1,7 +1,8 @@
 """What a policy says of itself: the roles it may take and how each is called, whether it holds a belief over the
-goal, the teams it fits and whether the play page offers it. Declared beside the policy (a scripted one with
-``registry.scripted``, an application's with ``registry.register_policy``) and read by every application: the
-play server's menus, the release's descriptions, the docs' table (a test checks it)."""
+goal, the teams it fits, whether the play page offers it and whether it is a yardstick no person plays beside.
+Declared beside the policy (a scripted one with ``registry.scripted``, an application's with
+``registry.register_policy``) and read by every application: the play server's menus, the release's descriptions,
+the docs' table (a test checks it)."""
 
 from __future__ import annotations
 
@@ -39,6 +40,16 @@ class PolicyCard:
     None: offered only when named (``colorgrid play --followers``)."""
     teams: tuple[str, ...] | None = None
     """The teams (``"LEADERS:FOLLOWERS"``) it plays; None: any (a scripted policy plays any agent of any team)."""
+    yardstick: str | None = None
+    """Why it is a yardstick for evaluation and no partner for a person, in a few words (``bayes-limit``: it is given
+    its leader's true model, which only ``colorgrid eval`` gives it); None: a partner. A yardstick is refused, with
+    this reason, wherever a person's partner is chosen (the play server's followers, a study's), and has no place in
+    the menu."""
+
+    def __post_init__(self):
+        if self.yardstick is not None and self.menu is not None:
+            raise ValueError(f"a yardstick ({self.yardstick}) has no place in the play server's follower menu: leave "
+                             f"menu={self.menu} out")
 
     @property
     def roles(self) -> tuple[str, ...]:

@@ -180,8 +180,7 @@ def leader_styles(policy: Policy) -> list[PersonStyle]:
                      "can be given: lead with astar, person:... or a population of them")
 
 
-# offered in no menu of the play page: it needs its leader's model, which only the evaluation harness gives it
-@scripted(PolicyCard(belief=True))
+@scripted(PolicyCard(belief=True, yardstick="it is given its leader's true model, which only colorgrid eval gives it"))
 class LimitFollower(BayesFollower):
     """The Bayesian follower given its leader's true model: the exact posterior over the goal (module docstring),
     acted on by ``bayes``'s rule. ``surprises`` counts the steps where the leader did what its model gives no

@@ -13,7 +13,7 @@ from colorgrid.presets import env_config
 from server.followers import leads, plays
 from server.protocol import GameRequest, GoalView, Mode, Team
 from server.seats import SeatChoice, follower_seat, follower_seat_leaders, leader_seat
-from server.settings import ServerSettings
+from server.settings import ServerSettings, yardstick_reason
 from server.stated import ProbePlan
 
 
@@ -91,7 +91,9 @@ class Offer:
         chosen = tuple(followers) if followers is not None else (follower or default,) * ai_seats
         for name in chosen:
             if name not in self.settings.follower_choices:
-                raise ValueError(f"unknown follower {name!r}; choose one of {list(self.settings.follower_choices)}")
+                reason = yardstick_reason(name)  # a yardstick is never offered: say why
+                what = f"follower {name!r} is not offered ({reason})" if reason else f"unknown follower {name!r}"
+                raise ValueError(f"{what}; choose one of {list(self.settings.follower_choices)}")
             if name not in offered:
                 raise ValueError(f"follower {name!r} does not play in team {team.value} (a trained network plays the "
                                  f"team it was trained in: {'/'.join(policy_teams(name) or ())}); for team "

@@ -68,6 +68,10 @@ class GameSettings:
     def __post_init__(self):
         if not isinstance(self.follower, str) or not self.follower:
             fail(self, "follower", "a follower name (e.g. 'bayes-people', 'ippo-people', 'copy')")
+        from server.settings import yardstick_reason
+
+        if (reason := yardstick_reason(self.follower)) is not None:
+            fail(self, "follower", f"a follower a person may play beside ({reason})")
         check_bool(self, "show_belief")
         check_member(self, "mode", STUDY_MODES)
         check_choice(self, "preset", PRESETS, f"one of {sorted(PRESETS)}")
