@@ -6,11 +6,12 @@ where they are declared (``colorgrid/enums.py``, ``server/protocol.py``)."""
 from __future__ import annotations
 
 import ast
+import re
 
 import pytest
 
 from colorgrid.enums import Role
-from server.protocol import Mode, RoomClosedReason, RoomSeatStatus, SeatStatus
+from server.protocol import GoalView, Mode, RoomClosedReason, RoomSeatStatus, SeatStatus
 from tests.conftest import ROOT
 
 PACKAGES = ("colorgrid", "colorgrid_apps", "server", "train")
@@ -62,3 +63,43 @@ def test_no_role_mode_seat_status_or_room_closed_reason_is_compared_as_a_string_
 ])
 def test_the_check_finds_literal_comparisons_and_only_those(source, expected):
     assert literal_comparisons(ast.parse(source)) == expected
+
+
+PAGE_SETS = {"ROLE": Role, "MODE": Mode, "GOAL_VIEW": GoalView, "SEAT_STATUS": SeatStatus,
+             "ROOM_SEAT_STATUS": RoomSeatStatus}
+"""The sets the pages compare with (``web/sets.js``), by their name there, and the server's enum each spells."""
+JS_COMPARISON = re.compile(r'(?:===|!==)\s*"([a-z_ ]+)"|"([a-z_ ]+)"\s*(?:===|!==)')
+
+
+def page_sets() -> dict[str, dict[str, str]]:
+    """``web/sets.js``'s frozen objects: ``{"ROLE": {"LEADER": "leader", ...}, ...}``."""
+    text = (ROOT / "web" / "sets.js").read_text()
+    return {name: dict(re.findall(r'(\w+): "([^"]*)"', body))
+            for name, body in re.findall(r"export const (\w+) = Object\.freeze\(\{([^}]*)\}\)", text)}
+
+
+def test_the_pages_sets_are_the_servers_enums():
+    assert page_sets() == {name: {m.name: m.value for m in enum} for name, enum in PAGE_SETS.items()}
+
+
+def js_literal_comparisons(text: str) -> list[tuple[int, str]]:
+    """``(line, value)`` of each ``===`` or ``!==`` comparison of a set's value as a string literal in page code."""
+    words = {m.value for enum in PAGE_SETS.values() for m in enum}
+    return [(text.count("\n", 0, m.start()) + 1, value) for m in JS_COMPARISON.finditer(text)
+            for value in m.groups() if value in words]
+
+
+def test_no_page_compares_a_sets_value_as_a_string_literal():
+    found = [f"web/{path.name}:{line}: {value!r}" for path in sorted((ROOT / "web").glob("*.js"))
+             if path.name != "sets.js" for line, value in js_literal_comparisons(path.read_text())]
+    assert not found, "compared as string literals (import it from web/sets.js):\n" + "\n".join(found)
+
+
+@pytest.mark.parametrize("source, expected", [
+    ('if (game.mode === "turn") {', [(1, "turn")]),
+    ('x;\nconst a = "follower" !== seat;', [(2, "follower")]),
+    ('if (game.mode === MODE.TURN) {', []),
+    ('if (msg.type === "state") {', []),
+])
+def test_the_page_check_finds_literal_comparisons_and_only_those(source, expected):
+    assert js_literal_comparisons(source) == expected

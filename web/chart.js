@@ -8,6 +8,7 @@
 // A chart shows the leaders (dashed belief lines, pickups above) and the `followers` it is for (solid lines,
 // pickups below): every follower unless told (1:1: the follower); the player draws one chart per follower
 // with beliefs in teams of several.
+import { ROLE } from "./sets.js";
 
 const PAD = { left: 30, right: 8, top: 14, bottom: 26 };
 
@@ -22,7 +23,7 @@ export function stepAt(canvas, data, x) {
 }
 
 export function followerNames(data) {
-  return data.look.agents.filter((agent) => agent.role === "follower").map((agent) => agent.name);
+  return data.look.agents.filter((agent) => agent.role === ROLE.FOLLOWER).map((agent) => agent.name);
 }
 
 export function drawChart(canvas, data, step, followers = followerNames(data), watched = {}) {
@@ -41,11 +42,11 @@ export function drawChart(canvas, data, step, followers = followerNames(data), w
   }
   const palette = data.look.palette;
   const role = Object.fromEntries(data.look.agents.map((agent) => [agent.name, agent.role]));
-  const shown = (name) => role[name] === "leader" || followers.includes(name);
+  const shown = (name) => role[name] === ROLE.LEADER || followers.includes(name);
   // belief lines, one per color, for each shown agent that has beliefs (dashed for leaders, solid for followers)
   for (const [agent, probs] of Object.entries(data.goal_probs || {})) {
     if (!shown(agent)) continue;
-    ctx.setLineDash(role[agent] === "leader" ? [4, 3] : []);
+    ctx.setLineDash(role[agent] === ROLE.LEADER ? [4, 3] : []);
     drawLines(ctx, canvas, data, probs, yOf);
   }
   ctx.setLineDash([]);
@@ -69,7 +70,7 @@ export function drawChart(canvas, data, step, followers = followerNames(data), w
       ctx.strokeStyle = "#999"; ctx.setLineDash([2, 3]);
       ctx.beginPath(); ctx.moveTo(x, PAD.top); ctx.lineTo(x, H - PAD.bottom); ctx.stroke(); ctx.setLineDash([]);
     } else if (shown(e.agent)) {
-      const y = role[e.agent] === "leader" ? 2 : H - 12;  // the leaders' above the plot, the followers' below
+      const y = role[e.agent] === ROLE.LEADER ? 2 : H - 12;  // the leaders' above the plot, the followers' below
       ctx.strokeStyle = palette[e.color]; ctx.lineWidth = 2;
       ctx.beginPath();
       if (e.correct) { ctx.moveTo(x, y); ctx.lineTo(x, y + 9); }

@@ -5,6 +5,7 @@
 // sure are you?"). The server owns all of it: the seats, leaders, goal views and probe kinds come from /api/options,
 // the belief keys and the open probe from the welcome and each state (docs/SERVER_PROTOCOL.md, "The follower seat").
 import { agentBadge } from "./board.js";
+import { GOAL_VIEW, MODE, ROLE } from "./sets.js";
 
 const $ = (id) => document.getElementById(id);
 
@@ -50,7 +51,7 @@ export function showSeatChoice(options, team, fill) {
 }
 
 export function followerSeat() {
-  return !$("seat-choice").hidden && $("seat").value === "follower";
+  return !$("seat-choice").hidden && $("seat").value === ROLE.FOLLOWER;
 }
 
 export function showProbeChoice() {
@@ -72,7 +73,7 @@ export function seatRequest() {
 // swatches (with their keys); the probe's color buttons and its confidence range (chance to 100%).
 // `onHint(words)`: the page's hint, called with what to do now (say the goal, or answer the probe) whenever it changes.
 export function startSeat(game, send, onHint = () => {}) {
-  const seated = game.seat === "follower";
+  const seated = game.seat === ROLE.FOLLOWER;
   $("belief-slot").hidden = !seated;
   $("stated-panel").hidden = !seated;
   $("probe").hidden = true;
@@ -80,8 +81,8 @@ export function startSeat(game, send, onHint = () => {}) {
   game.onHint = onHint;
   if (!seated) return;
   const you = game.look.agents.find((a) => a.name === game.agent);
-  const leaders = game.look.agents.filter((a) => a.role === "leader");
-  const hidden = game.goal_view === "hidden";
+  const leaders = game.look.agents.filter((a) => a.role === ROLE.LEADER);
+  const hidden = game.goal_view === GOAL_VIEW.HIDDEN;
   const task = $("stated-task");
   task.replaceChildren("You are ", ringed(agentBadge(you)), ", the assistant. The AI leader ",
     ...leaders.map((l) => agentBadge(l)), " knows the goal color", hidden ? "; it is hidden from you. " : ". ",
@@ -111,7 +112,7 @@ export function startSeat(game, send, onHint = () => {}) {
     button.addEventListener("click", () => pickProbeColor(game, k));
     return button;
   }));
-  $("probe-note").textContent = game.mode === "turn" ? "The game waits for your answer."
+  $("probe-note").textContent = game.mode === MODE.TURN ? "The game waits for your answer."
     : "The game goes on while you answer.";
   $("probe-keys").textContent = probeKeys(game);
   // the closed probe holds the widest words it may show, so that the slot keeps one height when it opens
@@ -129,7 +130,7 @@ function probeKeys(game) {
 }
 
 function sureKeys(game) {
-  return game.mode === "turn" ? "\u2190 \u2192 set how sure you are" : "the slider sets how sure you are";
+  return game.mode === MODE.TURN ? "\u2190 \u2192 set how sure you are" : "the slider sets how sure you are";
 }
 
 // What the person is asked to do now, in a sentence: answer the open probe, or say the goal whenever they like.
@@ -158,7 +159,7 @@ function showStated(game, color) {
 
 // Each state: your stated color as the server has it, and the probe it asks (shown until you answer it).
 export function drawStated(game, state) {
-  if (game.seat !== "follower") return;
+  if (game.seat !== ROLE.FOLLOWER) return;
   // the server's word, unless this page said another color since (its state may have been on its way)
   if (state.stated !== game.stated && !game.sentSinceState) showStated(game, state.stated);
   game.sentSinceState = false;
@@ -225,14 +226,14 @@ export function probeRefused(game, words) {
 // turn-based play, goes on in real time); otherwise a number key says which color you believe is the goal (sent as a
 // key, numbered with the moves). True when handled here.
 export function seatKey(game, event, sendKey, send) {
-  if (game.seat !== "follower") return false;
+  if (game.seat !== ROLE.FOLLOWER) return false;
   const color = game.belief_keys[event.key];
   if (game.answering) {
     const nudge = { ArrowLeft: -1, ArrowRight: 1 }[event.key];
     if (color !== undefined) pickProbeColor(game, color);
     else if (event.key === "Enter") answerProbe(game, send);
-    else if (nudge && game.mode === "turn") nudgeConfidence(nudge * 5);  // real time: the arrows still move you
-    else return game.mode === "turn";
+    else if (nudge && game.mode === MODE.TURN) nudgeConfidence(nudge * 5);  // real time: the arrows still move you
+    else return game.mode === MODE.TURN;
     return true;
   }
   if (color === undefined) return false;

@@ -11,6 +11,7 @@ import { drawBeliefs, markYou, openedRoom, plainRoomClosed, plainRoomError, setR
          showScores, showSeats, whoIs } from "./room.js";
 import { answerProbe, drawStated, followerSeat, probeRefused, seatHint, seatKey, seatRequest, showProbeChoice,
          showProbeConfidence, showSeatChoice, showStatedRecord, startSeat } from "./follower_seat.js";
+import { GOAL_VIEW, MODE, ROLE, SEAT_STATUS } from "./sets.js";
 
 const $ = (id) => document.getElementById(id);
 const ARROWS = { ArrowUp: "↑", ArrowDown: "↓", ArrowLeft: "←", ArrowRight: "→" };
@@ -71,7 +72,7 @@ function showTeamChoice() {
   $("setup-title").textContent = assisting ? "Play the assistant" : "Lead the way";
   $("who-is-who").hidden = assisting;
   $("who-assists").hidden = !assisting;
-  $("goal-help").hidden = assisting && $("goal-view").value === "hidden";
+  $("goal-help").hidden = assisting && $("goal-view").value === GOAL_VIEW.HIDDEN;
   $("stated-help").hidden = !assisting;
   // one person with several AI followers may give the second its own kind
   const mixed = aiFollowers(team) > 1 && !team.room;
@@ -103,7 +104,7 @@ function showStart() {
   $("start").textContent = inRoom(team) ? "Create a room" : "Start";
   $("team-help").textContent = followerSeat()
     ? `You assist an AI leader${aiFollowers(team) ? ", beside an AI follower" : ""}: the leader knows the goal; ` +
-      `you ${$("goal-view").value === "hidden" ? "do not, and work it out from what it does" : "see it too (a control)"}.`
+      `you ${$("goal-view").value === GOAL_VIEW.HIDDEN ? "do not, and work it out from what it does" : "see it too (a control)"}.`
     : inRoom(team)
     ? `You and ${team.people - 1 === 1 ? "another person" : `${team.people - 1} other people`} lead together ` +
       `(${followers}): create a room, send its link, and the game starts when everyone is ready. In turn-based ` +
@@ -147,7 +148,7 @@ function showPreset() {
 }
 
 function showMode() {
-  $("mode-help").textContent = $("mode").value === "realtime"
+  $("mode-help").textContent = $("mode").value === MODE.REALTIME
     ? `Real time: the world moves ${options.tick_hz} steps a second whether you press a key or not ` +
       "(without a key you stay put). A 3-2-1 countdown comes first."
     : "Turn-based: the world takes one step each time you move.";
@@ -242,7 +243,7 @@ function onRoomClosed(msg) {
 
 function onWelcome(msg) {
   // "you": the agent this person plays (a team's welcome names it; in 1:1 the leader)
-  game = { ...msg, over: false, agent: msg.agent ?? msg.look.agents.find((a) => a.role === "leader").name };
+  game = { ...msg, over: false, agent: msg.agent ?? msg.look.agents.find((a) => a.role === ROLE.LEADER).name };
   room = null;
   lastState = null;
   seq = msg.next_seq;  // keys number on across reloads and reconnects
@@ -267,8 +268,8 @@ function onWelcome(msg) {
   const kinds = [...new Set(Object.values(msg.followers ?? { follower: msg.follower }))].map(followerInfo);
   const follower = { label: kinds.map((k) => k.label).join(" + "), description: kinds.map((k) => k.description).join(" "),
                      has_belief: kinds.some((k) => k.has_belief) };
-  const assisting = msg.seat === "follower";  // you play the follower, beside an AI leader
-  const followers = game.look.agents.filter((a) => a.role === "follower").length - (assisting ? 1 : 0);
+  const assisting = msg.seat === ROLE.FOLLOWER;  // you play the follower, beside an AI leader
+  const followers = game.look.agents.filter((a) => a.role === ROLE.FOLLOWER).length - (assisting ? 1 : 0);
   $("follower-label").textContent = follower.label;
   $("follower-label").title = follower.description;
   $("partner-note").hidden = followers === 0;
@@ -288,8 +289,8 @@ function onWelcome(msg) {
 function onState(msg) {
   lastState = msg;
   render(msg);
-  if (game.team && game.mode === "turn") {
-    if (game.seat === "follower") seatStatus(seatHint(game));
+  if (game.team && game.mode === MODE.TURN) {
+    if (game.seat === ROLE.FOLLOWER) seatStatus(seatHint(game));
     else status(`your move: ${moveKeys(options.keys)}`);
   }
 }
@@ -409,7 +410,7 @@ document.addEventListener("keydown", (event) => {
   connection.send(message);
   own.press(event.key, message.seq);
   if (lastState) render(lastState);  // the move at once; the server's state corrects it
-  if (game.team && game.mode === "turn" && game.seats.filter((s) => s.status !== "left").length > 1) {
+  if (game.team && game.mode === MODE.TURN && game.seats.filter((s) => s.status !== SEAT_STATUS.LEFT).length > 1) {
     status("waiting for the other person to move...");
   }
 });
@@ -428,7 +429,7 @@ $("start").addEventListener("click", async () => {
   game = null;
   room = null;
   status("");
-  if (request.mode === "realtime" && request.type === "new_game") {  // a room's countdown is the server's
+  if (request.mode === MODE.REALTIME && request.type === "new_game") {  // a room's countdown is the server's
     // The countdown runs before the game exists: the server steps a real-time world from its first
     // moment, so nothing moves, and no key counts, until "go".
     $("setup").hidden = true;

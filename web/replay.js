@@ -10,6 +10,7 @@ import { setupBranch, showBranch } from "./branch.js";
 import { drawChart, followerNames, stepAt } from "./chart.js";
 import { queryParam } from "./params.js";
 import { setupPerson } from "./person.js";
+import { ROLE } from "./sets.js";
 
 const $ = (id) => document.getElementById(id);
 const id = queryParam("id");
@@ -98,7 +99,7 @@ function buildAgentRows() {
 
 function buildBeliefs() {
   // 1:1: the follower's bars straight in #belief; other teams: one labelled group per follower with beliefs.
-  const believers = data.look.agents.filter((agent) => agent.role === "follower" && data.goal_probs?.[agent.name]);
+  const believers = data.look.agents.filter((agent) => agent.role === ROLE.FOLLOWER && data.goal_probs?.[agent.name]);
   if (oneToOne) { beliefViews = believers.map((agent) => ({ name: agent.name, bars: $("belief") })); return; }
   beliefViews = believers.map((agent) => {
     const group = document.createElement("section");

@@ -3,6 +3,7 @@
 // server's room words as sentences. The server says who sits where (`room`, `welcome`, `seats` messages);
 // this module only draws it. See docs/SERVER_PROTOCOL.md.
 import { agentBadge } from "./board.js";
+import { ROLE, ROOM_SEAT_STATUS, SEAT_STATUS } from "./sets.js";
 
 const $ = (id) => document.getElementById(id);
 // The room's words: the server's (/api/options' `room_words`: each room error, why a room closed, each seat's
@@ -38,7 +39,7 @@ export function showRoom(msg, options) {
     return item;
   }));
   const mine = msg.seats.find((seat) => seat.agent === msg.you);
-  const ready = mine?.status === "ready";
+  const ready = mine?.status === ROOM_SEAT_STATUS.READY;
   $("ready").textContent = ready ? "Not ready" : "Ready";
   $("ready").disabled = msg.starting_in_s != null;
   return ready;
@@ -75,8 +76,8 @@ export function whoIs(game, name) {
   if (name === game.agent) return "you";
   if (game.leaders?.[name]) return "the AI leader";
   const seat = game.seats?.find((s) => s.agent === name);
-  if (seat) return seat.status === "left" ? "a scripted leader" : "the other person";
-  return game.look.agents.find((a) => a.name === name)?.role === "leader" ? "the other person" : "your AI partner";
+  if (seat) return seat.status === SEAT_STATUS.LEFT ? "a scripted leader" : "the other person";
+  return game.look.agents.find((a) => a.name === name)?.role === ROLE.LEADER ? "the other person" : "your AI partner";
 }
 
 // Who plays each agent now (a `seats` message, or the welcome's seats; none in a game of one person).
@@ -85,7 +86,7 @@ export function showSeats(game, seats) {
   const notes = [];
   for (const agent of game.look.agents) {
     const seat = seats.find((s) => s.agent === agent.name);
-    if (seat && seat.status !== "playing" && agent.name !== game.agent) {
+    if (seat && seat.status !== SEAT_STATUS.PLAYING && agent.name !== game.agent) {
       notes.push(`${agent.symbol} ${words.seats[seat.status] ?? seat.status}`);
     }
     document.querySelector(`#agent-scores [data-agent="${agent.name}"] .who`).textContent = whoIs(game, agent.name);

@@ -10,6 +10,7 @@ import { describe, disc, drawLegend } from "./study_people.js";
 import { drawState, gameName, startGame } from "./study_game.js";
 import { answerProbe, drawStated, probeRefused, seatKey, showProbeConfidence, startSeat } from "./follower_seat.js";
 import { PlayPings, measureScreen } from "./study_screen.js";
+import { MODE, ROLE } from "./sets.js";
 
 const $ = (id) => document.getElementById(id);
 const params = Object.fromEntries(new URLSearchParams(location.search));
@@ -277,7 +278,7 @@ function onMessage(msg) {
     startGame(game, view);  // the board's size, which game, the belief panel: fixed from the first step
     startSeat(game, (message) => connection.send(message),  // the follower seat: say what you believe, probes
               (hint) => { $("how-to-move").textContent = `Move with the arrow keys or W, A, S, D. ${hint}`; });
-    $("how-to-move").textContent = msg.seat !== "follower" ? "Move with the arrow keys or W, A, S, D. The frame " +
+    $("how-to-move").textContent = msg.seat !== ROLE.FOLLOWER ? "Move with the arrow keys or W, A, S, D. The frame " +
       "around the board is the goal color." : `Move with the arrow keys or W, A, S, D. Say which color you believe ` +
       `is the goal with ${Object.keys(msg.belief_keys).join(", ")} or a click on a color.`;
     drawLegend($("game-legend"), msg.look, view.agent);
@@ -358,7 +359,7 @@ async function play() {
   seq = 0;
   game = null;
   $("play").hidden = true;
-  if (view.game.mode === "realtime") {  // nothing moves, and no key counts, until "go"
+  if (view.game.mode === MODE.REALTIME) {  // nothing moves, and no key counts, until "go"
     $("page").hidden = true;
     await countdown($("countdown"));
     $("countdown").textContent = "go";
@@ -375,7 +376,7 @@ function pageEvent(event) {
 
 function assisting(page) {
   // whether the participant plays the follower (beside an AI leader) on this page
-  return page.look?.agents.find((a) => a.name === page.agent)?.role === "follower";
+  return page.look?.agents.find((a) => a.name === page.agent)?.role === ROLE.FOLLOWER;
 }
 
 function sendKey(key) {

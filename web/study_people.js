@@ -1,12 +1,13 @@
 // Who is who on a study's board, in a participant's words: "You" for the agent they play, "Your AI partner"
 // for the AI follower ("The AI leader" when the participant plays the follower), each beside its disc drawn as the board draws it (colors and label from the server's
 // `look`: colorgrid.render.look). `agent` is the name of the participant's agent (the study page's view says it).
+import { ROLE } from "./sets.js";
 
 export function words(lookValue, agent) {
   // [{agent, text}] in the board's agent order: the participant's own first.
-  const assisting = lookValue.agents.find((a) => a.name === agent)?.role === "follower";
+  const assisting = lookValue.agents.find((a) => a.name === agent)?.role === ROLE.FOLLOWER;
   const people = lookValue.agents.map((a) => ({ agent: a, text: a.name === agent ? "You"
-    : assisting && a.role === "leader" ? "The AI leader (it knows the goal)" : "Your AI partner" }));
+    : assisting && a.role === ROLE.LEADER ? "The AI leader (it knows the goal)" : "Your AI partner" }));
   return people.sort((a, b) => (b.agent.name === agent) - (a.agent.name === agent));
 }
 
