@@ -5,6 +5,7 @@ watching their seat, with both sides' measures (``/timeline`` and ``/people``, c
 ``colorgrid.replay.human_follower``)."""
 
 import json
+import math
 import time
 import urllib.error
 import urllib.parse
@@ -100,9 +101,9 @@ def test_the_game_over_card_sets_the_goal_against_what_the_person_said(played):
     page, replay = played["page"], played["replay"]
     m = person_measures(replay, "follower")
     expect(page.locator("#over-stated")).to_be_visible()
-    said = (f"Your stated color was the goal at {round(100 * m['accuracy'])}% of the {m['stated_steps']} steps where "
+    said = (f"Your stated color was the goal at {js_round(100 * m['accuracy'])}% of the {m['stated_steps']} steps where "
             f"you had said one (of {m['steps']}).")
-    answers = f" {round(100 * m['probe_accuracy'])}% of your 2 answers to the 2 questions named the goal."
+    answers = f" {js_round(100 * m['probe_accuracy'])}% of your 2 answers to the 2 questions named the goal."
     expect(page.locator("#over-accuracy")).to_have_text(said + answers)
     palette = played_palette(page)
     width = 520 / replay.num_steps
@@ -110,6 +111,11 @@ def test_the_game_over_card_sets_the_goal_against_what_the_person_said(played):
         x = int((t + 0.5) * width)
         assert pixel(page, x, 10, "#over-history") == palette[replay.goal[t]]
         assert pixel(page, x, 30, "#over-history") == palette[replay.stated_beliefs["follower"][t]]
+
+
+def js_round(x: float) -> int:
+    """JavaScript's Math.round (halves go up), which the page uses; Python's round sends 12.5 to 12."""
+    return math.floor(x + 0.5)
 
 
 def played_palette(page) -> list[str]:

@@ -162,6 +162,11 @@ def backends_up(cluster, timeout_s: float = 120) -> dict:
         time.sleep(0.5)
 
 
+def page_backend(page) -> str:
+    """The backend the page's own requests reach now (its cookies), as the proxy names it."""
+    return page.evaluate(f"async () => (await fetch('/api/health')).headers.get('{BACKEND_HEADER}')")
+
+
 def reconnect_waits(console: list[str]) -> list[int]:
     """What web/socket.js logged of each wait before it connected again (ms), in order."""
     return [int(ms) for line in console for ms in re.findall(r"connecting again in (\d+) ms", line)]
@@ -173,6 +178,9 @@ def test_the_study_page_goes_on_after_backends_are_killed_mid_join_and_mid_game(
     home = study_cluster.request(f"/study?PROLIFIC_PID={pid}").headers[BACKEND_HEADER]
     other = next(name for name in before if name != home)
     context = browser.new_context(viewport={"width": 1200, "height": 900})
+    # The page is held to its backend by the cookie the backends set for a game elsewhere (HAProxy's persistence):
+    # the consistent-hash ring alone would move it if the proxy's health checks blinked under load.
+    context.add_cookies([{"name": BACKEND_COOKIE, "value": home, "url": study_cluster.url}])
     page = context.new_page()
     console = []
     page.on("console", lambda message: console.append(message.text))
@@ -193,13 +201,17 @@ def test_the_study_page_goes_on_after_backends_are_killed_mid_join_and_mid_game(
     database.execute("BEGIN IMMEDIATE")
     os.kill(study_cluster.process.pid, signal.SIGSTOP)
     try:
+        assert page_backend(page) == home, study_cluster.log()
         page.click("#play")
         wait_until(page, lambda: "new_game" in sockets.sent_types, "the page's new_game")
         os.kill(before[home]["pid"], signal.SIGKILL)
         database.execute("ROLLBACK")
         database.close()
         # Not asked again (the game may have been made): the page asks for its page, which offers the game again.
-        expect(page.locator("#status")).to_contain_text("lost while your game was starting")
+        try:
+            expect(page.locator("#status")).to_contain_text("lost while your game was starting")
+        except AssertionError as error:
+            raise AssertionError(f"{error}\nsent: {sockets.sent_types}\n{study_cluster.log()}") from None
         expect(page.locator("#play")).to_be_visible()
         assert sockets.sent_types.count("new_game") == 2 and len(sockets.sockets) == 2  # the practice's, this one
 
