@@ -103,6 +103,21 @@ def test_a_bad_baselines_request_is_one_line_and_exit_2(tmp_path, change, words)
     assert len(lines) == 1 and words in lines[0], done.stderr
 
 
+@pytest.mark.parametrize("name, key, grid, field", [
+    ("density", "env.block_density", [0.1, 0.05], "env"),
+    ("episodes", "eval_episodes", [3, 4], "eval_episodes"),
+])
+def test_configurations_evaluated_on_other_episodes_share_no_baseline(tmp_path, name, key, grid, field):
+    path = tiny(tmp_path)
+    path.write_text(path.read_text().replace("[params]\n", f'[params]\n{name} = {{ keys = ["{key}"], grid = {grid} }}\n')
+                    .replace("a = { lr = 0.001 }", f"a = {{ lr = 0.001, {name} = {grid[0]} }}"))
+    done = colorgrid("baselines", str(path))
+    assert done.returncode == 2, done.stdout + done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and f"has another {field} than" in lines[0] and "own sweep file" in lines[0], done.stderr
+    assert not (tmp_path / "kept" / "baselines.json").exists()
+
+
 def test_check_is_only_for_baselines(tmp_path):
     done = colorgrid("check", str(tiny(tmp_path)), "--check")
     assert done.returncode == 2 and "--check is for sweep baselines" in done.stderr

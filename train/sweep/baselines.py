@@ -80,6 +80,28 @@ def partner_of(baseline, config) -> str:
                      f"of the trials' evaluation partners ({sorted(streams) or 'eval_partners is empty'})")
 
 
+EVALUATION_FIELDS = ("env", "eval_episodes", "eval_partners")
+"""What a trial's evaluation episodes are made of: one baseline figure a seed serves every configuration only
+where these agree."""
+
+
+def shared_evaluation(spec):
+    """The training config of the file's first configuration, once every configuration is evaluated as it is (the
+    same environment, episode count and evaluation partners, ``EVALUATION_FIELDS``): a baseline is evaluated once a
+    seed for all of them; a one-line ``SweepError`` naming the first that differs otherwise."""
+    seed = spec.all_seeds[0]
+    first, *others = spec.configurations()
+    config = spec.config(first, seed)
+    for values in others:
+        other = spec.config(values, seed)
+        for field in EVALUATION_FIELDS:
+            if getattr(other, field) != getattr(config, field):
+                raise SweepError(f"{spec.path}: configuration {spec.label(values)} has another {field} than "
+                                 f"{spec.label(first)}: its trials play other evaluation episodes, so one baseline a "
+                                 "seed cannot pair with both (give each its own sweep file)")
+    return config
+
+
 def compute_baselines(spec, say=print) -> dict:
     """What ``colorgrid sweep baselines FILE`` keeps as ``baselines.json``: each baseline the file's claims name,
     its policy as the follower beside its partner, evaluated on each trial seed's evaluation seed with the trials'
@@ -91,7 +113,7 @@ def compute_baselines(spec, say=print) -> dict:
     if not baselines:
         raise SweepError(f"{spec.path}: no claim compares with a baseline (b = {{ baseline = '<partner>/<policy>' }}) "
                          "and it lists no baselines = ['<partner>/<policy>', ...]")
-    config = spec.config(spec.configurations()[0], spec.all_seeds[0])
+    config = shared_evaluation(spec)
     seeds = [evaluation_seed(s) for s in spec.all_seeds]
     kept = {}
     for baseline in baselines:
