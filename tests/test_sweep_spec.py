@@ -1,6 +1,7 @@
 """The sweep file: every kind of mistake gets one line naming the place and what is allowed, exit code 2;
 good files build the trials' training configs as ``colorgrid train --set`` would. No Ray is started here."""
 
+import json
 from pathlib import Path
 
 import pytest
@@ -243,6 +244,27 @@ def test_checkpoint_files_the_trials_name_must_exist(tmp_path, capsys, monkeypat
         (tmp_path / made).parent.mkdir()
         (tmp_path / made).write_bytes(b"")
     assert main(["sweep", "check", str(partner)]) == 0
+
+
+def test_files_named_inside_a_partner_must_exist_too(tmp_path, monkeypatch):
+    """A person leader's base checkpoint, a population file, and the checkpoints its members name are read when
+    the partner is built: a missing one is named as a checkpoint named directly is."""
+    monkeypatch.chdir(tmp_path)
+
+    def missing(partner: str) -> list[str]:
+        text = GOOD.replace('set = ["total_steps=4096", "env.asymmetric=false"]',
+                            f'set = ["total_steps=4096", {json.dumps("leader.policy=" + partner)}]')
+        return load_sweep(write(tmp_path, text)).missing_files()
+
+    assert missing("person:base=frozen/base.pt,slip=0.1") == ["leader.policy=frozen/base.pt"]
+    assert missing("person:base=ippo-leader,slip=0.1") == []
+    assert missing("mine.json#training") == ["leader.policy=mine.json"]
+    (tmp_path / "mine.json").write_text(json.dumps({"training": {"a": "astar", "b": "gone.pt",
+                                                                 "c": "person:base=away/leader.pt,slip=0.1"},
+                                                    "held_out": {"d": "astar"}}))
+    assert missing("mine.json#training") == ["leader.policy=gone.pt", "leader.policy=away/leader.pt"]
+    assert missing("mine.json#held_out") == []
+    assert missing("population:people#training") == []
 
 
 def test_eval_address_needs_a_population_matrix(capsys):

@@ -70,6 +70,32 @@ def person_base(name: str) -> str | None:
     return base if isinstance(base, str) and base != AStarLeader.name else None
 
 
+def policy_files(name: str) -> list[str]:
+    """The files policy ``name`` reads when it is built, those it names inside it too: a checkpoint (``x.pt``), a
+    person leader's base (``person:base=x.pt``), a population's file and each of its members' files. A population
+    file that does not exist is listed without members; a name that is no policy name lists nothing (building it
+    says why)."""
+    from colorgrid.resources import find_shipped
+
+    spec = read_name(name)
+    if spec is None:
+        return []
+    if spec.kind is PolicyKind.POPULATION:
+        path = find_shipped(spec.target.partition("#")[0], "populations", ".json")
+        if not path.exists():
+            return [str(path)]
+        try:
+            members = load_population(spec.target)
+        except ValueError:
+            return [str(path)]
+        return list(dict.fromkeys([str(path), *(f for member in members.values() for f in policy_files(member))]))
+    if spec.kind is PolicyKind.SCRIPTED:
+        base = read_params(spec.params or "", name).get("base")
+        return policy_files(base) if isinstance(base, str) and base != name else []
+    found = registry.file_of(name)
+    return [found] if found is not None else []
+
+
 def read_params(text: str, name: str) -> dict:
     """``"slip=0.1,notice_delay=3"`` -> ``{"slip": 0.1, "notice_delay": 3}`` (values read as JSON, else text)."""
     import json

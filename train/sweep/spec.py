@@ -120,16 +120,19 @@ class SweepSpec:
         return resolve(self.base, {"seed": seed}, overrides=lines)
 
     def missing_files(self) -> list[str]:
-        """``SETTING=PATH`` for each checkpoint file a trial names (a learner's ``init``, a frozen partner's file) that
-        does not exist, read from the current folder as a trial reads it, over every configuration of the sweep."""
-        from colorgrid.policies.registry import file_of
+        """``SETTING=PATH`` for each file a trial names that does not exist (a learner's ``init``; a frozen partner's
+        checkpoint, population file, or a file named inside it: a person leader's base, a population's members;
+        ``colorgrid.policies.policy_files``), read from the current folder as a trial reads it, over every
+        configuration of the sweep."""
+        from colorgrid.policies import policy_files
 
         configs = [self.config({**values, **sample}, self.seeds[0])
                    for values in self.configurations() for sample in self.samples()]
         missing = {}
         for config in configs:
             for role, agent in zip(config.env.roles, config.agents):
-                named = ((f"{role}.init", agent.init), (f"{role}.policy", file_of(agent.policy)))
+                named = ((f"{role}.init", agent.init), *((f"{role}.policy", path) for path in policy_files(agent.policy)),
+                         *((f"{role}.policies", path) for spec in agent.policies for path in policy_files(spec)))
                 missing.update({f"{key}={path}": None for key, path in named if path and not Path(path).exists()})
         return list(missing)
 
