@@ -13,7 +13,7 @@ import numpy as np
 from colorgrid.config import FOLLOWER, EnvConfig
 from colorgrid.enums import SeatFit
 from colorgrid.env import BatchEnv
-from colorgrid.policies import SCRIPTED, IdleFollower, make_policy, policy_card, policy_teams
+from colorgrid.policies import SCRIPTED, IdleFollower, make_policy, person_base, policy_card, policy_teams
 from colorgrid.policies.base import AgentInput
 from colorgrid.policies.names import PolicyKind, read_name
 from colorgrid.replay import describe_agent
@@ -24,10 +24,14 @@ log = logging.getLogger("colorgrid.server")
 
 
 def is_scripted(name: str) -> bool:
-    """A scripted follower: cheap to build, and it plays at any agent index of any team; not a trained network
-    or checkpoint (which takes a while to load: the server keeps those warm)."""
+    """A scripted policy: cheap to build, and it plays at any agent index of any team; not a trained network or
+    checkpoint (which takes a while to load: the server keeps those warm), nor a person leader around one
+    (``person:base=ippo-leader``: it builds and plays as its base)."""
     spec = read_name(name)
-    return spec is not None and spec.kind is PolicyKind.SCRIPTED
+    if spec is None or spec.kind is not PolicyKind.SCRIPTED:
+        return False
+    base = person_base(name)
+    return base is None or is_scripted(base)
 
 
 def plays(name: str, team) -> bool:

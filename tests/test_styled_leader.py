@@ -82,6 +82,16 @@ def test_it_is_described_by_its_base_and_its_style_and_plays_its_bases_teams():
     assert policy_teams("person:slip=0.1") is None
 
 
+def test_the_play_server_keeps_a_person_around_a_network_warm_as_its_base():
+    """Only a policy that is scripted all the way down is cheap to build; a person around a trained leader loads
+    its network, so the server warms it and times its calls as it does the base's."""
+    from server.followers import is_scripted
+
+    assert is_scripted("person:slip=0.1") and is_scripted("person:base=astar,slip=0.1") and is_scripted("copy")
+    assert not is_scripted("person:base=ippo-leader,slip=0.1") and not is_scripted("ippo-leader")
+    assert not is_scripted("person:base=runs/x/leader.pt,slip=0.1") and not is_scripted("population:people")
+
+
 @pytest.mark.parametrize("delay", [0, 3])
 def test_the_base_is_shown_the_old_goal_for_exactly_k_steps_after_a_switch(delay):
     config = EnvConfig(switch_prob=0.05, horizon=200)

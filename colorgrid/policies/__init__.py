@@ -90,8 +90,8 @@ def policy_files(name: str) -> list[str]:
             return [str(path)]
         return list(dict.fromkeys([str(path), *(f for member in members.values() for f in policy_files(member))]))
     if spec.kind is PolicyKind.SCRIPTED:
-        base = read_params(spec.params or "", name).get("base")
-        return policy_files(base) if isinstance(base, str) and base != name else []
+        base = person_base(name)
+        return [] if base is None else policy_files(base)
     found = registry.file_of(name)
     return [found] if found is not None else []
 
