@@ -14,7 +14,7 @@ import pytest
 
 from colorgrid import EnvConfig
 from colorgrid.config import LEADER
-from colorgrid.policies import Policy, PolicyOutput, StyledLeader, make_policy, policy_teams
+from colorgrid.policies import Policy, PolicyOutput, StyledLeader, make_policy, policy_card, policy_teams
 from colorgrid.policies.people import PersonStyle
 from colorgrid.policies.population import load_population
 from colorgrid.rollout import run_episodes
@@ -80,6 +80,10 @@ def test_it_is_described_by_its_base_and_its_style_and_plays_its_bases_teams():
     assert described["params"]["base"] == "ippo-leader" and described["params"]["notice_delay"] == 3
     assert policy_teams(spec) == policy_teams("ippo-leader") == ("1:1",)
     assert policy_teams("person:slip=0.1") is None
+    card, base = policy_card(spec).lead, policy_card("ippo-leader").lead
+    assert card.label == "Person-like leader" and card.description.startswith(base.label) and "A*" not in card.description
+    assert policy_card("person:base=runs/x/leader.pt").lead.description.startswith("runs/x/leader.pt, with the slips")
+    assert policy_card("person:slip=0.1") == policy_card("person:base=astar,slip=0.1") == policy_card("person")
 
 
 def test_the_play_server_keeps_a_person_around_a_network_warm_as_its_base():

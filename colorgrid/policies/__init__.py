@@ -11,7 +11,7 @@ from colorgrid.policies.people import BASES, PersonLeader, PersonStyle
 from colorgrid.policies.population import SHIPPED_CARD, PopulationPolicy, load_population
 from colorgrid.policies.registry import scripted
 from colorgrid.policies.scripted import AStarLeader, CopyFollower, IdleFollower, OracleFollower, RandomPolicy
-from colorgrid.policies.styled import StyledLeader
+from colorgrid.policies.styled import StyledLeader, styled_card
 
 
 def make_policy(name: str, role: str | None = None) -> Policy:
@@ -158,7 +158,8 @@ def policy_card(name: str) -> PolicyCard | None:
     if spec is None:
         return None
     if spec.kind is PolicyKind.SCRIPTED:
-        return SCRIPTED[spec.target].card
+        base = person_base(name)  # a person around another leader is described by that leader
+        return SCRIPTED[spec.target].card if base is None else styled_card(base, policy_card(base))
     if spec.kind is PolicyKind.POPULATION:
         return SHIPPED_CARD if name.startswith(POPULATION_PREFIX) else None
     return registry.card_of(spec.target)

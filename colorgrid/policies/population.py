@@ -49,8 +49,7 @@ def load_population(spec: str) -> dict[str, str]:
 
 
 SHIPPED_CARD = PolicyCard(lead=Part("A person-like leader from a population",
-                                   ("each game draws one of the population's leaders (A*, or the A* leader with "
-                                    "people's slips, late turns and mistakes)")))
+                                   "each game draws one of the population's leaders, each with its own way of playing"))
 """What a shipped population (``population:NAME[#PART]``) says of itself: each is one of person-like leaders."""
 
 
