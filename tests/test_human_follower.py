@@ -181,15 +181,31 @@ def test_rescore_reports_practice_and_goal_shown_games_apart_never_pooled_with_t
     assert apart["practice"]["measures"]["person"]["games"] == 2
     assert apart["goal_shown"]["measures"]["person"]["games"] == 1
     assert apart["practice"]["measures"]["person"]["probe_accuracy"] == 1.0
+    # the followers' open-loop pickups too: the hidden-goal game pooled alone, each kind apart with its own figures
+    rescored = json.loads(out.read_text())
+    assert [g.rsplit("/", 1)[1] for g in rescored["games"]] == ["hidden.replay.json"]
+    assert {kind: len(part["games"]) for kind, part in rescored["set_apart"].items()} == {"practice": 2,
+                                                                                          "goal_shown": 1}
+    assert rescored["net_pickups"]["bayes"]["mean"] == rescored["per_game"]["bayes"][0]
+    practice_nets = rescored["set_apart"]["practice"]["per_game"]["bayes"]
+    assert rescored["set_apart"]["practice"]["net_pickups"]["bayes"]["mean"] == pytest.approx(np.mean(practice_nets))
+    assert apart["practice"]["measures"]["bayes"]["net_pickups"]["mean"] == pytest.approx(np.mean(practice_nets))
+    assert report["measures"]["bayes"]["pickups_games"] == 1 and apart["practice"]["measures"]["bayes"][
+        "pickups_games"] == 2
     text = done.stdout
+    pooled, people = text.split("with a person in the follower seat")[0], text[text.index("1 recorded game(s) with"):]
+    assert pooled.startswith("1 recorded games, each leader's moves replayed open-loop with each follower")
+    assert "set apart, not pooled above: 2 practice game(s) of a study\n2 recorded games, each" in pooled
+    assert "set apart, not pooled above: 1 game(s) that showed the person the goal (a control)\n1 recorded games" \
+           in pooled
     assert "1 recorded game(s) with a person in the follower seat, the goal hidden" in text
-    assert "set apart, not in the person's figures above: 2 practice game(s) of a study" in text
-    assert "set apart, not in the person's figures above: 1 game(s) that showed the person the goal" in text
+    assert "set apart, not in the person's figures above: 2 practice game(s) of a study" in people
+    assert "set apart, not in the person's figures above: 1 game(s) that showed the person the goal" in people
     assert "nan" not in text  # one game has no interval
-    first = text.split("set apart")[0]
+    first = people.split("set apart")[0]
     net = next(line for line in first.splitlines() if line.startswith("net pickups "))
     assert "±" not in net, net
-    practice = text.split("practice game(s) of a study")[1].split("set apart")[0]
+    practice = people.split("practice game(s) of a study")[1].split("set apart")[0]
     assert re.search(r"probe answers right\s+100\.0%", practice) and "net pickups " in practice
 
 
@@ -200,6 +216,8 @@ def test_only_games_set_apart_still_report_them_and_say_the_person_has_no_figure
     assert done.returncode == 0, done.stderr
     assert "no recorded game of a person in the follower seat with the goal hidden" in done.stdout
     assert "1 practice game(s) of a study" in done.stdout and "nan" not in done.stdout
-    assert "1 recorded games, each leader's moves replayed" in done.stdout
+    assert done.stdout.startswith("no recorded game to pool: every game rescored is set apart below\n\n"
+                                  "set apart, not pooled above: 1 practice game(s) of a study\n"
+                                  "1 recorded games, each leader's moves replayed")
     follower = next(line for line in done.stdout.splitlines() if line.startswith("bayes "))
     assert "±" not in follower, follower  # rescore's own table: one game, no interval

@@ -10,7 +10,8 @@ recorded actions (the default) or is a policy.
 ``rescore`` branches every recorded game at step 0 with each follower and compares them on the
 same leader moves. That is open-loop: the person did not see the new follower and did not
 react to it, so it measures how a follower does beside these exact moves, not how the game
-would have gone.
+would have gone. A study's practice games and games that showed the person the goal are
+rescored apart (``colorgrid.replay.apart``), never pooled with the others.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from colorgrid.enums import Ending
 from colorgrid.env import BatchEnv
 from colorgrid.policies import make_policy
 from colorgrid.replay import Replay, ReplayError, describe_agent, load
+from colorgrid.replay.apart import SET_APART, set_apart
 from colorgrid.step_inputs import StepInputs
 
 
@@ -134,37 +136,51 @@ def open_loop_pickups(parent: Replay, follower: str, seed: int | None = None,
 
 def rescore(files: list[Path], followers: list[str], seed: int | None = None) -> dict:
     """Every recorded leader's moves replayed with each follower (``branch`` at step 0): per-follower means
-    and paired differences against the first follower, with 95% intervals over games."""
-    from colorgrid.evaluate import mean_ci
-
-    nets: dict[str, list[float]] = {f: [] for f in followers}
-    wrongs: dict[str, list[float]] = {f: [] for f in followers}
-    used = []
+    and paired differences against the first follower, with 95% intervals over games. The games ``set_apart``
+    names (a study's practice, the goal shown to a person) are pooled apart, each kind under ``set_apart`` in a
+    report of the same fields (``games`` may then be empty)."""
+    kinds: dict[str | None, list[tuple[str, Replay]]] = {None: []}
     for path in files:
         parent = load(path)
         if parent.kind != "actions" or "branch_of" in parent.meta:  # a branch's leader moves are open-loop copies
             continue
         if not parent.config.one_to_one:  # a team's followers are not replaced one at a time
             continue
-        used.append(str(path))
-        for follower in followers:
-            net, wrong = open_loop_pickups(parent, follower, seed, str(path))
-            nets[follower].append(net)
-            wrongs[follower].append(wrong)
-    if not used:
+        kinds.setdefault(set_apart(parent), []).append((str(path), parent))
+    if not any(kinds.values()):
         raise ValueError("no actions replays to rescore")
+    return {**_rescored(kinds.pop(None), followers, seed),
+            "set_apart": {kind: _rescored(games, followers, seed) for kind, games in kinds.items()}}
+
+
+def _rescored(games: list[tuple[str, Replay]], followers: list[str], seed: int | None) -> dict:
+    """``rescore``'s figures over ``games`` (path and replay), pooled together."""
+    from colorgrid.evaluate import mean_ci
+
+    pickups = {f: [open_loop_pickups(parent, f, seed, path) for path, parent in games] for f in followers}
+    nets = {f: [net for net, _ in pickups[f]] for f in followers}
+    wrongs = {f: [wrong for _, wrong in pickups[f]] for f in followers}
     base = followers[0]
-    return {
-        "games": used, "followers": followers, "baseline": base,
-        "net_pickups": {f: mean_ci(np.array(nets[f])) for f in followers},
-        "wrong_pickups": {f: mean_ci(np.array(wrongs[f])) for f in followers},
-        "paired_difference": {f: mean_ci(np.array(nets[f]) - np.array(nets[base])) for f in followers[1:]},
-        "per_game": {f: nets[f] for f in followers}, "per_game_wrong": {f: wrongs[f] for f in followers},
-    }
+    out = {"games": [path for path, _ in games], "followers": followers, "baseline": base,
+           "net_pickups": {}, "wrong_pickups": {}, "paired_difference": {}, "per_game": nets, "per_game_wrong": wrongs}
+    if games:  # no figure over no game
+        out.update(net_pickups={f: mean_ci(np.array(nets[f])) for f in followers},
+                   wrong_pickups={f: mean_ci(np.array(wrongs[f])) for f in followers},
+                   paired_difference={f: mean_ci(np.array(nets[f]) - np.array(nets[base])) for f in followers[1:]})
+    return out
 
 
 def format_rescore(report: dict) -> str:
-    """``rescore``'s report as a table; an interval only where there are two games or more."""
+    """``rescore``'s report as a table; an interval only where there are two games or more. Each kind of game set
+    apart follows in a table of its own."""
+    lines = _rescore_table(report) if report["games"] else [
+        "no recorded game to pool: every game rescored is set apart below"]
+    for kind, part in report.get("set_apart", {}).items():
+        lines += ["", f"set apart, not pooled above: {len(part['games'])} {SET_APART[kind]}", *_rescore_table(part)]
+    return "\n".join(lines)
+
+
+def _rescore_table(report: dict) -> list[str]:
     from colorgrid.evaluate import format_mean_ci
 
     lines = [f"{len(report['games'])} recorded games, each leader's moves replayed open-loop with each follower",
@@ -174,4 +190,4 @@ def format_rescore(report: dict) -> str:
         lines.append(f"{f:<36}{format_mean_ci(n):>22}{w['mean']:>16.2f}")
     for f, d in report["paired_difference"].items():
         lines.append(f"{f} - {report['baseline']}: {format_mean_ci(d)} net pickups per game (paired)")
-    return "\n".join(lines)
+    return lines

@@ -19,7 +19,7 @@ the recorded leader), which is not paired that exactly: once it moves differentl
 
 The person's figures are those of the games that measure reading a hidden goal. A study's practice game and a game that
 showed the person the goal (``meta.goal_view == "shown"``, a control) measure something else; each kind is reported
-apart (``SET_APART``), never pooled with them.
+apart (``colorgrid.replay.apart``), never pooled with them.
 """
 
 from __future__ import annotations
@@ -28,24 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
-from colorgrid.enums import GameKind, Role
+from colorgrid.enums import Role
 from colorgrid.replay import Replay, load
+from colorgrid.replay.apart import SET_APART, set_apart
 from colorgrid.evaluate import catch_lags, format_mean_ci, mean_ci
 
 LOG_LOSS_FLOOR = 1e-6
 PERSON = "person"
 """The row of the person in the reports (the AI followers' rows are their names)."""
-SET_APART = {GameKind.PRACTICE.value: "practice game(s) of a study",
-             "goal_shown": "game(s) that showed the person the goal (a control)"}
-"""The games kept out of the person's figures, each kind reported apart: what each is, in words."""
-
-
-def set_apart(replay: Replay) -> str | None:
-    """The ``SET_APART`` kind of ``replay``, or None for a game that measures reading a hidden goal: a study's practice
-    game (``meta.study.kind``) whatever it showed, else a game that showed the goal (``meta.goal_view``)."""
-    if (replay.meta.get("study") or {}).get("kind") == GameKind.PRACTICE:
-        return GameKind.PRACTICE.value
-    return "goal_shown" if replay.meta.get("goal_view") == "shown" else None
 
 
 def human_followers(replay: Replay) -> list[str]:
@@ -169,8 +159,8 @@ def human_follower_report(files: list[Path], followers: list[str], seed: int | N
     pooled, with paired differences (follower minus person) over games. Only games that measure reading a hidden goal
     are pooled; practice games and games that showed the goal are reported apart, each kind with its own figures, under
     ``set_apart`` (``SET_APART``'s keys; ``games`` may then be empty). ``pickups``: ``rescore``'s report, whose
-    per-game net pickups of each follower (1:1 games) are set beside the person's. None when no game had a person in
-    a follower seat."""
+    per-game net pickups of each follower (1:1 games) are set beside the person's, a kind set apart beside its own
+    (rescore's ``set_apart``). None when no game had a person in a follower seat."""
     games, apart = [], {kind: [] for kind in SET_APART}
     for path in files:
         replay = load(path)
@@ -186,7 +176,8 @@ def human_follower_report(files: list[Path], followers: list[str], seed: int | N
     if not games and not any(apart.values()):
         return None
     return {**_report(games, followers, pickups),
-            "set_apart": {kind: _report(kept, followers, pickups) for kind, kept in apart.items() if kept}}
+            "set_apart": {kind: _report(kept, followers, None if pickups is None else pickups["set_apart"].get(kind))
+                          for kind, kept in apart.items() if kept}}
 
 
 def _report(games: list[dict], followers: list[str], pickups: dict | None) -> dict:
