@@ -1,8 +1,9 @@
-"""Screening, checks and exclusions declared in a study file: one-line errors for a wrong declaration; against a real
-study server, participants refused by the screening and because the study is full (told why, logged and counted), a
-comprehension check answered wrong then right or failed on every try, and trials away from the page or on a slow
-connection, all in the export's ``exclusions`` table with its declared types and counted per arm on the admin page;
-in chromium, the screening's refusal and the comprehension check as a participant meets them."""
+"""Screening, checks and exclusions declared in a study file: one-line errors for a wrong declaration; a trial's time
+away and longest stretch without a key counted by hand, and each trial's rule (away, idle, round trip) applied;
+against a real study server, participants refused by the screening and because the study is full (told why, logged
+and counted), a comprehension check answered wrong then right or failed on every try, and trials away from the page
+or on a slow connection, all in the export's ``exclusions`` table with its declared types and counted per arm on the
+admin page; in chromium, the screening's refusal and the comprehension check as a participant meets them."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import json
 import time
 import urllib.error
 import urllib.request
+from types import SimpleNamespace
 
 import pandas as pd
 import pyarrow.parquet as pq
@@ -19,6 +21,7 @@ from websockets.sync.client import connect
 
 from server.study.config import StudyError, load_study, parse_study
 from server.study.columns import check_arrow, check_frame, read_csv
+from server.study.exclusions import attention_figures, away_seconds, exclusion_rows, idle_seconds
 from server.study.export import write_tables
 from server.study.schema import export_schema
 from tests.conftest import start_server, stop_server
@@ -97,6 +100,30 @@ def test_the_rules_of_screening_say_why_in_words_for_the_participant():
     reason, words = screening.problem(False, (1200, 800), [4000.0, 6000.0, 7000.0])  # the median: 6000 ms
     assert reason == "round_trip" and "a round trip of 6000 ms; they need at most 5000 ms" in words
     assert screening.problem(False, (1200, 800), [1.0])[0] == "round_trip"  # fewer pings than asked: not measured
+
+
+def test_the_evidence_of_attention_counted_by_hand_and_each_trial_rule_applied_to_it():
+    page = [{"event": "blur", "t_server": 1000}, {"event": "focus", "t_server": 3000},  # 2 s out of focus
+            {"event": "visibilitychange", "visible": False, "t_server": 5000},  # hidden 5-7 s, out of focus 6-9 s
+            {"event": "blur", "t_server": 6000}, {"event": "visibilitychange", "visible": True, "t_server": 7000},
+            {"event": "focus", "t_server": 9000}, {"event": "blur", "t_server": 11000}]  # still away at the end
+    assert away_seconds(page, 0, 12000) == 2 + 4 + 1
+    assert idle_seconds([1000, 2000, 9000], 0, 10000) == 7.0 and idle_seconds([], 0, 4000) == 4.0
+    replay = SimpleNamespace(meta={"state_sent_ms": [0, 1000, 10000], "page_events": page[:2]},
+                             key_events=[{"t_server": 1000}], belief_events=[{"t_server": 4000, "via": "probe"}])
+    assert attention_figures(replay) == {"away_s": 2.0, "idle_s": 6.0}  # a statement or a probe's answer is a key
+    study = parse_study(study_data(exclusions={"away_s": 5, "idle_s": 6, "round_trip_ms": 500}))
+
+    def game(index: int, kind: str = "trial", ended: str = "complete", **figures) -> dict:
+        return {"participant": "p", "game_id": index, "kind": kind, "trial_index": index, "condition_index": 0,
+                "ended": ended, **{"away_s": None, "idle_s": None, "round_trip_ms": None, **figures}}
+
+    games = [game(0, idle_s=7.0), game(1, idle_s=6.0, away_s=8.0), game(2, round_trip_ms=501.0),
+             game(3, idle_s=60.0, kind="practice"), game(4, idle_s=60.0, ended="disconnected")]
+    rows = exclusion_rows(study, games, [])
+    assert [(r["game_id"], r["rule"], r["value"], r["threshold"]) for r in rows] == [
+        (0, "idle", 7.0, 6.0), (1, "away", 8.0, 5.0), (2, "round_trip", 501.0, 500.0)]  # above it, not at it
+    assert rows[0]["evidence"] == "7.00 s without a key (more than 6 s)"
 
 
 # ---------------------------------------------------------------- a real server
