@@ -5,6 +5,8 @@ its card. A toy follower added the way docs/ARCHITECTURE.md says is offered by t
 import asyncio
 import json
 import re
+import subprocess
+import sys
 from types import SimpleNamespace
 
 import numpy as np
@@ -134,3 +136,19 @@ def test_a_yardstick_is_refused_wherever_a_person_chooses_a_partner_saying_why(m
         assert "\n" not in str(refused.value)
     with pytest.raises(ValueError, match="a yardstick .* has no place in the play server's follower menu"):
         PolicyCard(yardstick="it reads the goal", menu=10)
+
+
+@pytest.mark.parametrize("followers, words", [
+    ("copy,bayes-limit", "followers must be a policy name: one of ['astar', "),
+    ("copy,bayes", "(one name an option: --followers copy --followers bayes), got 'copy,bayes'"),
+    ("nosuch", "or a checkpoint path ending in .pt, got 'nosuch'"),
+])
+def test_the_play_server_refuses_a_follower_that_is_no_policy_in_one_line(followers, words):
+    """Each ``--followers`` gives one name: names joined by a comma, or a name that is no policy, are refused
+    before the server starts (they were taken as one follower that no game could build, a yardstick among them
+    unseen)."""
+    done = subprocess.run([sys.executable, "-m", "colorgrid_apps", "play", "--followers", followers, "--port", "0"],
+                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2, done.stdout + done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and words in lines[0], done.stderr
