@@ -852,6 +852,32 @@ def test_resume_with_a_population_partner_continues_exactly(tmp_path):
         assert torch.equal(value, resumed.learners[1].model.state_dict()[key]), key
 
 
+def test_a_partner_is_pinned_to_the_checkpoints_inside_it_and_resumes_from_before_they_were(tmp_path):
+    """A person around the IPPO leader keeps its base's sha256 in the checkpoint's record of the partner (and so in
+    every replay's agents entry): a run resumes beside the same weights only. A record saved before nested
+    checkpoints were pinned still resumes, pinned against the file as it is now."""
+    import hashlib
+
+    changes = dict(leader={"policy": "person:base=ippo-leader,slip=0.1"}, total_steps=2 * 64)
+    Trainer(tiny(**changes), tmp_path, progress=False, tensorboard=False).train()
+    path = tmp_path / "checkpoints" / "latest.pt"
+    ckpt = torch.load(path, map_location="cpu", weights_only=False)
+    base = ckpt["trainer_state"]["partners"]["leader"]["describe"]["base"]
+    assert base["checkpoint_sha256"] == hashlib.sha256(Path(base["checkpoint"]).read_bytes()).hexdigest()
+
+    def resume(sha: str | None) -> Trainer:
+        base.pop("checkpoint_sha256", None)
+        base.update({} if sha is None else {"checkpoint_sha256": sha})
+        torch.save(ckpt, path)
+        trainer = Trainer(tiny(**{**changes, "total_steps": 3 * 64}), tmp_path, progress=False, tensorboard=False)
+        trainer.restore(path)
+        return trainer
+
+    assert resume(None).step == 128  # as saved before
+    with pytest.raises(ValueError, match="resume with the same partner"):
+        resume("0" * 64)  # other weights under the same name
+
+
 def test_eval_partners_judge_the_learner_beside_other_partners_on_the_same_seeds(tmp_path):
     """Each evaluation partner plays the agents that do not learn, on the evaluation's own seeds: beside the idle
     leader the leader collects nothing, beside A* it collects, and the learner's own play is the same network's."""

@@ -35,6 +35,7 @@ from colorgrid.config import ROLES, EnvConfig
 from colorgrid.configkit import from_dict
 from colorgrid.files import atomic_path
 from colorgrid.replay import describe_agent
+from colorgrid.replay.format import pinned
 from colorgrid.state import EnvState
 from train.acting import ACTING
 from train.config import NetConfig, TrainConfigError
@@ -297,9 +298,10 @@ def restore_trainer(trainer, path: str | Path) -> None:
             if saved is None:
                 raise ValueError(f"{path} holds no {names[i]} {kind}, but this run has one; resume with "
                                  f"the run's own settings")
-            if saved["describe"] != describe_agent(policy.describe()):
-                raise ValueError(f"{path}: the {names[i]} {kind} was {saved['describe']}, now it is "
-                                 f"{describe_agent(policy.describe())}; resume with the same {kind}")
+            now = describe_agent(policy.describe())
+            if pinned(saved["describe"]) != now:  # one saved before nested checkpoints were pinned: pinned now
+                raise ValueError(f"{path}: the {names[i]} {kind} was {saved['describe']}, now it is {now}; resume "
+                                 f"with the same {kind}")
             policy.load_state_dict(saved["state"])
     torch.set_rng_state(state["torch_rng"])
     trainer.step, trainer.iteration = int(ckpt["step"]), int(ckpt["iteration"])

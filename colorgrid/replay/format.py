@@ -321,11 +321,24 @@ def load(path: str | os.PathLike, max_bytes: int | None = None) -> Replay:
 
 
 def describe_agent(policy_description: dict, checkpoint: str | None = None) -> dict:
-    """An ``agents`` entry; with a checkpoint (given, or named by the description), its hash pins the weights."""
-    out = dict(policy_description)
+    """An ``agents`` entry; with a checkpoint (given, or named by the description), its hash pins the weights, and so
+    does the hash of every checkpoint named inside it (a person leader's ``base``, a population's ``members``)."""
+    out = pinned(policy_description)
     checkpoint = checkpoint or out.get("checkpoint")
     if checkpoint is not None:
         out["checkpoint_sha256"] = file_sha256(checkpoint)
+    return out
+
+
+def pinned(description):
+    """``description`` with ``checkpoint_sha256`` beside each ``checkpoint`` it holds, at any depth."""
+    if isinstance(description, list):
+        return [pinned(v) for v in description]
+    if not isinstance(description, dict):
+        return description
+    out = {k: pinned(v) for k, v in description.items()}
+    if isinstance(out.get("checkpoint"), str) and "checkpoint_sha256" not in out:
+        out["checkpoint_sha256"] = file_sha256(out["checkpoint"])
     return out
 
 
