@@ -176,6 +176,12 @@ def leader_styles(policy: Policy) -> list[PersonStyle]:
         return [policy.style]
     if isinstance(policy, AStarLeader):
         return [PersonStyle()]
+    from colorgrid.policies.styled import StyledLeader
+
+    if isinstance(policy, StyledLeader):  # a person's departures are known, the trained base's choices are not
+        raise ValueError(f"bayes-limit is given its leader's true model, and a person around {policy.style.base!r} "
+                         f"has none it can be given (the model of {policy.style.base!r}'s own moves is not known): "
+                         "lead with astar, person:... around A* or a population of them")
     raise ValueError(f"bayes-limit is given its leader's true model, and the leader {policy.name!r} has none it "
                      "can be given: lead with astar, person:... or a population of them")
 
