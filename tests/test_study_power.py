@@ -33,25 +33,32 @@ kind = "trials"
 LEADERS = ["astar", "person:slip=0.1,notice_delay=3"]
 
 
-def write_pilot(folder, rows: list[dict]):
+def write_pilot(folder, rows: list[dict], exclusions: list[dict] = ()):
+    """A pilot's export: its ``trials`` (each row given a ``game_id`` if it has none) and its ``exclusions``."""
     folder.mkdir(parents=True, exist_ok=True)
+    rows = [{"game_id": f"g{i}", **row} for i, row in enumerate(rows)]
     pd.DataFrame(rows).to_parquet(folder / "trials.parquet")
+    columns = {"participant": "string", "game_id": "string", "rule": "category"}
+    pd.DataFrame(list(exclusions), columns=list(columns)).astype(columns).to_parquet(folder / "exclusions.parquet")
     return folder
 
 
-def within_pilot(folder):
+def within_pilot(folder, exclusions: list[dict] = ()):
     """Six participants, each playing both leaders twice (and a practice game, not counted): their differences
-    between the leaders are 0.1, 0.3, 0.2, 0.0, 0.4 and 0.2 (sd 0.1414...)."""
+    between the leaders are 0.1, 0.3, 0.2, 0.0, 0.4 and 0.2 (sd 0.1414...). Participant ``pI``'s trials are the games
+    ``pI-LEADER-BASE`` (``p1-0-0.5``: beside the A* leader, the first of the two), its practice ``pI-practice``."""
     rows = []
     for i, diff in enumerate([0.1, 0.3, 0.2, 0.0, 0.4, 0.2]):
         pid = f"p{i}"
-        rows.append({"participant": pid, "kind": "practice", "condition_leader": "astar", "stated_accuracy": 0.0})
+        rows.append({"participant": pid, "game_id": f"{pid}-practice", "kind": "practice",
+                     "condition_leader": "astar", "stated_accuracy": 0.0})
         for base in (0.5, 0.7):  # two trials a level: the participant's mean at each level is taken
-            rows.append({"participant": pid, "kind": "trial", "condition_leader": LEADERS[0],
-                         "stated_accuracy": base + diff, "probe_brier": None})  # no probes: no Brier score
-            rows.append({"participant": pid, "kind": "trial", "condition_leader": LEADERS[1], "stated_accuracy": base,
-                         "probe_brier": None})
-    return write_pilot(folder, rows)
+            rows.append({"participant": pid, "game_id": f"{pid}-0-{base}", "kind": "trial",
+                         "condition_leader": LEADERS[0], "stated_accuracy": base + diff,
+                         "probe_brier": None})  # no probes: no Brier score
+            rows.append({"participant": pid, "game_id": f"{pid}-1-{base}", "kind": "trial",
+                         "condition_leader": LEADERS[1], "stated_accuracy": base, "probe_brier": None})
+    return write_pilot(folder, rows, exclusions)
 
 
 def between_pilot(folder):
@@ -102,8 +109,47 @@ def test_the_command_prints_what_an_arm_needs_and_writes_json(tmp_path):
     assert "within participants: paired t-test" in done.stdout and "d_z 0.500" in done.stdout
     assert "an arm needs 9 participants (36 in all over 4 arm(s))" in done.stdout
     assert "the study's quota is 12 per arm (48 in all): enough" in done.stdout
+    assert "left out as excluded (the pilot's exclusions table; --keep-excluded keeps them): none of its 24 trials" \
+        in done.stdout
     report = json.loads((tmp_path / "power.json").read_text())
     assert report["factor"] == "leader" and report["pairs"][0]["needed"] == 34
+    assert report["left_out"]["trials"] == 0 and report["left_out"]["of"] == 24
+
+
+EXCLUDED = [
+    {"participant": "p3", "game_id": None, "rule": "failed_checks"},  # p3 excluded as a whole, and with it
+    {"participant": "p3", "game_id": "p3-0-0.5", "rule": "away"},  # its trial that broke a rule of its own too
+    {"participant": "p1", "game_id": "p1-0-0.5", "rule": "away"},  # one trial, two rules broken
+    {"participant": "p1", "game_id": "p1-0-0.5", "rule": "idle"},
+    {"participant": "p4", "game_id": "p4-1-0.7", "rule": "round_trip"},
+]
+"""The pilot's exclusions: p3 left out (its difference 0.0); p1's first A* trial (its difference becomes 1.0 - 0.6 =
+0.4) and p4's second trial beside the person-like leader (1.0 - 0.5 = 0.5) left out."""
+
+
+def test_the_pilots_excluded_trials_and_participants_are_left_out_and_counted_by_rule(tmp_path):
+    pilot = within_pilot(tmp_path / "pilot", EXCLUDED)
+    args = (WITHIN, "--pilot", pilot, "--measure", "stated_accuracy", "--difference", 0.0707106781)
+    done = run(*args, "--json", tmp_path / "left_out.json")
+    assert done.returncode == 0, done.stderr
+    assert ("left out as excluded (the pilot's exclusions table; --keep-excluded keeps them): 6 of its 24 trials: the "
+            "4 trial(s) of 1 participant(s) excluded as a whole (failed_checks 1) and 2 trial(s) excluded on their "
+            "own (away 1, idle 1, round_trip 1)") in done.stdout, done.stdout
+    report = json.loads((tmp_path / "left_out.json").read_text())
+    assert report["left_out"] == {"trials": 6, "of": 24, "participants": 1, "participant_trials": 4,
+                                  "participant_rules": {"failed_checks": 1}, "excluded_trials": 2,
+                                  "trial_rules": {"away": 1, "idle": 1, "round_trip": 1}}
+    (pair,) = report["pairs"]
+    sd = pd.Series([0.1, 0.4, 0.2, 0.5, 0.2]).std(ddof=1)  # p0, p1, p2, p4, p5 as left
+    assert pair["pilot_participants"] == 5 and pair["sd"] == pytest.approx(sd)
+    assert pair["effect_size"] == pytest.approx(0.0707106781 / sd) and pair["needed"] > 34  # more spread: more needed
+    # --keep-excluded: every counted trial, as if there were no exclusions (the G*Power case above)
+    done = run(*args, "--keep-excluded", "--json", tmp_path / "kept.json")
+    assert done.returncode == 0, done.stderr
+    assert "the excluded trials kept (--keep-excluded): every counted trial of the pilot" in done.stdout
+    report = json.loads((tmp_path / "kept.json").read_text())
+    assert report["left_out"] is None and report["pairs"][0]["pilot_participants"] == 6
+    assert report["pairs"][0]["needed"] == 34
 
 
 @pytest.mark.parametrize("args, words", [
@@ -128,6 +174,12 @@ def test_a_pilot_folder_without_an_export_or_a_single_participant_is_refused_in_
     one = write_pilot(tmp_path / "one", [{"participant": "p0", "kind": "trial", "condition_leader": level,
                                           "stated_accuracy": 0.5} for level in LEADERS])
     done = run(WITHIN, "--pilot", one, "--measure", "stated_accuracy", "--difference", "0.1")
+    assert done.returncode == 2 and "the pilot has 1 participant(s)" in done.stderr, done.stderr
+    (one / "exclusions.parquet").unlink()  # an export without its exclusions: refused, unless they are to be kept
+    done = run(WITHIN, "--pilot", one, "--measure", "stated_accuracy", "--difference", "0.1")
+    assert done.returncode == 2 and "no exclusions.parquet there" in done.stderr, done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1
+    done = run(WITHIN, "--pilot", one, "--measure", "stated_accuracy", "--difference", "0.1", "--keep-excluded")
     assert done.returncode == 2 and "the pilot has 1 participant(s)" in done.stderr, done.stderr
 
 
@@ -158,7 +210,13 @@ def test_the_documented_walk_through_on_the_scripted_stand_ins_export(tmp_path):
     assert done.returncode == 0, done.stderr
     report = json.loads((tmp_path / "p.json").read_text())
     (pair,) = report["pairs"]
-    mine = trials[trials.kind == "trial"].groupby(["participant", "condition_leader"], observed=True).team_score.mean()
+    exclusions = pd.read_parquet(out / "exclusions.parquet")  # left out as the documented analysis leaves them
+    left_out = set(exclusions.participant[exclusions.game_id.isna()])
+    trials = trials[(trials.kind == "trial") & ~trials.game_id.isin(exclusions.game_id)
+                    & ~trials.participant.isin(left_out)]
+    assert report["left_out"]["trials"] == 12 - len(trials) and "left out as excluded" in done.stdout
+    mine = trials.groupby(["participant", "condition_leader"], observed=True).team_score.mean()
     differences = mine.unstack()[LEADERS[0]] - mine.unstack()[LEADERS[1]]
-    assert pair["pilot_participants"] == 3 and pair["sd"] == pytest.approx(differences.std(ddof=1))
+    assert pair["pilot_participants"] == trials.participant.nunique()
+    assert pair["sd"] == pytest.approx(differences.std(ddof=1))
     assert f"an arm needs {report['per_arm']} participants" in done.stdout and report["per_arm"] >= 1

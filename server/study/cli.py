@@ -84,6 +84,9 @@ def add_study_commands(sub) -> None:
                                         "two levels or more)")
     power.add_argument("--power", type=float, default=0.8, help="the power wanted (default 0.8)")
     power.add_argument("--alpha", type=float, default=0.05, help="the two-sided significance level (default 0.05)")
+    power.add_argument("--keep-excluded", action="store_true",
+                       help="plan on every counted trial, the excluded too (default: the trials and participants the "
+                            "pilot's exclusions table excludes are left out, as the study's analysis leaves them)")
     power.add_argument("--json", type=Path, help="also write the figures as JSON")
     power.set_defaults(func=cmd_power)
 
@@ -119,11 +122,12 @@ def cmd_run(args: argparse.Namespace) -> int:
 def cmd_power(args: argparse.Namespace) -> int:
     import json
 
-    from server.study.power import Comparison, format_power, read_trials, sample_size
+    from server.study.power import Comparison, format_power, pilot_trials, sample_size
 
     study = load_study(args.study_file)
     comparison = Comparison(args.measure, args.difference, args.factor, args.power, args.alpha)
-    report = sample_size(study, read_trials(args.pilot), comparison)
+    trials, left_out = pilot_trials(args.pilot, args.keep_excluded)
+    report = {**sample_size(study, trials, comparison), "left_out": left_out}
     print(format_power(report), flush=True)
     if args.json:
         args.json.write_text(json.dumps(report, indent=2, default=str))

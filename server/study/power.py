@@ -15,6 +15,9 @@ pilot export's spread gives the effect size, and statsmodels' power functions th
 Both are two-sided at level ``alpha``. A factor of more than two levels is taken pair by pair; the study needs what
 its hardest pair needs. A pilot is a handful of participants: its spread is itself uncertain, and the numbers it gives
 are a plan, not a guarantee.
+
+The pilot's excluded trials are left out as the study's analysis leaves them out (``drop_excluded``: each trial its
+``exclusions`` table names, and every trial of a participant it excludes as a whole), unless they are kept on purpose.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from colorgrid.enums import GameKind
 from colorgrid.extras import require
 from server.study.assign import arms
 from server.study.config import Study
+from server.study.exclusions import RULES
 from server.study.schema import export_schema
 
 NUMERIC = ("int64", "Int64", "float64")
@@ -79,6 +83,51 @@ def read_trials(folder: Path) -> pd.DataFrame:
                                 "--out` wrote")
     trials = pd.read_parquet(path)
     return trials[trials.kind == GameKind.TRIAL.value]
+
+
+def read_exclusions(folder: Path) -> pd.DataFrame:
+    """The ``exclusions`` table of a study's export folder: a row per rule a trial or a participant broke."""
+    path = Path(folder) / "exclusions.parquet"
+    if not path.is_file():
+        raise FileNotFoundError(f"--pilot {folder}: no exclusions.parquet there; export the pilot again (colorgrid "
+                                "study export), or give --keep-excluded to plan on every trial")
+    return pd.read_parquet(path)
+
+
+def drop_excluded(trials: pd.DataFrame, exclusions: pd.DataFrame) -> tuple[pd.DataFrame, dict]:
+    """``trials`` without the excluded, read from ``exclusions`` as docs/STUDIES.md's analysis reads it: every trial of
+    a participant excluded as a whole (a row without a game), and each trial a row names (its ``game_id``); and what
+    was left out: ``trials`` (all of them) ``of`` the trials given, the ``participants`` excluded as a whole with
+    their ``participant_trials`` and ``participant_rules`` (participants per rule), and the ``excluded_trials`` of the
+    other participants with their ``trial_rules`` (trials per rule; a trial may break several)."""
+    if "game_id" not in trials.columns:
+        raise ValueError("the pilot's trials table has no column 'game_id' to match its exclusions to: export the "
+                         "pilot with colorgrid study export, or give --keep-excluded")
+    whole = exclusions[exclusions.game_id.isna()]
+    theirs = trials.participant.isin(whole.participant)
+    own = ~theirs & trials.game_id.isin(exclusions.game_id.dropna())
+    participants = set(trials.participant[theirs])
+    return trials[~theirs & ~own], {
+        "trials": int(theirs.sum() + own.sum()), "of": len(trials),
+        "participants": len(participants), "participant_trials": int(theirs.sum()),
+        "participant_rules": _per_rule(whole[whole.participant.isin(participants)], "participant"),
+        "excluded_trials": int(own.sum()),
+        "trial_rules": _per_rule(exclusions[exclusions.game_id.isin(trials.game_id[own])], "game_id")}
+
+
+def _per_rule(rows: pd.DataFrame, what: str) -> dict[str, int]:
+    """How many distinct ``what`` each rule of ``rows`` names, in the order of ``exclusions.RULES``."""
+    counts = rows.groupby(rows.rule.astype(str))[what].nunique()
+    return {rule: int(counts[rule]) for rule in RULES if rule in counts}
+
+
+def pilot_trials(folder: Path, keep_excluded: bool = False) -> tuple[pd.DataFrame, dict | None]:
+    """The pilot's counted trials a plan is made on (``read_trials``), the excluded left out (``drop_excluded``), and
+    what was left out; with ``keep_excluded`` every counted trial, and None."""
+    trials = read_trials(folder)
+    if keep_excluded:
+        return trials, None
+    return drop_excluded(trials, read_exclusions(folder))
 
 
 def factor_levels(study: Study, factor: str | None) -> tuple[str, list]:
@@ -158,12 +207,15 @@ def _spread(values: pd.Series, what: str) -> float:
 
 
 def format_power(report: dict) -> str:
-    """The sample size in words: per pair of levels, then what an arm of the study needs."""
+    """The sample size in words: the trials left out as excluded (where ``report`` says, as ``left_out``), per pair of
+    levels, then what an arm of the study needs."""
     within = report["design"] == "within"
     lines = [f"{report['study']}: {report['measure']}, {report['factor']}'s levels compared "
              f"({'within participants: paired t-test' if within else 'between participants: two-sample t-test'}, "
              f"two-sided, alpha {report['alpha']:g}, power {report['power']:.0%}), to find a difference of "
              f"{report['difference']:g}"]
+    if "left_out" in report:
+        lines.append(format_left_out(report["left_out"]))
     for pair in report["pairs"]:
         a, b = pair["levels"]
         if within:
@@ -181,3 +233,24 @@ def format_power(report: dict) -> str:
         lines.append(f"the study's quota is {report['quota']} per arm ({report['quota'] * report['arms']} in all): "
                      f"{enough}")
     return "\n".join(lines)
+
+
+def format_left_out(left_out: dict | None) -> str:
+    """What ``drop_excluded`` left out, in words, by rule (None: the excluded were kept)."""
+    if left_out is None:
+        return "the excluded trials kept (--keep-excluded): every counted trial of the pilot"
+    where = "left out as excluded (the pilot's exclusions table; --keep-excluded keeps them)"
+    if not left_out["trials"]:
+        return f"{where}: none of its {left_out['of']} trials"
+    parts = []
+    if left_out["participants"]:
+        parts.append(f"the {left_out['participant_trials']} trial(s) of {left_out['participants']} participant(s) "
+                     f"excluded as a whole ({_by_rule(left_out['participant_rules'])})")
+    if left_out["excluded_trials"]:
+        parts.append(f"{left_out['excluded_trials']} trial(s) excluded on their own "
+                     f"({_by_rule(left_out['trial_rules'])})")
+    return f"{where}: {left_out['trials']} of its {left_out['of']} trials: {' and '.join(parts)}"
+
+
+def _by_rule(counts: dict[str, int]) -> str:
+    return ", ".join(f"{rule} {n}" for rule, n in counts.items())
