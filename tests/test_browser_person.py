@@ -16,11 +16,14 @@ from playwright.sync_api import expect
 from colorgrid import EnvConfig
 from colorgrid.evaluate import record_batch
 from colorgrid.policies import make_policy
+from colorgrid.replay import save
+from colorgrid.replay.apart import SET_APART
 from colorgrid.replay.human_follower import person_measures, watched
 from colorgrid.rollout import run_episodes
 from tests.conftest import start_server, stop_server
 from tests.test_browser import pixel
 from tests.test_browser_follower import open_setup, replay_of
+from tests.test_human_follower import shown_game
 
 BOXES = ("#board", "#belief-slot", "#mode-label")
 """What must not move when a probe opens: the board, the slot of the probe and the statement panel, and what is below
@@ -188,6 +191,7 @@ def test_the_replay_player_draws_the_person_beside_the_ai_follower_with_both_mea
                                  f"{urllib.parse.quote(follower)}")[0]
         seat = people["seats"]["follower"]
         assert seat["person"] == json.loads(json.dumps(person)) and seat["follower"] == json.loads(json.dumps(ai))
+        assert seat["set_apart"] is None and seat["set_apart_words"] is None  # the goal hidden, no study: pooled
         net = page.locator(".person-table tr[data-measure=net_pickups] [data-who=ai]")
         expect(net).to_have_text(f"{seat['net_pickups']:+d}" if seat["net_pickups"] else "0")
     assert errors == []
@@ -202,10 +206,7 @@ def test_people_refuses_an_unknown_follower_and_a_game_without_a_person(seat_ser
     recorded, = record_batch(batch, "astar", "bayes", leader, follower, tmp_path, "eval")
     replay_id = "no-person-in-it"
     recorded.rename(seat_server.replays_dir / f"{replay_id}.replay.json")
-    listed = lambda: any(i["id"] == replay_id for i in seat_server.get("/api/replays?limit=500")[0]["items"])
-    deadline = time.monotonic() + 60  # a bound for a loaded machine: the server lists a new file at its next scan
-    while not listed():
-        assert time.monotonic() < deadline, "the new replay was never listed"
+    wait_listed(seat_server, replay_id)
     timeline = seat_server.get(f"/api/replays/{replay_id}/timeline")[0]
     assert timeline["verified"] and "stated_beliefs" not in timeline and "person_measures" not in timeline
     for query, code, words in (("follower=bayes", 422, "no person played a follower seat"),
@@ -213,6 +214,38 @@ def test_people_refuses_an_unknown_follower_and_a_game_without_a_person(seat_ser
         with pytest.raises(urllib.error.HTTPError) as refused:
             seat_server.get(f"/api/replays/{replay_id}/people?{query}")
         assert refused.value.code == code and words in json.loads(refused.value.read())["detail"]
+
+
+def wait_listed(server, replay_id: str) -> None:
+    """Until the server lists a replay file just written to its folder (at its next scan)."""
+    listed = lambda: any(i["id"] == replay_id for i in server.get("/api/replays?limit=500")[0]["items"])
+    deadline = time.monotonic() + 60  # a bound for a loaded machine
+    while not listed():
+        assert time.monotonic() < deadline, "the new replay was never listed"
+        time.sleep(0.2)
+
+
+def test_a_game_rescore_sets_apart_is_named_in_the_servers_words(seat_server, browser):
+    """A game that showed the person the goal: ``/people`` sends what it is in words
+    (``colorgrid.replay.apart.SET_APART``), and the person panel says them; the page keeps no words of its own."""
+    replay_id = "goal-shown"
+    seat_server.replays_dir.mkdir(parents=True, exist_ok=True)
+    save(shown_game(8), seat_server.replays_dir / f"{replay_id}.replay.json")
+    wait_listed(seat_server, replay_id)
+    follower = seat_server.get("/api/options")[0]["default_follower"]
+    people = seat_server.get(f"/api/replays/{replay_id}/people?follower={urllib.parse.quote(follower)}")[0]
+    words = SET_APART["goal_shown"].game
+    assert people["seats"]["follower"]["set_apart"] == "goal_shown"
+    assert people["seats"]["follower"]["set_apart_words"] == words
+    page = browser.new_page(viewport={"width": 1400, "height": 1000})
+    errors = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(f"{seat_server.url}/replay?id={replay_id}")
+    expect(page.locator("#person-panel")).to_have_attribute("data-follower", follower, timeout=60_000)
+    expect(page.locator(".person-table + p")).to_contain_text(
+        f"This is {words}: rescore reports it apart from the person's figures.")
+    assert errors == []
+    page.close()
 
 
 def test_a_refused_new_game_shows_the_servers_reason(seat_server, browser):

@@ -1,7 +1,8 @@
 // The person on the replay player: in a game with a person in a follower seat (the timeline's `stated_beliefs`), the
 // "person and AI" panel gives this game's measures of the person beside the AI follower chosen in the follower menu
 // watching the person's seat (GET /api/replays/{id}/people?follower=: the same measures `colorgrid replay rescore`
-// pools over games), and hands that follower's beliefs to the chart, drawn on the person's axis.
+// pools over games), and hands that follower's beliefs to the chart, drawn on the person's axis. A game rescore sets
+// apart (a study's practice, the goal shown) is named in the server's words (`set_apart_words`), not the page's.
 // `setupPerson(id, data, redraw)` once; `redraw(watched)` draws the chart again with {agent: [T][C]}.
 
 const $ = (id) => document.getElementById(id);
@@ -17,7 +18,6 @@ const ROWS = [
   ["steps to catch each switch", "switch_lags", (v) => (v.length ? v.join(", ") : "none caught")],
   ["net pickups", "net_pickups", (v) => (v > 0 ? `+${v}` : `${v}`)],
 ];
-const SET_APART = { practice: "a practice game of a study", goal_shown: "a game that showed the person the goal" };
 let asked = 0;
 
 export async function setupPerson(replayId, data, redraw) {
@@ -104,7 +104,7 @@ function fillTable(data, people, seats, follower) {
     }
     const facts = document.createElement("p");
     facts.className = "note";
-    const apart = SET_APART[seat?.set_apart];
+    const apart = seat?.set_apart_words;  // the server's words for a game rescore sets apart (practice, goal shown)
     facts.textContent = `The person said a color at ${person.stated_steps} of ${person.steps} steps and answered ` +
       `${person.probes_answered} of ${person.probes_asked} probes; ${person.switches} goal switches.` +
       (apart ? ` This is ${apart}: rescore reports it apart from the person's figures.` : "");

@@ -176,7 +176,7 @@ def format_rescore(report: dict) -> str:
     lines = _rescore_table(report) if report["games"] else [
         "no recorded game to pool: every game rescored is set apart below"]
     for kind, part in report.get("set_apart", {}).items():
-        lines += ["", f"set apart, not pooled above: {len(part['games'])} {SET_APART[kind]}", *_rescore_table(part)]
+        lines += ["", f"set apart, not pooled above: {len(part['games'])} {SET_APART[kind].games}", *_rescore_table(part)]
     return "\n".join(lines)
 
 

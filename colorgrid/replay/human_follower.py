@@ -30,7 +30,7 @@ import numpy as np
 
 from colorgrid.enums import Role
 from colorgrid.replay import Replay, load
-from colorgrid.replay.apart import SET_APART, set_apart
+from colorgrid.replay.apart import SET_APART, set_apart, set_apart_words
 from colorgrid.evaluate import catch_lags, format_mean_ci, mean_ci
 
 LOG_LOSS_FLOOR = 1e-6
@@ -136,16 +136,18 @@ def person_and_follower(replay: Replay, follower: str, seed: int | None = None) 
     """One game's figures of each person in a follower seat beside ``follower`` (the replay page's "person and AI"
     panel; per game what ``human_follower_report`` pools), by the person's agent name: ``person`` (``person_measures``),
     ``follower`` (``follower_measures`` watching the seat, or None for a follower without beliefs), ``beliefs`` (its
-    ``[T][C]``), and in 1:1 games the follower's ``net_pickups`` and ``wrong_pickups`` in the seat
-    (``branch.open_loop_pickups``, as rescore counts them; None in other teams)."""
+    ``[T][C]``), in 1:1 games the follower's ``net_pickups`` and ``wrong_pickups`` in the seat
+    (``branch.open_loop_pickups``, as rescore counts them; None in other teams), and the ``set_apart`` kind of the game
+    with its ``set_apart_words`` (``apart.SET_APART``; None for a game rescore pools)."""
     from colorgrid.replay.branch import open_loop_pickups
 
-    out = {}
+    out, kind = {}, set_apart(replay)
     for agent in human_followers(replay):
         beliefs, measures = watched(replay, agent, follower, seed)
         pickups = open_loop_pickups(replay, follower, seed) if replay.config.one_to_one else (None, None)
         out[agent] = {"person": person_measures(replay, agent), "follower": measures, "beliefs": beliefs,
-                      "net_pickups": pickups[0], "wrong_pickups": pickups[1], "set_apart": set_apart(replay)}
+                      "net_pickups": pickups[0], "wrong_pickups": pickups[1], "set_apart": kind,
+                      "set_apart_words": set_apart_words(kind)}
     return out
 
 
@@ -267,7 +269,7 @@ def format_human_report(report: dict) -> str:
         lines = ["no recorded game of a person in the follower seat with the goal hidden: nothing to measure the "
                  "person's reading of the goal on"]
     for kind, part in report.get("set_apart", {}).items():
-        lines += ["", f"set apart, not in the person's figures above: {len(part['games'])} {SET_APART[kind]}",
+        lines += ["", f"set apart, not in the person's figures above: {len(part['games'])} {SET_APART[kind].games}",
                   *_table(part)]
     return "\n".join(lines)
 
