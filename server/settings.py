@@ -7,8 +7,7 @@ from pathlib import Path
 from typing import ClassVar
 
 from colorgrid.configkit import ConfigBase, check_bool, check_choice, check_int, check_number, check_strings, fail
-from colorgrid.policies import offered_followers, policy_card, policy_names
-from colorgrid.policies.names import read_name
+from colorgrid.policies import offered_followers, policy_card
 from colorgrid.presets import PRESETS
 from colorgrid.resources import shipped
 from server.followers import is_leader_kind, leader_kinds_allowed
@@ -103,10 +102,6 @@ class ServerSettings(ConfigBase):
         check_strings(self, "followers", allowed="a tuple of follower names")
         for field_name, names in (("follower", (self.follower,)), ("followers", self.followers)):
             for name in names:
-                if isinstance(name, str) and name and read_name(name) is None:
-                    one_each = " (one name an option: --followers copy --followers bayes)" if "," in name else ""
-                    fail(self, field_name, f"a policy name: one of {policy_names()} or a checkpoint path ending in "
-                                           f".pt{one_each}", name)
                 if isinstance(name, str) and (reason := yardstick_reason(name)) is not None:
                     fail(self, field_name, f"a follower a person may play beside ({reason})", name)
         check_strings(self, "leaders", allowed="a tuple of leader names")

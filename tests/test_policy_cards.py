@@ -139,9 +139,9 @@ def test_a_yardstick_is_refused_wherever_a_person_chooses_a_partner_saying_why(m
 
 
 @pytest.mark.parametrize("followers, words", [
-    ("copy,bayes-limit", "followers must be a policy name: one of ['astar', "),
-    ("copy,bayes", "(one name an option: --followers copy --followers bayes), got 'copy,bayes'"),
-    ("nosuch", "or a checkpoint path ending in .pt, got 'nosuch'"),
+    ("copy,bayes-limit", "--followers 'copy,bayes-limit' is no policy: give one of ['astar', "),
+    ("copy,bayes", "ending in .pt (one name a flag: --followers copy --followers bayes)"),
+    ("nosuch", "--followers 'nosuch' is no policy: give one of ["),
 ])
 def test_the_play_server_refuses_a_follower_that_is_no_policy_in_one_line(followers, words):
     """Each ``--followers`` gives one name: names joined by a comma, or a name that is no policy, are refused
