@@ -1,7 +1,9 @@
 """Shared test helpers."""
 
 import asyncio
+import math
 import time
+from decimal import ROUND_HALF_UP, Decimal
 
 import numpy as np
 
@@ -9,6 +11,19 @@ from colorgrid import BatchEnv, EnvConfig
 from colorgrid.scenario import state_from_text
 
 UP, DOWN, LEFT, RIGHT, STAY = range(5)
+
+
+def js_round(x: float) -> int:
+    """JavaScript's ``Math.round``, as a page rounds: halves go up (Python's ``round`` sends 12.5 to 12)."""
+    return math.floor(x + 0.5)
+
+
+def js_fixed(x: float, digits: int) -> str:
+    """JavaScript's ``x.toFixed(digits)``, as a page writes a number: the float's exact value rounded, a tie to the
+    larger (Python's format sends the exact tie 6.25 to "6.2", the page writes "6.3")."""
+    exact = Decimal(x).quantize(Decimal(1).scaleb(-digits), rounding=ROUND_HALF_UP) if x >= 0 else \
+        -Decimal(-x).quantize(Decimal(1).scaleb(-digits), rounding=ROUND_HALF_UP)
+    return f"{exact:.{digits}f}"
 
 
 def env_from_text(config: EnvConfig, text: str, goal=0, seed=0) -> BatchEnv:

@@ -9,6 +9,7 @@ from colorgrid.config import COLOR_NAMES
 from colorgrid.enums import Ending
 from server.messages import ENDING_WORDS, ROOM_ERROR_WORDS, SEAT_WORDS
 from server.protocol import ROOM_CODE_LENGTH, RoomErrorCode, RoomSeatStatus
+from tests.helpers import js_fixed, js_round
 
 
 BAR_COLORS = "els => els.map(e => getComputedStyle(e).backgroundColor)"
@@ -193,7 +194,7 @@ def test_replay_player_scrubs_plays_links_and_downloads(server, browser, tmp_pat
     expect(page.locator(".belief-row")).to_have_count(3)
     # the belief bars show the recorded probabilities of this step
     shown = page.locator(".belief-value").all_text_contents()
-    assert shown == [f"{p:.2f}" for p in timeline["goal_probs"]["follower"][39]]
+    assert shown == [js_fixed(p, 2) for p in timeline["goal_probs"]["follower"][39]]
     # trails draw over the same board
     plain = board_pixels(page)
     page.check("#trails")
@@ -742,3 +743,13 @@ def test_one_person_with_two_ai_partners_may_give_each_its_own_kind(server, brow
     page.click("#start")
     expect(page.locator("#follower-label")).to_have_text(f"{info['ippo-1L2F']['label']} + {info['copy']['label']}")
     page.close()
+
+
+def test_the_suites_copies_of_the_pages_number_formats_match_chromium(browser):
+    """``js_fixed`` and ``js_round`` (tests/helpers.py) write a number as a page does, exact ties included: the
+    tests that read a page's figures compare with them, not with Python's format, which sends ties the other way."""
+    values = [6.25, 0.125, 2.675, -1.25, 12.5, 0.0, 1 / 3, 87.5, 0.005, 2.5, -2.5, 1e-7]
+    page = browser.new_page()
+    shown = page.evaluate("vs => vs.map(v => [v.toFixed(1), v.toFixed(2), Math.round(v)])", values)
+    page.close()
+    assert shown == [[js_fixed(v, 1), js_fixed(v, 2), js_round(v)] for v in values]

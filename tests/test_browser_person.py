@@ -5,7 +5,6 @@ watching their seat, with both sides' measures (``/timeline`` and ``/people``, c
 ``colorgrid.replay.human_follower``)."""
 
 import json
-import math
 import time
 import urllib.error
 import urllib.parse
@@ -21,6 +20,7 @@ from colorgrid.replay.apart import SET_APART
 from colorgrid.replay.human_follower import person_measures, watched
 from colorgrid.rollout import run_episodes
 from tests.conftest import start_server, stop_server
+from tests.helpers import js_fixed, js_round
 from tests.test_browser import pixel
 from tests.test_browser_follower import open_setup, replay_of
 from tests.test_human_follower import shown_game
@@ -116,11 +116,6 @@ def test_the_game_over_card_sets_the_goal_against_what_the_person_said(played):
         assert pixel(page, x, 30, "#over-history") == palette[replay.stated_beliefs["follower"][t]]
 
 
-def js_round(x: float) -> int:
-    """JavaScript's Math.round (halves go up), which the page uses; Python's round sends 12.5 to 12."""
-    return math.floor(x + 0.5)
-
-
 def played_palette(page) -> list[str]:
     """The palette the page draws with: the stated colors' swatches, as ``#rrggbb``."""
     colors = page.locator(".stated-color .swatch").evaluate_all(
@@ -185,8 +180,8 @@ def test_the_replay_player_draws_the_person_beside_the_ai_follower_with_both_mea
         person = person_measures(replay, "follower")
         for key in ("accuracy", "probe_accuracy"):
             row = page.locator(f".person-table tr[data-measure={key}]")
-            expect(row.locator("[data-who=person]")).to_have_text(f"{100 * person[key]:.1f}%")
-            expect(row.locator("[data-who=ai]")).to_have_text("\u2013" if ai is None else f"{100 * ai[key]:.1f}%")
+            expect(row.locator("[data-who=person]")).to_have_text(f"{js_fixed(100 * person[key], 1)}%")
+            expect(row.locator("[data-who=ai]")).to_have_text("\u2013" if ai is None else f"{js_fixed(100 * ai[key], 1)}%")
         people = seat_server.get(f"/api/replays/{urllib.parse.quote(replay_id)}/people?follower="
                                  f"{urllib.parse.quote(follower)}")[0]
         seat = people["seats"]["follower"]

@@ -19,6 +19,7 @@ from colorgrid.presets import env_config
 from colorgrid.render import AGENT_COLORS, PALETTE, look
 from server.cluster.plan import RESTARTS_ENV
 from tests.conftest import start_server, stop_server
+from tests.helpers import js_fixed
 
 TOKEN = "pages-admin-token"
 FRAME = 16  # web/study_game.js: the goal frame's width on the study page, in pixels
@@ -525,9 +526,9 @@ def test_the_admin_page_forgets_a_wrong_token_and_shows_processes_lost_games_and
     assert summary["endings"]["played_again"] == {"server_lost": 1}
     trials = summary["arms"][0]["trials"]
     arm = page.locator("#arms tr").nth(1).locator("td").all_inner_texts()
-    assert arm[5:] == [str(trials["games"]), f"{trials['team_score']:.2f}", f"{trials['follower_net_pickups']:.2f}",
-                       f"{trials['follower_wrong_pickups']:.2f}",
-                       f"{trials['belief_accuracy']:.2f}" if trials["belief_accuracy"] is not None else "",
+    assert arm[5:] == [str(trials["games"]), js_fixed(trials["team_score"], 2), js_fixed(trials["follower_net_pickups"], 2),
+                       js_fixed(trials["follower_wrong_pickups"], 2),
+                       js_fixed(trials["belief_accuracy"], 2) if trials["belief_accuracy"] is not None else "",
                        "0", "0"]  # trials and participants excluded: this study declares no [exclusions]
     assert summary["arms"][0]["excluded"]["trials"] == 0 and summary["arms"][0]["excluded"]["participants"] == 0
     assert trials["games"] >= 1
