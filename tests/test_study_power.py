@@ -10,7 +10,7 @@ import pandas as pd
 import pytest
 
 from server.study.config import load_study
-from server.study.power import Comparison, sample_size
+from server.study.power import Comparison, read_trials, sample_size
 from tests.conftest import ROOT, start_server, stop_server
 from tests.test_examples import example
 from tests.test_study import TOKEN, toml
@@ -36,7 +36,7 @@ LEADERS = ["astar", "person:slip=0.1,notice_delay=3"]
 def write_pilot(folder, rows: list[dict], exclusions: list[dict] = ()):
     """A pilot's export: its ``trials`` (each row given a ``game_id`` if it has none) and its ``exclusions``."""
     folder.mkdir(parents=True, exist_ok=True)
-    rows = [{"game_id": f"g{i}", **row} for i, row in enumerate(rows)]
+    rows = [{"game_id": f"g{i}", "ended": "complete", **row} for i, row in enumerate(rows)]
     pd.DataFrame(rows).to_parquet(folder / "trials.parquet")
     columns = {"participant": "string", "game_id": "string", "rule": "category"}
     pd.DataFrame(list(exclusions), columns=list(columns)).astype(columns).to_parquet(folder / "exclusions.parquet")
@@ -58,6 +58,11 @@ def within_pilot(folder, exclusions: list[dict] = ()):
                          "probe_brier": None})  # no probes: no Brier score
             rows.append({"participant": pid, "game_id": f"{pid}-1-{base}", "kind": "trial",
                          "condition_leader": LEADERS[1], "stated_accuracy": base, "probe_brier": None})
+    # an attempt lost with its server, played again (the trials above), and one still running: neither counts
+    rows.append({"participant": "p2", "game_id": "p2-lost", "kind": "trial", "ended": "server_lost",
+                 "condition_leader": LEADERS[0], "stated_accuracy": 0.0, "probe_brier": None})
+    rows.append({"participant": "p3", "game_id": "p3-running", "kind": "trial", "ended": None,
+                 "condition_leader": LEADERS[1], "stated_accuracy": 1.0, "probe_brier": None})
     return write_pilot(folder, rows, exclusions)
 
 
@@ -86,8 +91,8 @@ def test_between_participants_an_arm_needs_cohens_two_group_sample_size(d, per_g
 
 def test_within_participants_the_paired_test_gives_g_powers_34_for_dz_one_half(tmp_path):
     study = load_study(WITHIN)
-    trials = pd.read_parquet(within_pilot(tmp_path / "pilot") / "trials.parquet")
-    trials = trials[trials.kind == "trial"]
+    trials = read_trials(within_pilot(tmp_path / "pilot"))
+    assert len(trials) == 24  # the practice, the lost attempt and the running one left out
     sd = pd.Series([0.1, 0.3, 0.2, 0.0, 0.4, 0.2]).std(ddof=1)
     report = sample_size(study, trials, Comparison("stated_accuracy", 0.5 * sd, "leader"))
     (pair,) = report["pairs"]

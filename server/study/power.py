@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from colorgrid.enums import GameKind
+from colorgrid.enums import Ending, GameKind
 from colorgrid.extras import require
 from server.study.assign import arms
 from server.study.config import Study
@@ -76,13 +76,16 @@ def measures(study: Study) -> list[str]:
 
 
 def read_trials(folder: Path) -> pd.DataFrame:
-    """The counted trials (not the practice) of a study's export folder (``colorgrid study export --out``)."""
+    """The counted trials of a study's export folder (``colorgrid study export --out``): not the practice, and not an
+    attempt lost to no one's doing (``Ending.lost()``: disconnected, the server stopped), which the participant played
+    again, nor one still running; as the admin page counts them."""
     path = Path(folder) / "trials.parquet"
     if not path.is_file():
         raise FileNotFoundError(f"--pilot {folder}: no trials.parquet there; give the folder `colorgrid study export "
                                 "--out` wrote")
     trials = pd.read_parquet(path)
-    return trials[trials.kind == GameKind.TRIAL.value]
+    ended = trials.ended.astype("string").fillna("")
+    return trials[(trials.kind == GameKind.TRIAL.value) & (ended != "") & ~ended.isin([e.value for e in Ending.lost()])]
 
 
 def read_exclusions(folder: Path) -> pd.DataFrame:
