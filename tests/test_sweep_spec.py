@@ -265,6 +265,9 @@ def test_files_named_inside_a_partner_must_exist_too(tmp_path, monkeypatch):
     assert missing("mine.json#training") == ["leader.policy=gone.pt", "leader.policy=away/leader.pt"]
     assert missing("mine.json#held_out") == []
     assert missing("population:people#training") == []
+    # a population that names itself, or a member whose parameters cannot be read: refused when built, not here
+    (tmp_path / "self.json").write_text(json.dumps({"training": {"me": "self.json", "bad": "person:slip"}}))
+    assert missing("self.json") == []
 
 
 def test_eval_address_needs_a_population_matrix(capsys):

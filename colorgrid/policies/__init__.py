@@ -62,19 +62,22 @@ def make_styled(style: PersonStyle, role: str | None, name: str) -> StyledLeader
 
 def person_base(name: str) -> str | None:
     """The base of a person leader with one other than A* (``ippo-leader`` of ``person:base=ippo-leader,slip=0.1``),
-    None for any other name."""
+    None for any other name, and for parameters that cannot be read (building the policy says what is wrong)."""
     spec = read_name(name)
     if spec is None or spec.target != PersonLeader.name or spec.params is None:
         return None
-    base = read_params(spec.params, name).get("base", AStarLeader.name)
+    try:
+        base = read_params(spec.params, name).get("base", AStarLeader.name)
+    except ValueError:
+        return None
     return base if isinstance(base, str) and base != AStarLeader.name else None
 
 
-def policy_files(name: str) -> list[str]:
+def policy_files(name: str, _within: frozenset[str] = frozenset()) -> list[str]:
     """The files policy ``name`` reads when it is built, those it names inside it too: a checkpoint (``x.pt``), a
     person leader's base (``person:base=x.pt``), a population's file and each of its members' files. A population
-    file that does not exist is listed without members; a name that is no policy name lists nothing (building it
-    says why)."""
+    file that does not exist, cannot be read or names itself is listed without members; a name that is no policy name
+    lists nothing (building it says why)."""
     from colorgrid.resources import find_shipped
 
     spec = read_name(name)
@@ -82,16 +85,17 @@ def policy_files(name: str) -> list[str]:
         return []
     if spec.kind is PolicyKind.POPULATION:
         path = find_shipped(spec.target.partition("#")[0], "populations", ".json")
-        if not path.exists():
+        if not path.exists() or str(path.resolve()) in _within:
             return [str(path)]
         try:
             members = load_population(spec.target)
         except ValueError:
             return [str(path)]
-        return list(dict.fromkeys([str(path), *(f for member in members.values() for f in policy_files(member))]))
+        within = _within | {str(path.resolve())}
+        return list(dict.fromkeys([str(path), *(f for m in members.values() for f in policy_files(m, within))]))
     if spec.kind is PolicyKind.SCRIPTED:
         base = person_base(name)
-        return [] if base is None else policy_files(base)
+        return [] if base is None else policy_files(base, _within)
     found = registry.file_of(name)
     return [found] if found is not None else []
 
