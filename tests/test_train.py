@@ -876,6 +876,9 @@ def test_a_partner_is_pinned_to_the_checkpoints_inside_it_and_resumes_from_befor
     assert resume(None).step == 128  # as saved before
     with pytest.raises(ValueError, match="resume with the same partner"):
         resume("0" * 64)  # other weights under the same name
+    base["checkpoint"] = str(tmp_path / "moved" / "leader.pt")  # saved before, its file gone since
+    with pytest.raises(ValueError, match="whose file cannot be read now .*; resume with the same partner"):
+        resume(None)
 
 
 def test_eval_partners_judge_the_learner_beside_other_partners_on_the_same_seeds(tmp_path):

@@ -35,7 +35,7 @@ from colorgrid.config import ROLES, EnvConfig
 from colorgrid.configkit import from_dict
 from colorgrid.files import atomic_path
 from colorgrid.replay import describe_agent
-from colorgrid.replay.format import pinned
+from colorgrid.replay.format import pin_checkpoints
 from colorgrid.state import EnvState
 from train.acting import ACTING
 from train.config import NetConfig, TrainConfigError
@@ -299,7 +299,12 @@ def restore_trainer(trainer, path: str | Path) -> None:
                 raise ValueError(f"{path} holds no {names[i]} {kind}, but this run has one; resume with "
                                  f"the run's own settings")
             now = describe_agent(policy.describe())
-            if pinned(saved["describe"]) != now:  # one saved before nested checkpoints were pinned: pinned now
+            try:  # one saved before nested checkpoints were pinned is pinned now, against the files as they are
+                before = pin_checkpoints(saved["describe"])
+            except OSError as err:
+                raise ValueError(f"{path}: the {names[i]} {kind} was {saved['describe']}, whose file cannot be read "
+                                 f"now ({err.strerror}: {err.filename}); resume with the same {kind}") from None
+            if before != now:
                 raise ValueError(f"{path}: the {names[i]} {kind} was {saved['describe']}, now it is {now}; resume "
                                  f"with the same {kind}")
             policy.load_state_dict(saved["state"])

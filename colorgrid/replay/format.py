@@ -323,20 +323,21 @@ def load(path: str | os.PathLike, max_bytes: int | None = None) -> Replay:
 def describe_agent(policy_description: dict, checkpoint: str | None = None) -> dict:
     """An ``agents`` entry; with a checkpoint (given, or named by the description), its hash pins the weights, and so
     does the hash of every checkpoint named inside it (a person leader's ``base``, a population's ``members``)."""
-    out = pinned(policy_description)
+    out = pin_checkpoints(policy_description)
     checkpoint = checkpoint or out.get("checkpoint")
     if checkpoint is not None:
         out["checkpoint_sha256"] = file_sha256(checkpoint)
     return out
 
 
-def pinned(description):
-    """``description`` with ``checkpoint_sha256`` beside each ``checkpoint`` it holds, at any depth."""
+def pin_checkpoints(description: dict | list | object) -> dict | list | object:
+    """``description`` with ``checkpoint_sha256`` beside each ``checkpoint`` it holds, at any depth (a file that
+    cannot be read raises ``OSError``)."""
     if isinstance(description, list):
-        return [pinned(v) for v in description]
+        return [pin_checkpoints(v) for v in description]
     if not isinstance(description, dict):
         return description
-    out = {k: pinned(v) for k, v in description.items()}
+    out = {k: pin_checkpoints(v) for k, v in description.items()}
     if isinstance(out.get("checkpoint"), str) and "checkpoint_sha256" not in out:
         out["checkpoint_sha256"] = file_sha256(out["checkpoint"])
     return out
@@ -354,4 +355,4 @@ def file_sha256(path: str | os.PathLike) -> str:
     return _SHA256[key]
 
 
-__all__ = ["FORMAT_VERSION", "SUFFIX", "Replay", "ReplayError", "describe_agent", "load", "save"]
+__all__ = ["FORMAT_VERSION", "SUFFIX", "Replay", "ReplayError", "describe_agent", "load", "pin_checkpoints", "save"]
