@@ -136,7 +136,7 @@ def test_colorgrid_eval_names_it(capsys):
     (["--leader", "random"], "the leader 'random' has none it can be given"),
     (["--leader", "astar", "--team", "2:1"], "bayes-limit models one leader; this team has 2"),
     (["--leader", "person:base=ippo-leader,slip=0.1"],
-     "a person around 'ippo-leader' has none it can be given (the model of 'ippo-leader''s own moves is not known)"),
+     "a person around 'ippo-leader' has none it can be given (its base's own moves have no model)"),
 ])
 def test_colorgrid_eval_refuses_a_leader_without_a_model_in_one_line(capsys, args, words):
     assert main(["eval", *args, "--follower", "bayes-limit", "--episodes", "2", "--set", "horizon=16"]) == 2

@@ -36,6 +36,7 @@ from colorgrid.policies.card import PolicyCard
 from colorgrid.policies.people import PersonLeader, PersonStyle
 from colorgrid.policies.registry import scripted
 from colorgrid.policies.scripted import AStarLeader
+from colorgrid.policies.styled import StyledLeader
 
 MOVES = 4
 """A person-like leader's actions: the four moves (it never stays)."""
@@ -176,12 +177,10 @@ def leader_styles(policy: Policy) -> list[PersonStyle]:
         return [policy.style]
     if isinstance(policy, AStarLeader):
         return [PersonStyle()]
-    from colorgrid.policies.styled import StyledLeader
-
     if isinstance(policy, StyledLeader):  # a person's departures are known, the trained base's choices are not
         raise ValueError(f"bayes-limit is given its leader's true model, and a person around {policy.style.base!r} "
-                         f"has none it can be given (the model of {policy.style.base!r}'s own moves is not known): "
-                         "lead with astar, person:... around A* or a population of them")
+                         "has none it can be given (its base's own moves have no model): lead with astar, person:... "
+                         "around A* or a population of them")
     raise ValueError(f"bayes-limit is given its leader's true model, and the leader {policy.name!r} has none it "
                      "can be given: lead with astar, person:... or a population of them")
 
