@@ -35,8 +35,8 @@ def cmd_play(args: argparse.Namespace) -> int:
     """Run the play server (uvicorn) until interrupted."""
     settings = from_args(ServerSettings, args, FLAGS)
     check_writable(settings.replays_dir, "--replays-dir")
+    check_follower_names(settings.followers)
     check_follower(settings.follower)
-    check_followers(settings.followers)
     check_address_free(settings.host, settings.port)
 
     def announce(url: str) -> None:
@@ -144,14 +144,16 @@ def check_writable(folder, flag: str) -> None:
         raise ValueError(f"{flag} {folder} is not a writable folder ({err.strerror}); choose another") from None
 
 
-def check_followers(names: tuple[str, ...]) -> None:
-    """Refuse to start with a follower in the menu that is no policy name: each ``--followers`` gives one (names
-    joined by a comma would be taken as one follower that no game could build)."""
+def check_follower_names(names: tuple[str, ...]) -> None:
+    """Refuse to start with a follower in the menu that is no policy name (``colorgrid play`` and ``study run``):
+    each ``--followers`` gives one; names joined by a comma would be taken as one follower that no game could build
+    (``copy,x.pt`` too, which reads as a checkpoint path, unless such a file exists)."""
     from colorgrid.policies import policy_names
     from colorgrid.policies.names import read_name
 
     for name in names:
-        if read_name(name) is None:
+        joined = "," in name and not Path(name.split(":")[0]).is_file()
+        if read_name(name) is None or joined:
             one_each = " (one name a flag: --followers copy --followers bayes)" if "," in name else ""
             raise ValueError(f"--followers {name!r} is no policy: give one of {policy_names()} or a checkpoint path "
                              f"ending in .pt{one_each}")

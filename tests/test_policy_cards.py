@@ -138,17 +138,20 @@ def test_a_yardstick_is_refused_wherever_a_person_chooses_a_partner_saying_why(m
         PolicyCard(yardstick="it reads the goal", menu=10)
 
 
+@pytest.mark.parametrize("command", [["play"], ["study", "run", "studies/human_follower.toml"]])
 @pytest.mark.parametrize("followers, words", [
     ("copy,bayes-limit", "--followers 'copy,bayes-limit' is no policy: give one of ['astar', "),
     ("copy,bayes", "ending in .pt (one name a flag: --followers copy --followers bayes)"),
+    ("bayes,x.pt", "--followers 'bayes,x.pt' is no policy"),
     ("nosuch", "--followers 'nosuch' is no policy: give one of ["),
 ])
-def test_the_play_server_refuses_a_follower_that_is_no_policy_in_one_line(followers, words):
+def test_the_play_server_refuses_a_follower_that_is_no_policy_in_one_line(command, followers, words, tmp_path):
     """Each ``--followers`` gives one name: names joined by a comma, or a name that is no policy, are refused
     before the server starts (they were taken as one follower that no game could build, a yardstick among them
-    unseen)."""
-    done = subprocess.run([sys.executable, "-m", "colorgrid_apps", "play", "--followers", followers, "--port", "0"],
-                          cwd=ROOT, capture_output=True, text=True, timeout=120)
+    unseen), by ``colorgrid play`` and ``study run`` alike."""
+    done = subprocess.run([sys.executable, "-m", "colorgrid_apps", *command, "--followers", followers, "--port", "0",
+                           "--replays-dir", str(tmp_path / "rec")], cwd=ROOT, capture_output=True, text=True,
+                          timeout=120)
     assert done.returncode == 2, done.stdout + done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and words in lines[0], done.stderr

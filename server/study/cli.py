@@ -11,7 +11,8 @@ from pathlib import Path
 
 from colorgrid.configkit import add_arguments, from_args
 from colorgrid.resources import find_shipped
-from server.cli import FLAGS, add_cluster_arguments, check_address_free, check_writable, serve_or_launch
+from server.cli import (FLAGS, add_cluster_arguments, check_address_free, check_follower_names, check_writable,
+                        serve_or_launch)
 from server.settings import ServerSettings
 from server.study.config import Study, check_followers, load_study
 
@@ -95,6 +96,7 @@ def cmd_run(args: argparse.Namespace) -> int:
     study = load_study(args.study_file)
     folder = study_folder(study, args.replays_dir)
     settings = from_args(ServerSettings, args, FLAGS, skip=("replays_dir",), replays_dir=folder)
+    check_follower_names(settings.followers)  # the flag's (the study file's are checked below, blamed on it)
     followers = tuple(dict.fromkeys((*settings.followers, *sorted(study.followers))))
     leaders = tuple(dict.fromkeys((*settings.leaders, *sorted(study.leaders))))  # the follower seat's AI leaders
     settings = dataclasses.replace(settings, followers=followers, leaders=leaders)
