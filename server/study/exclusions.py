@@ -71,8 +71,10 @@ def median_round_trip(round_trips_ms: list[float]) -> float | None:
     return float(statistics.median(round_trips_ms)) if round_trips_ms else None
 
 
-def _counted(game: dict) -> bool:
-    return game["kind"] == GameKind.TRIAL and bool(game["ended"]) and game["ended"] not in LOST
+def counted(kind: str, ended: str | None) -> bool:
+    """Whether a game of ``kind`` that ended as ``ended`` counts in a study's figures: a trial (not the practice) that
+    ended, and not to no one's doing (``LOST``: the participant played it again); as the admin page counts."""
+    return kind == GameKind.TRIAL and isinstance(ended, str) and bool(ended) and ended not in LOST
 
 
 def exclusion_rows(study: Study, games: Iterable[dict], checks: Iterable[dict]) -> list[dict]:
@@ -91,7 +93,7 @@ def exclusion_rows(study: Study, games: Iterable[dict], checks: Iterable[dict]) 
                                                                      "(more than {t:g} ms)"))
     rows = []
     for game in games:
-        if not _counted(game):
+        if not counted(game["kind"], game["ended"]):
             continue
         where = {"participant": game["participant"], "game_id": game["game_id"],
                  "trial_index": game["trial_index"], "condition_index": game["condition_index"]}

@@ -30,11 +30,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from colorgrid.enums import Ending, GameKind
 from colorgrid.extras import require
 from server.study.assign import arms
 from server.study.config import Study
-from server.study.exclusions import RULES
+from server.study.exclusions import RULES, counted
 from server.study.schema import export_schema
 
 NUMERIC = ("int64", "Int64", "float64")
@@ -84,8 +83,8 @@ def read_trials(folder: Path) -> pd.DataFrame:
         raise FileNotFoundError(f"--pilot {folder}: no trials.parquet there; give the folder `colorgrid study export "
                                 "--out` wrote")
     trials = pd.read_parquet(path)
-    ended = trials.ended.astype("string").fillna("")
-    return trials[(trials.kind == GameKind.TRIAL.value) & (ended != "") & ~ended.isin([e.value for e in Ending.lost()])]
+    ended = trials.ended.astype(object).where(trials.ended.notna(), None)
+    return trials[[counted(kind, end) for kind, end in zip(trials.kind, ended)]]
 
 
 def read_exclusions(folder: Path) -> pd.DataFrame:
