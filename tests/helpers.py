@@ -14,16 +14,18 @@ UP, DOWN, LEFT, RIGHT, STAY = range(5)
 
 
 def js_round(x: float) -> int:
-    """JavaScript's ``Math.round``, as a page rounds: halves go up (Python's ``round`` sends 12.5 to 12)."""
-    return math.floor(x + 0.5)
+    """JavaScript's ``Math.round``, as a page rounds: halves go up (Python's ``round`` sends 12.5 to 12), and
+    0.49999999999999994 down (adding 0.5 first would round it up)."""
+    whole = math.floor(x)
+    return whole + 1 if x - whole >= 0.5 else whole
 
 
 def js_fixed(x: float, digits: int) -> str:
     """JavaScript's ``x.toFixed(digits)``, as a page writes a number: the float's exact value rounded, a tie to the
-    larger (Python's format sends the exact tie 6.25 to "6.2", the page writes "6.3")."""
-    exact = Decimal(x).quantize(Decimal(1).scaleb(-digits), rounding=ROUND_HALF_UP) if x >= 0 else \
-        -Decimal(-x).quantize(Decimal(1).scaleb(-digits), rounding=ROUND_HALF_UP)
-    return f"{exact:.{digits}f}"
+    larger magnitude (Python's format sends the exact tie 6.25 to "6.2", the page writes "6.3"); a negative number
+    keeps its sign when it rounds to zero (-0.001: "-0.00"), negative zero has none ("0.00")."""
+    rounded = Decimal(abs(x)).quantize(Decimal(1).scaleb(-digits), rounding=ROUND_HALF_UP)
+    return ("-" if x < 0 else "") + f"{rounded:.{digits}f}"
 
 
 def env_from_text(config: EnvConfig, text: str, goal=0, seed=0) -> BatchEnv:

@@ -748,7 +748,8 @@ def test_one_person_with_two_ai_partners_may_give_each_its_own_kind(server, brow
 def test_the_suites_copies_of_the_pages_number_formats_match_chromium(browser):
     """``js_fixed`` and ``js_round`` (tests/helpers.py) write a number as a page does, exact ties included: the
     tests that read a page's figures compare with them, not with Python's format, which sends ties the other way."""
-    values = [6.25, 0.125, 2.675, -1.25, 12.5, 0.0, 1 / 3, 87.5, 0.005, 2.5, -2.5, 1e-7]
+    values = [6.25, 0.125, 2.675, -1.25, 12.5, 0.0, -0.0, -0.001, 0.49999999999999994, 1 / 3, 87.5, 0.005, 2.5,
+              -2.5, 1e-7]
     page = browser.new_page()
     shown = page.evaluate("vs => vs.map(v => [v.toFixed(1), v.toFixed(2), Math.round(v)])", values)
     page.close()
