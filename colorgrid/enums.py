@@ -52,6 +52,27 @@ class GameKind(StrEnum):
     TRIAL = "trial"
 
 
+class GoalView(StrEnum):
+    """Whether a person in the follower seat sees the goal: ``hidden`` (the assistant's problem, the default) or
+    ``shown`` (a control). A leader always sees it. A replay records it (``meta.goal_view``)."""
+
+    HIDDEN = "hidden"
+    SHOWN = "shown"
+
+    @property
+    def label(self) -> str:
+        """How a page names it."""
+        return {GoalView.HIDDEN: "hidden from you (work it out)", GoalView.SHOWN: "shown to you (a control)"}[self]
+
+
+class SetApart(StrEnum):
+    """A kind of recorded game that measures something else, reported apart by rescore (``colorgrid.replay.apart``):
+    a study's practice game, or a game that showed the person in the follower seat the goal."""
+
+    PRACTICE = "practice"
+    GOAL_SHOWN = "goal_shown"
+
+
 class SeatFit(StrEnum):
     """How an AI leader plays a leader seat of a team: ``direct`` (a scripted policy, or a network trained in that
     team) or ``1:1`` (a network trained in the 1:1 team, seeing the seat's game as a pair)."""

@@ -11,7 +11,7 @@ from typing import Annotated, Literal, Union
 
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter
 
-from colorgrid.enums import Role
+from colorgrid.enums import GoalView, Role  # GoalView is the protocol's too (a replay records it)
 from colorgrid.env import ACTION_NAMES
 
 _KEYS = {"up": ("ArrowUp", "w", "W"), "down": ("ArrowDown", "s", "S"), "left": ("ArrowLeft", "a", "A"),
@@ -46,19 +46,6 @@ SEAT_LABELS: dict[Role, str] = {Role.LEADER: "you lead (you know the goal)",
                                  Role.FOLLOWER: "you assist: follow an AI leader and work out the goal"}
 """How a page names the seat a person takes, by its role (``Role``): a leader's (they know the goal; the default) or
 a follower's, the assistant's seat, beside AI leaders (the goal hidden from them unless a game shows it)."""
-
-
-class GoalView(StrEnum):
-    """Whether a person in the follower seat sees the goal: ``hidden`` (the assistant's problem, the default) or
-    ``shown`` (a control). A leader always sees it."""
-
-    HIDDEN = "hidden"
-    SHOWN = "shown"
-
-    @property
-    def label(self) -> str:
-        """How a page names it."""
-        return {GoalView.HIDDEN: "hidden from you (work it out)", GoalView.SHOWN: "shown to you (a control)"}[self]
 
 
 class Team(StrEnum):

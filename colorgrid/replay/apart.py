@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from colorgrid.enums import GameKind
+from colorgrid.enums import GameKind, GoalView, SetApart
 from colorgrid.replay.format import Replay
 
 
@@ -25,18 +25,18 @@ class ApartWords:
     """Of one game, on the replay page (``/api/replays/{id}/people``): ``This is a practice game of a study``."""
 
 
-SET_APART = {GameKind.PRACTICE.value: ApartWords("practice game(s) of a study", "a practice game of a study"),
-             "goal_shown": ApartWords("game(s) that showed the person the goal (a control)",
+SET_APART = {SetApart.PRACTICE: ApartWords("practice game(s) of a study", "a practice game of a study"),
+             SetApart.GOAL_SHOWN: ApartWords("game(s) that showed the person the goal (a control)",
                                       "a game that showed the person the goal (a control)")}
 """The kinds of game reported apart, each with what it is, in words."""
 
 
-def set_apart(replay: Replay) -> str | None:
+def set_apart(replay: Replay) -> SetApart | None:
     """The ``SET_APART`` kind of ``replay``, or None for a game that is pooled: a study's practice game
     (``meta.study.kind``) whatever it showed, else a game that showed the goal (``meta.goal_view``)."""
     if (replay.meta.get("study") or {}).get("kind") == GameKind.PRACTICE:
-        return GameKind.PRACTICE.value
-    return "goal_shown" if replay.meta.get("goal_view") == "shown" else None
+        return SetApart.PRACTICE
+    return SetApart.GOAL_SHOWN if replay.meta.get("goal_view") == GoalView.SHOWN else None
 
 
 def set_apart_words(kind: str | None) -> str | None:
