@@ -17,7 +17,7 @@ from colorgrid.evaluate import record_batch
 from colorgrid.policies import make_policy
 from colorgrid.replay import save
 from colorgrid.replay.apart import SET_APART
-from colorgrid.replay.human_follower import person_measures, watched
+from colorgrid.replay.human_follower import MEASURE_WORDS, PAGE_MEASURES, person_measures, watched
 from colorgrid.rollout import run_episodes
 from tests.conftest import start_server, stop_server
 from tests.helpers import js_fixed, js_round
@@ -130,6 +130,7 @@ def test_the_timeline_carries_the_persons_statements_probes_and_measures(seat_se
     assert timeline["stated_beliefs"] == {"follower": replay.stated_beliefs["follower"]}
     assert timeline["probes"] == replay.probes and timeline["belief_events"] == replay.belief_events
     assert timeline["person_measures"]["follower"] == json.loads(json.dumps(person_measures(replay, "follower")))
+    assert timeline["person_measure_words"] == [[key, MEASURE_WORDS[key]] for key in PAGE_MEASURES]
 
 
 def replay_id_of(page) -> str:
@@ -178,6 +179,9 @@ def test_the_replay_player_draws_the_person_beside_the_ai_follower_with_both_mea
         expect(page.locator("#person-ai")).to_have_text(follower)
         _, ai = watched(replay, "follower", follower)
         person = person_measures(replay, "follower")
+        rows = page.locator(".person-table tbody tr")  # the server's words, in its order
+        expect(rows).to_have_count(len(PAGE_MEASURES))
+        assert [r.locator("td").first.inner_text() for r in rows.all()] == [MEASURE_WORDS[k] for k in PAGE_MEASURES]
         for key in ("accuracy", "probe_accuracy"):
             row = page.locator(f".person-table tr[data-measure={key}]")
             expect(row.locator("[data-who=person]")).to_have_text(f"{js_fixed(100 * person[key], 1)}%")

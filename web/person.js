@@ -7,17 +7,17 @@
 
 const $ = (id) => document.getElementById(id);
 
-// Each row of the panel: its words, the measure's key, and how it is written.
+// How each measure is written; its words and the rows' order come from the timeline (`person_measure_words`).
 const pct = (v) => `${(100 * v).toFixed(1)}%`;
-const ROWS = [
-  ["belief accuracy (stated steps)", "accuracy", pct],
-  ["belief accuracy (every step)", "accuracy_all_steps", pct],
-  ["probe answers right", "probe_accuracy", pct],
-  ["probe log-loss", "log_loss", (v) => v.toFixed(3)],
-  ["probe Brier score", "brier", (v) => v.toFixed(3)],
-  ["steps to catch each switch", "switch_lags", (v) => (v.length ? v.join(", ") : "none caught")],
-  ["net pickups", "net_pickups", (v) => (v > 0 ? `+${v}` : `${v}`)],
-];
+const FORMS = {
+  accuracy: pct,
+  accuracy_all_steps: pct,
+  probe_accuracy: pct,
+  log_loss: (v) => v.toFixed(3),
+  brier: (v) => v.toFixed(3),
+  switch_lags: (v) => (v.length ? v.join(", ") : "none caught"),
+  net_pickups: (v) => (v > 0 ? `+${v}` : `${v}`),
+};
 let asked = 0;
 
 export async function setupPerson(replayId, data, redraw) {
@@ -91,7 +91,8 @@ function fillTable(data, people, seats, follower) {
       head.appendChild(th);
     }
     const body = table.createTBody();
-    for (const [words, key, form] of ROWS) {
+    for (const [key, words] of data.person_measure_words) {
+      const form = FORMS[key] ?? String;
       const row = body.insertRow();
       row.dataset.measure = key;
       row.insertCell().textContent = words;

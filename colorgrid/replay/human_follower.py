@@ -35,6 +35,14 @@ from colorgrid.evaluate import catch_lags, format_mean_ci, mean_ci
 
 LOG_LOSS_FLOOR = 1e-6
 PERSON = "person"
+MEASURE_WORDS = {"accuracy": "belief accuracy (stated steps)", "accuracy_all_steps": "belief accuracy (every step)",
+                 "probe_accuracy": "probe answers right", "log_loss": "probe log-loss", "brier": "probe Brier score",
+                 "switch_lags": "steps to catch each switch", "median_switch_lag": "median steps to catch a switch",
+                 "switches_caught": "switches caught", "net_pickups": "net pickups", "wrong_pickups": "wrong pickups"}
+"""A person's measures in words, declared once: rescore's table and the replay page's panel (sent with ``/timeline``
+as ``person_measure_words``) name them so."""
+PAGE_MEASURES = ("accuracy", "accuracy_all_steps", "probe_accuracy", "log_loss", "brier", "switch_lags", "net_pickups")
+"""The measures the replay page's panel shows, in its order (a game's own: its switches one by one, not a median)."""
 """The row of the person in the reports (the AI followers' rows are their names)."""
 
 
@@ -287,16 +295,11 @@ def _table(report: dict) -> list[str]:
             return f"{format_mean_ci(value, '{:+.2f}' if key == 'net_pickups' else '{:.2f}'):>22}"
         return f"{form(value):>22}"
 
-    table = [("belief accuracy (stated steps)", "accuracy", "{:.1%}".format),
-             ("belief accuracy (every step)", "accuracy_all_steps", "{:.1%}".format),
-             ("probe answers right", "probe_accuracy", "{:.1%}".format),
-             ("probe log-loss", "log_loss", "{:.3f}".format),
-             ("probe Brier score", "brier", "{:.3f}".format),
-             ("median steps to catch a switch", "median_switch_lag", "{:.1f}".format),
-             ("switches caught", "switches_caught", "{:d}".format),
-             ("net pickups", "net_pickups", str), ("wrong pickups", "wrong_pickups", str)]
-    for label, key, form in table:
-        lines.append(f"{label:<34}" + "".join(cell(name, key, form) for name in names))
+    forms = {"accuracy": "{:.1%}", "accuracy_all_steps": "{:.1%}", "probe_accuracy": "{:.1%}", "log_loss": "{:.3f}",
+             "brier": "{:.3f}", "median_switch_lag": "{:.1f}", "switches_caught": "{:d}", "net_pickups": "{}",
+             "wrong_pickups": "{}"}
+    for key, form in forms.items():
+        lines.append(f"{MEASURE_WORDS[key]:<34}" + "".join(cell(name, key, form.format) for name in names))
     person = rows[PERSON]
     lines.append(f"the person stated a belief at {person['stated_steps']} of {person['steps']} steps; answered "
                  f"{person['probes_answered']} of {person['probes_asked']} probes; {person['switches']} goal switches")

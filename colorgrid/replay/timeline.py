@@ -17,7 +17,7 @@ import bisect
 from colorgrid.config import COLOR_NAMES
 from colorgrid.render import look
 from colorgrid.replay.format import Replay
-from colorgrid.replay.human_follower import human_followers, person_measures
+from colorgrid.replay.human_follower import MEASURE_WORDS, PAGE_MEASURES, human_followers, person_measures
 from colorgrid.replay.blocks import encode_blocks
 from colorgrid.replay.simulate import replay_states, verify
 
@@ -59,7 +59,8 @@ def timeline(replay: Replay, path=None) -> dict:
     if replay.stated_beliefs:  # a person in a follower seat: what they said, and how well it read the goal
         out.update({"stated_beliefs": replay.stated_beliefs, "belief_events": replay.belief_events or [],
                     "probes": replay.probes or [],
-                    "person_measures": {name: person_measures(replay, name) for name in human_followers(replay)}})
+                    "person_measures": {name: person_measures(replay, name) for name in human_followers(replay)},
+                    "person_measure_words": [[key, MEASURE_WORDS[key]] for key in PAGE_MEASURES]})
     return out
 
 
