@@ -86,7 +86,11 @@ def test_the_kept_baselines_of_the_partner_sweep_are_reproduced():
 
 
 @pytest.mark.parametrize("change, words", [
-    (("baseline", "mystery/copy"), "its partner 'mystery' is neither a policy name nor one of the trials' evaluation"),
+    (("baseline", "mystery/copy"), "claim[0].metric='eval_astar/follower_net_pickups' is invalid: an evaluation "
+                                   "column played beside the baseline's partner 'mystery': eval_mystery/..."),
+    (("baseline", "ippo-leader/copy"), "an evaluation column played beside the baseline's partner 'ippo-leader'"),
+    (("top", 'baselines = ["mystery/copy"]'), "its partner 'mystery' is neither a policy name nor one of the trials' "
+                                              "evaluation"),
     (("top", "baselines = [1]"), "baselines=[1] is invalid: a list of '<partner>/<policy>' strings"),
     (("top", "results_none"), "no results folder"),
     (("check", ""), "does not exist: run colorgrid sweep baselines"),
@@ -116,6 +120,20 @@ def test_configurations_evaluated_on_other_episodes_share_no_baseline(tmp_path, 
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and f"has another {field} than" in lines[0] and "own sweep file" in lines[0], done.stderr
     assert not (tmp_path / "kept" / "baselines.json").exists()
+
+
+def test_a_claim_on_the_main_evaluation_pairs_only_with_a_baseline_beside_the_arms_own_partner(tmp_path):
+    """``eval/...`` is played beside the partner the arm trains with (A* here): a baseline beside another leader
+    played other episodes, and is refused when the file is read; beside A* itself it pairs."""
+    path = tiny(tmp_path, baseline="ippo-leader/copy")
+    path.write_text(path.read_text().replace('metric = "eval_astar/follower_net_pickups"',
+                                             'metric = "eval/follower_net_pickups"'))
+    done = colorgrid("check", str(path))
+    assert done.returncode == 2 and "claim[0].b='ippo-leader/copy' is invalid: a baseline beside the partner side " \
+                                    "a's trials are evaluated beside on 'eval/follower_net_pickups' (['astar'])" \
+                                    in done.stderr, done.stderr
+    path.write_text(path.read_text().replace("ippo-leader/copy", "astar/copy"))
+    assert colorgrid("check", str(path)).returncode == 0
 
 
 def test_check_is_only_for_baselines(tmp_path):

@@ -24,7 +24,8 @@ from train.config import TrainConfig, load_preset, parse_override, resolve
 from train.sweep.checks import SweepError, bad
 from train.sweep.claim_spec import Baseline, matches, parse_claims
 from train.sweep.file import KINDS, RANDOM_KINDS, MoreSeeds, PaperFigure, ParamTable, Resources, Scheduler, SweepFile
-from train.sweep.spec_checks import check_configs, check_metric, more_seeds, paper_figure, summarised_columns
+from train.sweep.spec_checks import (check_baseline_pairs, check_configs, check_metric, more_seeds, paper_figure,
+                                     summarised_columns)
 
 NAME_PATTERN = re.compile(r"^[A-Za-z0-9_.-]{1,64}$")
 RESERVED = ("seed", "sample", "trial", "configuration", "step", "steps", "total_steps", "finished", "node")
@@ -286,8 +287,10 @@ def parse_sweep(data: dict, path: Path, text: str = "", out: str | Path | None =
     check_metric(spec)
     spec = dataclasses.replace(spec, paper=tuple(paper_figure(spec, i, row) for i, row in enumerate(file.paper)),
                                more_seeds=tuple(more_seeds(spec, i, row) for i, row in enumerate(file.more_seeds)))
-    return dataclasses.replace(spec, claims=parse_claims(spec.params, spec.metric, summarised_columns(spec),
+    spec = dataclasses.replace(spec, claims=parse_claims(spec.params, spec.metric, summarised_columns(spec),
                                                          file.claim))
+    check_baseline_pairs(spec)
+    return spec
 
 
 def base_config(file: SweepFile) -> dict:

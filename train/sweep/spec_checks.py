@@ -1,7 +1,8 @@
 """What a sweep file's tables must agree on, checked once its ``SweepSpec`` is built (``spec.parse_sweep``): every
 trial's training config resolves, the metric is a column the trials log, and the ``[[paper]]`` and
 ``[[more_seeds]]`` rows name configurations the parameters list. Each raises ``SweepError`` with the place in
-the file and what is allowed. ``spec`` is a ``train.sweep.spec.SweepSpec`` (that module imports this one, not
+the file and what is allowed; a claim against a baseline reads the stream its baseline played
+(``check_baseline_pairs``). ``spec`` is a ``train.sweep.spec.SweepSpec`` (that module imports this one, not
 the reverse)."""
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ import itertools
 from colorgrid.configkit import ConfigError
 from train.config import TrainConfig, eval_stream
 from train.sweep.checks import SUMMARY_SUFFIXES, SweepError, bad, same_value
-from train.sweep.claim_spec import parse_selection
+from train.sweep.claim_spec import Baseline, parse_selection
 from train.sweep.file import MoreSeeds, PaperFigure, written
 
 MAX_COMBINATIONS = 10_000
@@ -112,3 +113,26 @@ def more_seeds(spec: SweepSpec, i: int, more: MoreSeeds) -> MoreSeeds:
                                                          f"({again[0]} is)")
     listed = parse_selection(spec.params, f"{where}.where", {k: written(v) for k, v in more.where.items()})
     return dataclasses.replace(more, where=listed)
+
+
+def check_baseline_pairs(spec: SweepSpec) -> None:
+    """Each claim against a baseline (``b = { baseline = "<partner>/<policy>" }``) reads an evaluation column played
+    beside the baseline's partner, so that a seed's arm and the baseline played the same episodes: the partner's own
+    stream (``eval_astar/...`` for ``astar/copy``), or the main ``eval/...`` stream where side a's trials play beside
+    the partner itself (``ippo-leader/copy`` for an arm trained beside ``ippo-leader``)."""
+    for i, claim in enumerate(spec.claims):
+        if not isinstance(claim.b, Baseline):
+            continue
+        stream = claim.metric.split("/")[0] if "/" in claim.metric else ""
+        partner = claim.b.partner
+        if stream == "eval":
+            config = spec.config({**{p.name: p.values[0] for p in spec.params}, **claim.a}, spec.seeds[0])
+            partners = [agent.policy for agent in config.agents if not agent.learns]
+            if partner not in partners:
+                raise bad(f"claim[{i}].b", claim.b.name, f"a baseline beside the partner side a's trials are "
+                                                          f"evaluated beside on {claim.metric!r} ({partners or 'none'}),"
+                                                          " or read the partner's own stream, eval_PARTNER/...")
+        elif stream != f"eval_{partner}":
+            raise bad(f"claim[{i}].metric", claim.metric, f"an evaluation column played beside the baseline's partner "
+                                                          f"{partner!r}: eval_{partner}/..., or eval/... for an arm "
+                                                          "trained beside it (a baseline is paired by evaluation seed)")
