@@ -8,6 +8,7 @@ import pytest
 from websockets.sync.client import connect
 
 from colorgrid.config import AGENTS, EnvConfig
+from colorgrid.enums import KeyStatus
 from colorgrid.render import look
 from colorgrid.replay import load, verify
 from server.protocol import KEY_ACTIONS
@@ -160,7 +161,11 @@ def test_a_key_held_through_the_end_of_a_realtime_game_is_logged_unapplied_not_r
     assert len(log) == sent, "every key is in the log"
     assert [e["key"] for e in log[-2:]] == ["ArrowUp", "ArrowLeft"]
     assert all(e["status"] == "unapplied" and e["applied_step"] is None for e in log[-2:])
-    assert all(e["status"] == "unapplied" or isinstance(e["applied_step"], int) for e in log[:-2])
+    # the earlier ones moved the seat, or were replaced by the next before a tick took them (on a loaded machine a
+    # state can go out before the tick that takes the key sent after the one before it)
+    assert all(isinstance(e["applied_step"], int) if e["status"] == KeyStatus.APPLIED else
+               e["status"] in (KeyStatus.SUPERSEDED, KeyStatus.UNAPPLIED) and e["applied_step"] is None
+               for e in log[:-2]), log
     client.close()
 
 
