@@ -129,10 +129,12 @@ def test_a_claim_against_a_baseline_is_paired_by_seed(tmp_path):
     results = tmp_path / "kept"
     baselines_file(results, [1.0, 2.0, 3.5, 100.0])  # seed 3 has no trial: left out of the pairs
     path = tmp_path / "claims.toml"
-    path.write_text(f'results = "{results}"\n' + BASE + claim(
-        "beats copy", A, '{ baseline = "astar/copy" }', ">", 'metric = "follower_net_pickups"\nb_name = "copy"'))
+    beside_astar = BASE.replace('"env.asymmetric=true"]', '"env.asymmetric=true", "leader.policy=astar", "eval_every=1"]')
+    path.write_text(f'results = "{results}"\n' + beside_astar + claim(  # the main evaluation plays beside A*
+        "beats copy", A, '{ baseline = "astar/copy" }', ">", 'metric = "eval/follower_net_pickups"\nb_name = "copy"'))
     spec = load_sweep(path)
-    [o] = evaluate(spec, trials_table({("+4/-1", 0.0): [-2.0, -3.0, -4.0]}))  # follower_net_pickups: 2, 3, 4
+    trials = trials_table({("+4/-1", 0.0): [-2.0, -3.0, -4.0]})  # follower_net_pickups: 2, 3, 4
+    [o] = evaluate(spec, trials.rename(columns={"final_follower_net_pickups": "final_eval/follower_net_pickups"}))
     expected = stats.ttest_rel([2.0, 3.0, 4.0], [1.0, 2.0, 3.5])
     assert o.kind is Comparison.PAIRED and o.b == [1.0, 2.0, 3.5] and o.seeds_b == (0, 1, 2)
     assert o.p == pytest.approx(expected.pvalue) and o.difference == pytest.approx(2.5 / 3)
