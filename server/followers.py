@@ -13,7 +13,7 @@ import numpy as np
 from colorgrid.config import FOLLOWER, EnvConfig
 from colorgrid.enums import SeatFit
 from colorgrid.env import BatchEnv
-from colorgrid.policies import SCRIPTED, IdleFollower, make_policy, person_base, policy_card, policy_teams
+from colorgrid.policies import SCRIPTED, IdleFollower, inner_policies, make_policy, policy_card, policy_teams
 from colorgrid.policies.base import AgentInput
 from colorgrid.policies.names import PolicyKind, read_name
 from colorgrid.replay import describe_agent
@@ -25,13 +25,12 @@ log = logging.getLogger("colorgrid.server")
 
 def is_scripted(name: str) -> bool:
     """A scripted policy: cheap to build, and it plays at any agent index of any team; not a trained network or
-    checkpoint (which takes a while to load: the server keeps those warm), nor a person leader around one
-    (``person:base=ippo-leader``: it builds and plays as its base)."""
+    checkpoint (which takes a while to load: the server keeps those warm), nor a policy built around one (a person
+    leader ``person:base=ippo-leader``, a shielded follower: each builds and plays as its parts)."""
     spec = read_name(name)
     if spec is None or spec.kind is not PolicyKind.SCRIPTED:
         return False
-    base = person_base(name)
-    return base is None or is_scripted(base)
+    return all(is_scripted(inner) for inner in inner_policies(name).values())
 
 
 def plays(name: str, team) -> bool:

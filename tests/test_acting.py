@@ -141,7 +141,7 @@ def test_a_checkpoint_with_acting_settings_plays_the_teams_its_file_plays():
 def test_unsure_moves_are_the_moves_onto_blocks_the_belief_doubts():
     """A hand-built board: the follower at (2, 2) with a block of color 0 above, color 1 below, color 2 to the
     left, nothing to the right (actions: up, down, left, right)."""
-    from train.policy import unsure_moves
+    from colorgrid.policies.grid import unsure_moves
     from colorgrid.env import move_table
 
     config = EnvConfig(height=5, width=5, block_density=0.2)

@@ -10,7 +10,7 @@ import torch
 from colorgrid.config import EnvConfig
 from colorgrid.env import move_table
 from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
-from colorgrid.policies.grid import decode
+from colorgrid.policies.grid import kept_off, unsure_moves
 from train.acting import ACTING, check_min_belief, check_temperature
 from train.inputs import step_tensors
 from train.nets import ActorCritic
@@ -26,6 +26,8 @@ class NetPolicy(Policy):
     move is one. Keeps one recurrent state per env row, cleared at episode starts. A network shared by
     several agents plays any one of them (the one ``reset`` names).
     """
+
+    avoids_moves = True
 
     def __init__(self, model: ActorCritic, name: str = "net", temperature: float = 1.0, source: str | None = None,
                  min_belief: float = 0.0):
@@ -57,8 +59,13 @@ class NetPolicy(Policy):
             self.state = tuple(torch.as_tensor(s, device=self.device).clone() for s in state["recurrent"])
         self.generator.set_state(torch.as_tensor(state["generator"], dtype=torch.uint8))
 
-    @torch.inference_mode()
     def act(self, inp: AgentInput, rows: np.ndarray | None = None) -> PolicyOutput:
+        return self.act_avoiding(inp, rows, None)
+
+    @torch.inference_mode()
+    def act_avoiding(self, inp: AgentInput, rows: np.ndarray | None, avoid: np.ndarray | None) -> PolicyOutput:
+        """``act``, with the moves ``avoid`` marks (``[B, actions]`` bool, or None) taken out before sampling beside
+        those ``min_belief`` takes out, unless that would leave a row no move."""
         rows_idx = self._rows(rows)
         x = step_tensors(inp, self.model.env, self.agent_index, self.device,  # sized as the network was trained
                          progress=self.model.net.leader_progress)
@@ -72,10 +79,13 @@ class NetPolicy(Policy):
             self.state[0][:, rows_idx], self.state[1][:, rows_idx] = new_state
         logits = logits[0].cpu()
         probs = torch.softmax(goal_logits[0], dim=1).cpu().numpy().astype(np.float32)
+        risky = None
         if self.min_belief:
             moves = self.moves[:, :logits.shape[1]]  # a network trained without ``stay`` never chooses it
             risky = unsure_moves(inp.observation, probs, moves, self.config, self.agent_index, self.min_belief)
-            logits = logits.masked_fill(torch.from_numpy(risky), -torch.inf)
+        banned = kept_off(risky, None if avoid is None else avoid[:, :logits.shape[1]])
+        if banned is not None:
+            logits = logits.masked_fill(torch.from_numpy(banned), -torch.inf)
         if self.temperature == 0:
             actions = logits.argmax(dim=1)
         else:
@@ -92,19 +102,6 @@ class NetPolicy(Policy):
         if self.source:
             d["checkpoint"] = self.source
         return d
-
-
-def unsure_moves(observation: np.ndarray, belief: np.ndarray, moves: np.ndarray, config: EnvConfig, agent: int,
-                 min_belief: float) -> np.ndarray:
-    """``[B, actions]`` bool: the moves of ``agent`` (``moves [H*W, actions]``: the cell each leads to, for the
-    actions it can choose) onto a block whose color ``belief [B, C]`` gives less than ``min_belief``; none in a
-    row where every move is one (the agent must go somewhere)."""
-    block_color, cells = decode(observation, config)
-    B = len(block_color)
-    ahead = block_color.reshape(B, -1)[np.arange(B)[:, None], moves[cells[:, agent]]]  # [B, actions]
-    unsure = (ahead >= 0) & (np.take_along_axis(belief, np.maximum(ahead, 0), axis=1) < min_belief)
-    unsure[unsure.all(axis=1)] = False
-    return unsure
 
 
 def check_compatible(trained: EnvConfig, wanted: EnvConfig, what: str) -> None:

@@ -11,7 +11,8 @@ from colorgrid.policies.people import BASES, PersonLeader, PersonStyle
 from colorgrid.policies.population import SHIPPED_CARD, PopulationPolicy, load_population
 from colorgrid.policies.registry import scripted
 from colorgrid.policies.scripted import AStarLeader, CopyFollower, IdleFollower, OracleFollower, RandomPolicy
-from colorgrid.policies.styled import StyledLeader, styled_card
+from colorgrid.policies.shielded import ShieldedFollower, ShieldParams
+from colorgrid.policies.styled import StyledLeader
 
 
 def make_policy(name: str, role: str | None = None) -> Policy:
@@ -36,6 +37,8 @@ def make_policy(name: str, role: str | None = None) -> Policy:
         params = parse_params(kind, spec.params, name)
         if isinstance(params, PersonStyle) and not params.around_astar:
             return make_styled(params, role, name)
+        if isinstance(params, ShieldParams):
+            return make_shielded(params, role, name)
         return kind(params)
     return registry.find(spec.target, role, read_params(spec.params or "", name), spec=name)
 
@@ -60,17 +63,36 @@ def make_styled(style: PersonStyle, role: str | None, name: str) -> StyledLeader
     raise ValueError(f"{name!r}: PersonStyle.base must be {BASES}, got {style.base!r} ({why})")
 
 
-def person_base(name: str) -> str | None:
-    """The base of a person leader with one other than A* (``ippo-leader`` of ``person:base=ippo-leader,slip=0.1``),
-    None for any other name, and for parameters that cannot be read (building the policy says what is wrong)."""
+def make_shielded(params: ShieldParams, role: str | None, name: str) -> ShieldedFollower:
+    """The shielded follower ``name``: its mover and its reader built for ``role`` (a follower when None)."""
+    card = policy_card(params.reader)
+    if card is None or not card.belief:
+        raise ValueError(f"{name!r}: reader {params.reader!r} forms no belief over the goal; a Bayesian follower "
+                         f"('bayes-people', 'bayes') or a trained network does")
+    parts = {}
+    for part, inner in params.inner().items():
+        try:
+            parts[part] = make_policy(inner, role or "follower")
+        except ValueError as err:
+            raise ValueError(f"{name!r}: {part} {inner!r}: {err}") from None
+    return ShieldedFollower(params, **parts)
+
+
+def inner_policies(name: str) -> dict[str, str]:
+    """The policies a composite name is built from, by their part in it: a person leader's base other than A*
+    (``{"base": "ippo-leader"}`` of ``person:base=ippo-leader,slip=0.1``), a shielded follower's mover and reader;
+    empty for any other name, and for parameters that cannot be read (building the policy says what is wrong).
+    What such a policy plays, reads and says of itself follows from these (``policy_files``, ``policy_teams``,
+    ``policy_card``)."""
     spec = read_name(name)
-    if spec is None or spec.target != PersonLeader.name or spec.params is None:
-        return None
+    if spec is None or spec.kind is not PolicyKind.SCRIPTED or spec.params is None:
+        return {}
     try:
-        base = read_params(spec.params, name).get("base", AStarLeader.name)
-    except ValueError:
-        return None
-    return base if isinstance(base, str) and base != AStarLeader.name else None
+        params = parse_params(SCRIPTED[spec.target], spec.params, name)
+    except (ValueError, TypeError):
+        return {}
+    inner = getattr(params, "inner", None)
+    return inner() if inner is not None else {}
 
 
 def policy_files(name: str, _within: frozenset[str] = frozenset()) -> list[str]:
@@ -94,8 +116,7 @@ def policy_files(name: str, _within: frozenset[str] = frozenset()) -> list[str]:
         within = _within | {str(path.resolve())}
         return list(dict.fromkeys([str(path), *(f for m in members.values() for f in policy_files(m, within))]))
     if spec.kind is PolicyKind.SCRIPTED:
-        base = person_base(name)
-        return [] if base is None else policy_files(base, _within)
+        return list(dict.fromkeys(f for inner in inner_policies(name).values() for f in policy_files(inner, _within)))
     found = registry.file_of(name)
     return [found] if found is not None else []
 
@@ -141,17 +162,20 @@ def policy_teams(name: str) -> tuple[str, ...] | None:
     spec = read_name(name)
     if spec is None:
         return None
-    if spec.kind is PolicyKind.SCRIPTED:
-        base = person_base(name)  # a person leader around a trained leader plays the teams its base plays
-        return None if base is None else policy_teams(base)
+    if spec.kind is PolicyKind.SCRIPTED:  # a composite (a person around a trained leader) plays what its parts play
+        return _common_teams(policy_teams(inner) for inner in inner_policies(name).values())
     if spec.kind is PolicyKind.POPULATION:
-        teams = None
-        for member in load_population(spec.target).values():
-            found = policy_teams(member)
-            if found is not None:
-                teams = found if teams is None else tuple(t for t in teams if t in found)
-        return teams
+        return _common_teams(policy_teams(member) for member in load_population(spec.target).values())
     return registry.teams_of(spec.target)  # ``x.pt:temperature=0`` plays the teams ``x.pt`` plays
+
+
+def _common_teams(found) -> tuple[str, ...] | None:
+    """The teams every one of ``found`` plays (None in it: any team); None when each plays any."""
+    teams = None
+    for one in found:
+        if one is not None:
+            teams = one if teams is None else tuple(t for t in teams if t in one)
+    return teams
 
 
 def policy_card(name: str) -> PolicyCard | None:
@@ -162,8 +186,11 @@ def policy_card(name: str) -> PolicyCard | None:
     if spec is None:
         return None
     if spec.kind is PolicyKind.SCRIPTED:
-        base = person_base(name)  # a person around another leader is described by that leader
-        return SCRIPTED[spec.target].card if base is None else styled_card(base, policy_card(base))
+        inner = inner_policies(name)  # a composite is described through its parts' cards
+        if not inner:
+            return SCRIPTED[spec.target].card
+        kind = SCRIPTED[spec.target]
+        return kind.card_around(parse_params(kind, spec.params, name), {k: policy_card(v) for k, v in inner.items()})
     if spec.kind is PolicyKind.POPULATION:
         return SHIPPED_CARD if name.startswith(POPULATION_PREFIX) else None
     return registry.card_of(spec.target)
@@ -195,5 +222,5 @@ def make_population(spec: str, role: str | None = None) -> PopulationPolicy:
 
 __all__ = ["SCRIPTED", "AgentInput", "AStarLeader", "BayesConfig", "BayesFollower", "CopyFollower", "IdleFollower",
            "OracleFollower", "Part", "PersonLeader", "PersonStyle", "Policy", "PolicyCard", "PolicyOutput",
-           "PopulationPolicy", "RandomPolicy", "StyledLeader", "make_policy", "offered_followers", "policy_card",
-           "policy_teams", "scripted"]
+           "PopulationPolicy", "RandomPolicy", "ShieldedFollower", "StyledLeader", "inner_policies", "make_policy",
+           "offered_followers", "policy_card", "policy_teams", "scripted"]

@@ -77,6 +77,15 @@ class Policy:
     def act(self, inp: AgentInput, rows: np.ndarray | None = None) -> PolicyOutput:
         raise NotImplementedError
 
+    def act_avoiding(self, inp: AgentInput, rows: np.ndarray | None, avoid: np.ndarray | None) -> PolicyOutput:
+        """``act``, never taking a move that ``avoid`` (``[B, actions]`` bool: the env's actions, in its order)
+        marks, unless it marks every move of a row. Only a policy that samples its moves can (``avoids_moves``: a
+        trained network); the others raise ``TypeError``."""
+        raise TypeError(f"{self.name} cannot be kept off moves (a trained network, which samples its moves, can)")
+
+    avoids_moves = False
+    """Whether ``act_avoiding`` can keep it off moves."""
+
     def see_team(self, policies: "list[Policy]") -> None:
         """Told, after every ``reset`` of an evaluation, the policy of every agent (index order). Privileged, as
         ``AgentInput.true_goal`` is: only a policy that stands for a bound reads it (``bayes-limit``, given its

@@ -148,3 +148,27 @@ def manhattan_to_nearest(config: EnvConfig, block_color: np.ndarray, cells: np.n
         dist = np.abs(br - rows[:, :, None]) + np.abs(bc - cols[:, :, None]) + extra
         out[..., k] = np.minimum(dist.min(axis=2), H + W)
     return out
+
+
+def unsure_moves(observation: np.ndarray, belief: np.ndarray, moves: np.ndarray, config: EnvConfig, agent: int,
+                 min_belief: float) -> np.ndarray:
+    """``[B, actions]`` bool: the moves of ``agent`` (``moves [H*W, actions]``: the cell each leads to, for the
+    actions it can choose) onto a block whose color ``belief [B, C]`` gives less than ``min_belief``; none in a
+    row where every move is one (the agent must go somewhere)."""
+    block_color, cells = decode(observation, config)
+    B = len(block_color)
+    ahead = block_color.reshape(B, -1)[np.arange(B)[:, None], moves[cells[:, agent]]]  # [B, actions]
+    unsure = (ahead >= 0) & (np.take_along_axis(belief, np.maximum(ahead, 0), axis=1) < min_belief)
+    unsure[unsure.all(axis=1)] = False
+    return unsure
+
+
+def kept_off(*masks: np.ndarray | None) -> np.ndarray | None:
+    """The moves any of ``masks`` (each ``[B, actions]`` bool, or None) takes out; none in a row where that would
+    take out every move (the agent must go somewhere). None when every mask is None."""
+    given = [m for m in masks if m is not None]
+    if not given:
+        return None
+    out = np.logical_or.reduce(given)
+    out[out.all(axis=1)] = False
+    return out

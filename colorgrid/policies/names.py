@@ -17,7 +17,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-from colorgrid.policies import bayes, limit, people, registry, scripted  # noqa: F401 (each registers its policies)
+from colorgrid.policies import bayes, limit, people, registry, scripted, shielded  # noqa: F401 (each registers its policies)
 from colorgrid.policies.registry import SCRIPTED
 
 POPULATION_PREFIX = "population:"

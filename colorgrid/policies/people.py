@@ -82,6 +82,10 @@ class PersonStyle(ConfigBase):
             fail(self, "rationality", f"unset with base {self.base!r} (a Boltzmann choice over A* distances: base "
                  f"{AStarLeader.name} only)")
 
+    def inner(self) -> dict[str, str]:
+        """The policy it is built around, when not A* (``colorgrid.policies.inner_policies``)."""
+        return {} if self.around_astar else {"base": self.base}
+
     @property
     def around_astar(self) -> bool:
         """Whether the base is the A* leader (``PersonLeader``), not another leader policy (``StyledLeader``)."""
@@ -193,6 +197,13 @@ class PersonLeader(PersonDepartures, Seeker):
 
     name = PERSON
     Params = PersonStyle
+
+    @staticmethod
+    def card_around(style: PersonStyle, cards: dict) -> "PolicyCard":
+        """What a person around another leader says of itself: named by that leader's card."""
+        from colorgrid.policies.styled import styled_card
+
+        return styled_card(style.base, cards["base"])
 
     def __init__(self, style: PersonStyle | None = None):
         self.style = style or PersonStyle()

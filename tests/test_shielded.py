@@ -1,0 +1,126 @@
+"""The shielded follower (``colorgrid/policies/shielded.py``): a trained network's moves, kept off the blocks a
+Bayesian follower's belief doubts; and the one resolver of composite names (``inner_policies``) that what a
+composite plays, reads and says of itself follows."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from colorgrid.config import FOLLOWER, EnvConfig
+from colorgrid.policies import inner_policies, make_policy, policy_card, policy_files, policy_teams
+from colorgrid.policies.base import AgentInput
+from colorgrid.replay import describe_agent
+from colorgrid.rollout import run_episodes
+from server.followers import is_scripted
+
+CONFIG = EnvConfig()
+SHIELD = "shielded:mover=ippo-people,reader=bayes-people,min_belief={}"
+
+
+def boxed_board(batch: int) -> tuple[EnvConfig, AgentInput]:
+    """The follower at (16, 16) of an otherwise empty board with a block of each color above, below and to the left
+    and nothing to the right (actions: up, down, left, right); the first step of an episode, so a Bayesian reader's
+    belief is uniform."""
+    config = CONFIG
+    obs = np.zeros((batch, config.num_colors + config.num_agents, config.height, config.width), dtype=np.uint8)
+    obs[:, 0, 15, 16] = obs[:, 1, 17, 16] = obs[:, 2, 16, 15] = 1
+    obs[:, config.num_colors + 0, 0, 0] = 1
+    obs[:, config.num_colors + FOLLOWER, 16, 16] = 1
+    inp = AgentInput(observation=obs, goal_info=np.zeros((batch, config.num_colors), dtype=np.float32),
+                     episode_start=np.ones(batch, dtype=bool), prev_reward=np.zeros(batch, dtype=np.float32),
+                     prev_picked_color=np.full((batch, config.num_agents), -1, dtype=np.int64),
+                     prev_actions=np.full((batch, config.num_agents), -1, dtype=np.int64))
+    return config, inp
+
+
+def first_actions(min_belief: float, batch: int = 256) -> np.ndarray:
+    config, inp = boxed_board(batch)
+    policy = make_policy(SHIELD.format(min_belief), "follower")
+    policy.reset(config, batch, FOLLOWER, seed=0)
+    out = policy.act(inp)
+    assert np.allclose(out.goal_probs, 1 / 3)  # the reader's belief at an episode's start, and the shield's
+    return out.actions
+
+
+def test_a_block_the_readers_belief_doubts_is_never_stepped_onto():
+    """With a uniform belief (1/3 each) and min_belief 0.5 every block is doubted: of 256 sampled first moves none
+    is onto a block, all go right. At 0.3 nothing is doubted and the network's own sampling goes onto blocks too."""
+    assert set(first_actions(0.5).tolist()) == {3}
+    assert set(first_actions(0.3).tolist()) - {3}
+
+
+def test_boxed_in_by_doubted_blocks_it_still_moves():
+    """Every move onto a doubted block: none is taken out (the follower must go somewhere)."""
+    config, inp = boxed_board(64)
+    inp.observation[:, 0, 16, 17] = 1
+    policy = make_policy(SHIELD.format(0.5), "follower")
+    policy.reset(config, 64, FOLLOWER, seed=0)
+    assert len(set(policy.act(inp).actions.tolist()) & {0, 1, 2, 3}) > 1
+
+
+def test_at_min_belief_zero_it_moves_as_its_mover_and_believes_as_its_reader():
+    """Nothing is taken out at 0: the same episodes give the mover's own actions and the reader's own belief."""
+    leader = lambda: make_policy("astar", "leader")  # noqa: E731
+    shielded = run_episodes(CONFIG, leader(), make_policy(SHIELD.format(0), "follower"), 6, 11)
+    mover = run_episodes(CONFIG, leader(), make_policy("ippo-people", "follower"), 6, 11)
+    assert (shielded.actions == mover.actions).all()
+    reader = make_policy("bayes-people", "follower")
+    reader.reset(CONFIG, 6, FOLLOWER, seed=11)
+    first = reader.act(run_inputs(CONFIG, 6, 11))
+    assert np.allclose(shielded.goal_probs[FOLLOWER][0], first.goal_probs)
+
+
+def run_inputs(config: EnvConfig, batch: int, seed: int) -> AgentInput:
+    """The follower's input at the first step of ``run_episodes``'s episodes with ``seed``."""
+    from colorgrid.env import BatchEnv
+    from colorgrid.step_inputs import StepInputs
+
+    env = BatchEnv(config, num_envs=batch, seed=seed)
+    obs, _ = env.reset()
+    return StepInputs.begin(config, batch).agent_input(obs, FOLLOWER, env.penalty_coef, env.state.goal.copy())
+
+
+def test_a_shield_takes_wrong_pickups_away_beside_astar():
+    """Beside A* on the same episodes, a strict shield (0.9) makes fewer wrong pickups than its mover alone."""
+    def wrong(follower: str) -> int:
+        batch = run_episodes(CONFIG, make_policy("astar", "leader"), make_policy(follower, "follower"), 8, 3)
+        return int(batch.wrong_pickup[:, :, FOLLOWER].sum())
+
+    assert wrong(SHIELD.format(0.9)) < wrong("ippo-people")
+
+
+def test_its_description_names_both_parts_and_replays_pin_the_movers_weights():
+    described = describe_agent(make_policy(SHIELD.format(0.8), "follower").describe())
+    assert described["policy"] == "shielded" and described["params"] == {"min_belief": 0.8}
+    assert described["mover"]["policy"] == "ippo-people" and len(described["mover"]["checkpoint_sha256"]) == 64
+    assert described["reader"]["policy"] == "bayes-people"
+
+
+def test_what_a_composite_plays_reads_and_says_comes_from_its_parts(tmp_path):
+    name = SHIELD.format(0.8)
+    assert inner_policies(name) == {"mover": "ippo-people", "reader": "bayes-people"}
+    assert inner_policies("person:base=ippo-leader,slip=0.1") == {"base": "ippo-leader"}
+    assert inner_policies("person:slip=0.1") == inner_policies("bayes-people") == inner_policies("ippo") == {}
+    assert policy_teams(name) == ("1:1",) and policy_teams("shielded:mover=ippo-1L2F,reader=bayes") == ("1:2",)
+    assert not is_scripted(name) and is_scripted("person:slip=0.1")
+    card = policy_card(name)
+    assert card.belief and card.follow.label == "Shielded assistant" and card.lead is None
+    assert "Trained assistant for people (IPPO)" in card.follow.description
+    checkpoint = tmp_path / "x.pt"
+    assert policy_files(f"shielded:mover={checkpoint},reader=bayes") == [str(checkpoint)]
+
+
+@pytest.mark.parametrize("name, words", [
+    ("shielded", "needs a mover and a reader"),
+    ("shielded:mover=bayes", "mover 'bayes' cannot be kept off moves; a trained network can"),
+    ("shielded:mover=ippo,reader=copy", "reader 'copy' forms no belief over the goal"),
+    ("shielded:mover=ippo,min_belief=2", "min_belief=2 is invalid: a number in [0, 1]"),
+    ("shielded:mover=nothing", "mover 'nothing': unknown policy 'nothing'"),
+    ("shielded:mover=shielded", "a policy name other than a shielded follower"),
+    ("shielded:mover=ippo,speed=3", "unknown parameter(s) ['speed']"),
+])
+def test_a_wrong_shield_is_refused_in_one_line(name, words):
+    with pytest.raises(ValueError) as err:
+        make_policy(name, "follower")
+    assert words in str(err.value) and "\n" not in str(err.value)
