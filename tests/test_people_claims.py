@@ -1,0 +1,103 @@
+"""Claims about a follower beside the people population (``bench/people_claims.py``): decided on a constructed
+measure file whose answers are known (scipy's paired t-test, Holm by hand), and refused on data they were not
+declared for."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "bench"))
+
+from people_claims import ClaimsError, decide, read_claims, read_measure  # noqa: E402
+
+LEADERS = ["slips_25", "late_8"]
+
+
+def write(tmp_path: Path, follower_net, baseline_net, follower_wrong, baseline_wrong, seed: int = 10) -> Path:
+    n = len(follower_net) // 2
+    cells = {leader: {"mine": {"net": follower_net[i * n:(i + 1) * n], "wrong": follower_wrong[i * n:(i + 1) * n]},
+                      "base": {"net": baseline_net[i * n:(i + 1) * n], "wrong": baseline_wrong[i * n:(i + 1) * n]}}
+             for i, leader in enumerate(LEADERS)}
+    (tmp_path / "measure.json").write_text(json.dumps({"episodes": n, "seed": seed, "held_out": LEADERS,
+                                                       "followers": ["base", "mine"], "cells": cells}))
+    claims = tmp_path / "claims.toml"
+    claims.write_text(f"""follower = "mine"
+baseline = "base"
+leaders = "held_out"
+episodes = {n}
+seed = 10
+measure = "measure.json"
+measure_command = "python bench/beside_people.py measure ..."
+[[claim]]
+name = "more net"
+metric = "net"
+direction = ">"
+[[claim]]
+name = "fewer wrong"
+metric = "wrong"
+direction = "<"
+""")
+    return claims
+
+
+def test_each_claim_is_the_paired_test_over_episodes_held_to_holm(tmp_path):
+    rng = np.random.default_rng(0)
+    base_net, base_wrong = rng.normal(20, 4, 40), rng.poisson(2, 40).astype(float)
+    mine_net, mine_wrong = base_net + rng.normal(0.9, 2, 40), base_wrong + rng.normal(-0.2, 1, 40)
+    claims = write(tmp_path, mine_net.tolist(), base_net.tolist(), mine_wrong.tolist(), base_wrong.tolist())
+    spec = read_claims(claims)
+    net, wrong = decide(spec, read_measure(spec, claims))
+    for got, a, b in ((net, mine_net, base_net), (wrong, mine_wrong, base_wrong)):
+        expected = stats.ttest_rel(a, b)
+        assert got.p == pytest.approx(expected.pvalue) and got.n == 40
+        assert got.difference == pytest.approx(np.mean(a - b))
+        low, high = expected.confidence_interval(0.95)
+        assert (got.low, got.high) == (pytest.approx(low), pytest.approx(high))
+    small, large = sorted([net.p, wrong.p])  # Holm by hand: the smaller p times 2, the larger times 1, kept ordered
+    adjusted = {small: min(1, 2 * small), large: min(1, max(2 * small, large))}
+    assert net.p_adjusted == pytest.approx(adjusted[net.p]) and wrong.p_adjusted == pytest.approx(adjusted[wrong.p])
+    assert net.verdict == ("reproduced" if net.p_adjusted < 0.05 else "in direction only")
+
+
+def test_the_opposite_direction_decided_is_not_reproduced(tmp_path):
+    base = [20.0, 21, 19, 22, 20, 18, 21, 20]
+    worse = [b - 3 + 0.1 * i for i, b in enumerate(base)]
+    claims = write(tmp_path, worse, base, [1.0] * 8, [1.0, 2] * 4)
+    spec = read_claims(claims)
+    net, _ = decide(spec, read_measure(spec, claims))
+    assert net.difference < 0 and net.verdict == "not reproduced"
+
+
+def test_data_other_than_declared_is_refused_in_one_line(tmp_path):
+    claims = write(tmp_path, [1.0] * 4, [1.0] * 4, [0.0] * 4, [0.0] * 4, seed=11)
+    spec = read_claims(claims)
+    with pytest.raises(ClaimsError, match=r"seed=11, but the claims were declared for seed=10"):
+        read_measure(spec, claims)
+    script = [sys.executable, str(ROOT / "bench" / "people_claims.py"), str(claims)]
+    done = subprocess.run(script, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and done.stderr.count("\n") == 1 and "declared for seed=10" in done.stderr
+    (tmp_path / "measure.json").unlink()
+    done = subprocess.run(script, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 2 and "is missing: write it with python bench/beside_people.py measure" in done.stderr
+
+
+def test_a_claim_of_an_unknown_metric_is_refused(tmp_path):
+    claims = write(tmp_path, [1.0] * 4, [1.0] * 4, [0.0] * 4, [0.0] * 4)
+    claims.write_text(claims.read_text().replace('metric = "wrong"', 'metric = "speed"'))
+    with pytest.raises(ClaimsError, match=r"a metric in \['net', 'wrong'\]"):
+        read_claims(claims)
+
+
+def test_the_shipped_claims_file_is_well_formed():
+    spec = read_claims(ROOT / "docs" / "reproduction" / "shielded" / "claims.toml")
+    assert spec["follower"].startswith("shielded:") and spec["baseline"] == "bayes-people"
+    assert f"--episodes {spec['episodes']} --seed {spec['seed']}" in spec["measure_command"]
+    assert spec["follower"] in spec["measure_command"] and spec["baseline"] in spec["measure_command"]
