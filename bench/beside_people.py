@@ -172,11 +172,17 @@ def table(report: dict, leaders: list[str]) -> str:
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for follower, row in rows.items():
         gap = row["gap"]
+        if follower == LIMIT:
+            gaps = ["(the limit)", "", "", ""]
+        elif not gap:  # the limit was not measured
+            gaps = ["-"] * 4
+        else:
+            gaps = [fmt(gap.get("net")), fmt(gap.get("accuracy"), "{:+.1f}", 100), fmt(gap.get("log_loss"), "{:+.3f}"),
+                    fmt(gap.get("lags"), "{:+.2f}")]
         lines.append(" | ".join([
             f"| `{label(follower)}`", fmt(row["net"]), fmt(row["wrong"], "{:.2f}"),
             fmt(row["accuracy"], "{:.1f}%", 100), fmt(row["log_loss"], "{:.3f}"), fmt(row["lags"], "{:.2f}"),
-            fmt(gap.get("net")) if gap else "(the limit)", fmt(gap.get("accuracy"), "{:+.1f}", 100) if gap else "",
-            fmt(gap.get("log_loss"), "{:+.3f}") if gap else "", fmt(gap.get("lags"), "{:+.2f}") if gap else ""]) + " |")
+            *gaps]) + " |")
     return "\n".join(lines)
 
 

@@ -193,3 +193,14 @@ def test_the_picture_script_runs_on_a_tiny_budget(tmp_path):
     assert all("(the limit)" in row for row in rows if row.startswith("| `bayes-limit`"))
     limit_net = np.mean([np.mean(report["cells"][n]["bayes-limit"]["net"]) for n in report["held_out"]])
     assert f"{limit_net:+.2f}" in rows[2]
+
+
+def test_without_the_limit_measured_no_follower_is_called_the_limit():
+    sys.path.insert(0, str(ROOT / "bench"))
+    from beside_people import table
+
+    belief = {"accuracy": [0.5, 0.7], "log_loss": [0.3, 0.4], "lags": [1, 2]}
+    report = {"followers": ["copy", "bayes"], "cells": {"x": {"copy": {"net": [1, 2], "wrong": [0, 1]},
+                                                              "bayes": {"net": [3, 4], "wrong": [0, 0], **belief}}}}
+    text = table(report, ["x"])
+    assert "(the limit)" not in text and text.count("| - | - | - | - |") == 2
