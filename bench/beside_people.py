@@ -42,9 +42,9 @@ from colorgrid.policies.population import load_population  # noqa: E402
 from colorgrid.rollout import run_episodes  # noqa: E402
 
 FOLLOWERS = ["copy", "bayes", "bayes-people", "bayes-limit", "ippo", "ippo-people", "ippo-cautious",
-             "checkpoints/follower_unannealed.pt"]
-"""Every shipped follower that plays the 1:1 team: the scripted ones, the limit, and each IPPO checkpoint of
-``checkpoints/`` (``follower_1L2F.pt`` and ``follower_2L1F.pt`` play other teams)."""
+             "checkpoints/follower_unannealed.pt", "ippo-shielded"]
+"""Every shipped follower that plays the 1:1 team: the scripted ones, the limit, each IPPO checkpoint of
+``checkpoints/`` (``follower_1L2F.pt`` and ``follower_2L1F.pt`` play other teams) and the shielded follower."""
 LIMIT = "bayes-limit"
 HELD_OUT = "population:people#held_out"
 AFTER_SWITCH = 30
@@ -213,12 +213,14 @@ def draw(report: dict, png: Path) -> None:
     rows = summary(report, leaders)
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.8))
     colors = plt.get_cmap("tab10")
+    names = []
     for i, (follower, row) in enumerate(rows.items()):
         (net, net_ci), (wrong, wrong_ci) = row["net"], row["wrong"]
         marker = "*" if follower == LIMIT else ("s" if follower.startswith(("bayes", "copy")) else "o")
         left.errorbar(wrong, net, xerr=wrong_ci, yerr=net_ci, fmt=marker, color=colors(i), capsize=3,
                       markersize=11 if marker == "*" else 7, label=label(follower))
-        left.annotate(label(follower), (wrong, net), textcoords="offset points", xytext=(6, 5), fontsize=8)
+        names.append(left.annotate(label(follower), (wrong, net), textcoords="offset points", xytext=(6, 5),
+                                   fontsize=8))
         if row["accuracy"] is None:
             continue
         counts = sum(np.asarray(report["cells"][n][follower]["after_switch"]) for n in leaders)
@@ -228,6 +230,7 @@ def draw(report: dict, png: Path) -> None:
         right.plot(steps, share, color=colors(i), label=label(follower), lw=2.2 if follower == LIMIT else 1.4,
                    ls="--" if follower == LIMIT else "-")
         right.fill_between(steps, share - half, share + half, color=colors(i), alpha=0.12)
+    left.margins(x=0.15, y=0.08)  # room for the names beside the outermost points
     left.set_xlabel("wrong pickups per episode")
     left.set_ylabel("net pickups per episode (goal - wrong)")
     left.set_title(f"Beside the held-out people ({len(leaders)} leaders x {report['episodes']} seeds)", fontsize=10)
@@ -239,9 +242,28 @@ def draw(report: dict, png: Path) -> None:
     right.grid(alpha=0.3)
     right.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
+    keep_apart(fig, names)
     png.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(png, dpi=110)
     plt.close(fig)
+
+
+def keep_apart(fig, names) -> None:
+    """Move each point's name to the first of four places beside it (right above, right below, left above, left
+    below) where it stays inside its axes and overlaps no name placed before it."""
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    placed = []
+    for name in names:
+        frame = name.axes.get_window_extent(renderer)
+        for offset, align in (((6, 5), "left"), ((6, -12), "left"), ((-6, 5), "right"), ((-6, -12), "right")):
+            name.set_position(offset)
+            name.set_horizontalalignment(align)
+            box = name.get_window_extent(renderer)
+            inside = frame.x0 <= box.x0 and box.x1 <= frame.x1 and frame.y0 <= box.y0 and box.y1 <= frame.y1
+            if inside and not any(box.overlaps(other) for other in placed):
+                break
+        placed.append(name.get_window_extent(renderer))
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -16,8 +16,8 @@ FLAGS = {
     "show_belief": Flag(name="--hide-belief", invert=True, help="never show players the follower's belief"),
     "allowed_hosts": Flag(name="--allowed-host", extend_default=True),
     "allowed_origins": Flag(name="--allowed-origin", extend_default=True),
-    "follower": Flag(help="default follower: bayes-people (the people-robust Bayesian one), any follower name, a named "
-                          "spec or a checkpoint .pt"),
+    "follower": Flag(help="default follower: ippo-shielded (the trained assistant for people, kept off blocks the "
+                          "Bayesian one doubts), any follower name, a named spec or a checkpoint .pt"),
 }
 """Where a flag differs from the one generated from its ``ServerSettings`` field."""
 

@@ -33,8 +33,9 @@ class ServerSettings(ConfigBase):
     """Interface to listen on (loopback by default)."""
     port: int = 8000
     """TCP port (0 picks a free one)."""
-    follower: str = "bayes-people"
-    """Default follower: the best assistant for people on the held-out population (docs/EVALUATION.md); a
+    follower: str = "ippo-shielded"
+    """Default follower: the best assistant for people on the held-out population (docs/ASSISTANT_RECIPE.md, "A
+    shielded assistant": more net and fewer wrong pickups than ``bayes-people``, claims declared before the data); a
     policy name or a checkpoint path. Players may pick another allowed one."""
     followers: tuple[str, ...] = field(default_factory=offered_followers)
     """Followers a player may choose from (the default is always allowed); each team offers those that play it.

@@ -101,3 +101,27 @@ def test_the_shipped_claims_file_is_well_formed():
     assert spec["follower"].startswith("shielded:") and spec["baseline"] == "bayes-people"
     assert f"--episodes {spec['episodes']} --seed {spec['seed']}" in spec["measure_command"]
     assert spec["follower"] in spec["measure_command"] and spec["baseline"] in spec["measure_command"]
+
+
+def test_the_docs_print_the_shielded_claims_as_decided_from_the_kept_episodes():
+    """docs/ASSISTANT_RECIPE.md's table is the report's, row for row; the model card's and README's figures are its
+    means, differences, intervals and Holm p at the precision they print."""
+    script = [sys.executable, str(ROOT / "bench" / "people_claims.py"),
+              str(ROOT / "docs" / "reproduction" / "shielded" / "claims.toml")]
+    done = subprocess.run(script, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    rows = [line for line in done.stdout.splitlines() if line.startswith("| ")]
+    recipe = (ROOT / "docs" / "ASSISTANT_RECIPE.md").read_text()
+    assert len(rows) == 3 and all(row in recipe.splitlines() for row in rows)  # the header and two claims
+    assert done.stdout.rstrip().endswith("every claim reproduced: yes")
+    spec = read_claims(ROOT / "docs" / "reproduction" / "shielded" / "claims.toml")
+    net, wrong = decide(spec, read_measure(spec, ROOT / "docs" / "reproduction" / "shielded" / "claims.toml"))
+    card = (ROOT / "checkpoints" / "follower_shielded.md").read_text()
+    for d, form in ((net, "{:+.2f}"), (wrong, "{:.2f}")):
+        row = (f"| {form.format(d.mean_a)} | {form.format(d.mean_b)} | {d.difference:+.2f} [{d.low:+.2f}, "
+               f"{d.high:+.2f}] | {d.p_adjusted:.3g} | {d.verdict} |")
+        assert row in card, row
+    readme = " ".join((ROOT / "README.md").read_text().split())
+    assert f"{net.mean_a:+.2f} against {net.mean_b:+.2f} net pickups" in readme
+    assert f"{wrong.mean_a:.2f} against {wrong.mean_b:.2f} wrong" in readme
+    assert f"Holm p {net.p_adjusted:.0e} and {wrong.p_adjusted:.0e}" in readme

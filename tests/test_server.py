@@ -71,7 +71,7 @@ def test_health_options_and_openapi(server):
     health, status, _ = server.get("/api/health")
     assert status == 200 and health["status"] == "ok" and health["max_sessions"] == 4
     options = server.get("/api/options")[0]
-    assert options["default_follower"] == "bayes-people"  # the best assistant for people (docs/EVALUATION.md)
+    assert options["default_follower"] == "ippo-shielded"  # the best assistant for people (docs/ASSISTANT_RECIPE.md)
     assert {"ippo", "ippo-people"} <= set(options["followers"])  # the shipped trained followers
     assert options["modes"] == [{"value": "turn", "label": "turn-based"}, {"value": "realtime", "label": "real time"}]
     assert options["keys"] == KEY_ACTIONS and options["horizon"] == {"default": 128, "max": 1000}

@@ -124,3 +124,31 @@ def test_a_wrong_shield_is_refused_in_one_line(name, words):
     with pytest.raises(ValueError) as err:
         make_policy(name, "follower")
     assert words in str(err.value) and "\n" not in str(err.value)
+
+
+def test_the_shipped_follower_replays_a_cell_of_its_declared_claims():
+    """The kept episodes the claims were decided on are what the follower plays: beside one held-out leader, the
+    whole cell (200 episodes from seed 10000, played at once as the measure played them), both followers."""
+    import json
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    sys.path.insert(0, str(root / "bench"))
+    from beside_people import cell
+
+    kept = json.loads((root / "docs" / "reproduction" / "shielded" / "measure.json").read_text())
+    spec = "shielded:mover=ippo-people,reader=bayes-people,min_belief=0.8"
+    for follower in ("bayes-people", spec):
+        got = cell(kept["leaders"]["late_8"], follower, kept["episodes"], kept["seed"])
+        assert got["net"] == kept["cells"]["late_8"][follower]["net"], follower
+        assert got["wrong"] == kept["cells"]["late_8"][follower]["wrong"], follower
+
+
+def test_ippo_shielded_is_the_shipped_shield_and_the_play_servers_default():
+    from server.settings import ServerSettings
+
+    policy = make_policy("ippo-shielded", "follower")
+    assert policy.describe()["policy"] == "ippo-shielded" and policy.params.min_belief == 0.8
+    assert policy.describe()["mover"]["policy"] == "ippo-people"
+    assert ServerSettings().follower == "ippo-shielded" and policy_card("ippo-shielded").menu == 5

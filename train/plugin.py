@@ -31,7 +31,15 @@ LEADER_STAGES = {"0.2M": "an early stage: heads for blocks, a third of its picku
 """Leaders saved along one training run (``checkpoints/leader_stages/``, their model cards beside them), shipped as
 training partners at several skill levels: ``ippo-leader-0.2M`` and so on, by the steps each had trained."""
 SHIPPED.update({f"ippo-leader-{stage}": f"leader_stages/leader_{stage}.pt" for stage in LEADER_STAGES})
+SHIELDED = {"ippo-shielded": "shielded:mover=ippo-people,reader=bayes-people,min_belief=0.8"}
+"""Shipped shielded followers (``colorgrid/policies/shielded.py``) by name: ``ippo-people``'s moves, kept off any block
+whose color ``bayes-people``'s belief gives less than 0.8. Its model card is ``checkpoints/follower_shielded.md``; the
+claims that made it the play server's default, declared before the data, are in ``docs/reproduction/shielded/``."""
 SHIPPED_CARDS = {
+    "ippo-shielded": PolicyCard(follow=Part("Shielded assistant for people",
+                                            ("the trained assistant for people, kept off any block the Bayesian "
+                                             "assistant is unsure of: it collects boldly and rarely errs")),
+                                belief=True, menu=5, teams=("1:1",)),
     "ippo": PolicyCard(follow=Part("Trained assistant (IPPO)",
                                    "learned from play beside a scripted leader; reads the goal from your moves"),
                        belief=True, menu=40, teams=("1:1",)),
@@ -74,6 +82,15 @@ def shipped_policy(name: str, role: str | None, cache: ModelCache | None = None,
     return policy
 
 
+def shielded_policy(name: str, role: str | None):
+    """The shipped shielded follower ``name`` (``SHIELDED``), named by that name in replays and reports."""
+    from colorgrid.policies import make_policy
+
+    policy = make_policy(SHIELDED[name], role)
+    policy.name = name
+    return policy
+
+
 def checkpoint_policy(path: str, role: str | None, cache: ModelCache | None = None, **acting):
     """``acting``: settings from the name (``x.pt:min_belief=0.7``), see ``train.policy.NetPolicy``."""
     require("train", f"the checkpoint policy {path!r}", only=("torch",))
@@ -105,6 +122,8 @@ def register_policies() -> None:
             continue
         register_policy(name, lambda role, name=name, **params: shipped_policy(name, role, cache, **params),
                         params=tuple(ACTING), card=SHIPPED_CARDS[name])
+    for name in SHIELDED if (CHECKPOINTS_DIR / SHIPPED["ippo-people"]).is_file() else ():  # its mover's weights
+        register_policy(name, lambda role, name=name: shielded_policy(name, role), card=SHIPPED_CARDS[name])
     register_loader(".pt", lambda path, role, **params: checkpoint_policy(path, role, cache, **params),
                     "a checkpoint path ending in .pt", params=tuple(ACTING), teams=checkpoint_teams,
                     card=CHECKPOINT_CARD)
