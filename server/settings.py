@@ -35,8 +35,9 @@ class ServerSettings(ConfigBase):
     """TCP port (0 picks a free one)."""
     follower: str = "ippo-shielded"
     """Default follower: the best assistant for people on the held-out population (docs/ASSISTANT_RECIPE.md, "A
-    shielded assistant": more net and fewer wrong pickups than ``bayes-people``, claims declared before the data); a
-    policy name or a checkpoint path. Players may pick another allowed one."""
+    shielded assistant": fewer wrong pickups than ``bayes-people`` beside every held-out leader, and more net pickups
+    on average; claims declared before the data); a policy name or a checkpoint path. Players may pick another
+    allowed one. A study names its own (``server.study.config``)."""
     followers: tuple[str, ...] = field(default_factory=offered_followers)
     """Followers a player may choose from (the default is always allowed); each team offers those that play it.
     By default those whose policy asks for a place in the menu (``colorgrid.policies.PolicyCard.menu``)."""

@@ -152,3 +152,43 @@ def test_ippo_shielded_is_the_shipped_shield_and_the_play_servers_default():
     assert policy.describe()["policy"] == "ippo-shielded" and policy.params.min_belief == 0.8
     assert policy.describe()["mover"]["policy"] == "ippo-people"
     assert ServerSettings().follower == "ippo-shielded" and policy_card("ippo-shielded").menu == 5
+
+
+def test_where_stay_exists_a_boxed_in_shield_stays_rather_than_step_onto_a_doubted_block():
+    """Real-time play gives the follower ``stay``, which its network never learned: boxed in by doubted blocks, it
+    stays; and rows given as a subset (as the play server gives them) are kept off the same moves."""
+    import dataclasses
+
+    config, inp = boxed_board(64)
+    inp.observation[:, 0, 16, 17] = 1
+    staying = dataclasses.replace(config, allow_stay=True)
+    policy = make_policy(SHIELD.format(0.5), "follower")
+    policy.reset(staying, 64, FOLLOWER, seed=0)
+    assert set(policy.act(inp).actions.tolist()) == {4}
+    _, free_right = boxed_board(64)
+    policy.reset(config, 64, FOLLOWER, seed=0)
+    rows = np.arange(0, 64, 3)
+    assert set(policy.act(free_right.select(rows), rows).actions.tolist()) == {3}
+
+
+def test_two_masks_are_lifted_last_first():
+    """The caller's mask (a shield's) outlasts the network's own: where both together leave no move, the second goes
+    first; where the first alone leaves none, nothing is taken out."""
+    from colorgrid.policies.grid import kept_off
+
+    first = np.array([[1, 1, 0, 0], [1, 1, 1, 1], [1, 1, 0, 0]], dtype=bool)
+    second = np.array([[0, 0, 1, 0], [0, 0, 0, 0], [0, 0, 1, 1]], dtype=bool)
+    assert kept_off(first, second).astype(int).tolist() == [[1, 1, 1, 0], [0, 0, 0, 0], [1, 1, 0, 0]]
+    assert kept_off(None, None) is None and (kept_off(None, second) == second).all()
+
+
+def test_a_shield_around_a_yardstick_is_one_and_no_shield_holds_another():
+    from server.settings import ServerSettings
+
+    name = "shielded:mover=ippo-people,reader=bayes-limit"
+    assert policy_card(name).yardstick == policy_card("bayes-limit").yardstick is not None
+    with pytest.raises(ValueError, match="yardstick"):
+        ServerSettings(follower=name)
+    for inner in ("mover=ippo-people,reader=ippo-shielded", "mover=ippo-shielded"):
+        with pytest.raises(ValueError, match="is a shielded follower itself"):
+            make_policy(f"shielded:{inner}", "follower")

@@ -83,7 +83,7 @@ class NetPolicy(Policy):
         if self.min_belief:
             moves = self.moves[:, :logits.shape[1]]  # a network trained without ``stay`` never chooses it
             risky = unsure_moves(inp.observation, probs, moves, self.config, self.agent_index, self.min_belief)
-        banned = kept_off(risky, None if avoid is None else avoid[:, :logits.shape[1]])
+        banned = kept_off(None if avoid is None else avoid[:, :logits.shape[1]], risky)  # the caller's first
         if banned is not None:
             logits = logits.masked_fill(torch.from_numpy(banned), -torch.inf)
         if self.temperature == 0:

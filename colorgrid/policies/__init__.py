@@ -83,7 +83,10 @@ def inner_policies(name: str) -> dict[str, str]:
     (``{"base": "ippo-leader"}`` of ``person:base=ippo-leader,slip=0.1``), a shielded follower's mover and reader;
     empty for any other name, and for parameters that cannot be read (building the policy says what is wrong).
     What such a policy plays, reads and says of itself follows from these (``policy_files``, ``policy_teams``,
-    ``policy_card``)."""
+    ``policy_card``, ``server.followers.is_scripted``).
+
+    A scripted policy is composite when its ``Params`` has ``inner() -> {part: name}``; its class then says what
+    it is through its parts' cards (``Policy.card_around``), and ``make_policy`` builds its parts."""
     spec = read_name(name)
     if spec is None or spec.kind is not PolicyKind.SCRIPTED or spec.params is None:
         return {}

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from colorgrid.config import EnvConfig
+
+if TYPE_CHECKING:
+    from colorgrid.policies.card import PolicyCard
 
 
 @dataclass
@@ -85,6 +89,14 @@ class Policy:
 
     avoids_moves = False
     """Whether ``act_avoiding`` can keep it off moves."""
+
+    @staticmethod
+    def card_around(params, cards: dict) -> PolicyCard:
+        """What a policy built around others says of itself, from its parts' cards (``cards``: part -> card, by the
+        names its ``params.inner()`` gives; ``colorgrid.policies.inner_policies``). Only a scripted policy whose
+        ``Params`` has ``inner`` is asked; it must then say."""
+        raise NotImplementedError("a policy whose parameters name other policies (Params.inner) must say what it "
+                                  "is through their cards (card_around)")
 
     def see_team(self, policies: "list[Policy]") -> None:
         """Told, after every ``reset`` of an evaluation, the policy of every agent (index order). Privileged, as

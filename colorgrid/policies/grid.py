@@ -164,11 +164,17 @@ def unsure_moves(observation: np.ndarray, belief: np.ndarray, moves: np.ndarray,
 
 
 def kept_off(*masks: np.ndarray | None) -> np.ndarray | None:
-    """The moves any of ``masks`` (each ``[B, actions]`` bool, or None) takes out; none in a row where that would
-    take out every move (the agent must go somewhere). None when every mask is None."""
+    """The moves ``masks`` take out (each ``[B, actions]`` bool, or None), the most important first. In a row where
+    together they would take out every move, the last mask is lifted there, then the one before, until a move is
+    left; none is taken out where the first alone takes out every move (the agent must go somewhere). None when
+    every mask is None."""
     given = [m for m in masks if m is not None]
     if not given:
         return None
     out = np.logical_or.reduce(given)
-    out[out.all(axis=1)] = False
+    for kept in range(len(given) - 1, -1, -1):
+        full = out.all(axis=1)
+        if not full.any():
+            break
+        out[full] = np.logical_or.reduce(given[:kept])[full] if kept else False
     return out

@@ -19,13 +19,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from colorgrid.configkit import fail
-from colorgrid.env import move_table
+from colorgrid.env import ACTION_NAMES, move_table
 from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
 from colorgrid.policies.card import Part, PolicyCard
 from colorgrid.policies.grid import unsure_moves
 from colorgrid.policies.registry import scripted
 
 SHIELD = "shielded"
+STAY = ACTION_NAMES.index("stay")
 
 
 @dataclass(frozen=True)
@@ -53,22 +54,23 @@ class ShieldParams:
         return {"mover": self.mover, "reader": self.reader}
 
     def described(self) -> dict:
+        """Its own setting, for replays (the parts describe themselves)."""
         return {"min_belief": self.min_belief}
 
 
 def shield_card(params: ShieldParams, cards: dict[str, PolicyCard | None]) -> PolicyCard:
-    """What a shielded follower says of itself: its mover's label, kept off blocks by its reader; it plays the teams
-    both play."""
+    """What a shielded follower says of itself: its mover's label, kept off blocks by its reader, and a yardstick
+    when either part is one (``bayes-limit`` as the reader: no person is given it). The teams it plays are its
+    parts' (``policy_teams``)."""
     def shown(part: str) -> str:
         card = cards.get(part)
         name = getattr(params, part)
         return card.follow.label if card is not None and card.follow is not None else name
 
-    teams = [c.teams for c in cards.values() if c is not None and c.teams is not None]
-    both = tuple(t for t in teams[0] if all(t in other for other in teams)) if teams else None
+    yardstick = next((c.yardstick for c in cards.values() if c is not None and c.yardstick is not None), None)
     return PolicyCard(follow=Part("Shielded assistant",
                                   f"{shown('mover')}, kept off any block that the {shown('reader')} doubts"),
-                      belief=True, teams=both,
+                      belief=True, yardstick=yardstick,
                       summary=f"{params.mover}'s moves, kept off blocks whose color {params.reader}'s belief gives "
                               f"less than {params.min_belief:g} (colorgrid/policies/shielded.py)")
 
@@ -86,12 +88,17 @@ class ShieldedFollower(Policy):
         if params is None or mover is None or reader is None:
             raise ValueError(f"{SHIELD} needs a mover and a reader: {SHIELD}:mover=NAME,reader=NAME,min_belief=X "
                              f"(built by make_policy)")
+        for part, policy in (("mover", mover), ("reader", reader)):
+            if isinstance(policy, ShieldedFollower):
+                raise ValueError(f"{SHIELD}: {part} {getattr(params, part)!r} is a shielded follower itself; a "
+                                 f"shield's parts are a network and a Bayesian follower")
         if not mover.avoids_moves:
             raise ValueError(f"{SHIELD}: mover {params.mover!r} cannot be kept off moves; a trained network can")
         self.params, self.mover, self.reader = params, mover, reader
 
     @staticmethod
     def card_around(params: ShieldParams, cards: dict[str, PolicyCard | None]) -> PolicyCard:
+        """``shield_card``: what a shielded follower says of itself, from its parts' cards."""
         return shield_card(params, cards)
 
     def describe(self) -> dict:
@@ -109,14 +116,18 @@ class ShieldedFollower(Policy):
         self.reader.see_team(policies)
 
     def act(self, inp: AgentInput, rows=None) -> PolicyOutput:
-        """The reader's belief; the mover's action with the moves onto doubted blocks taken out."""
+        """The reader's belief; the mover's action with the moves onto doubted blocks taken out. Where the env has
+        ``stay`` and the mover could take no other move (a network trained without ``stay``, boxed in by doubted
+        blocks), it stays instead."""
         read = self.reader.act(inp, rows)
         if read.goal_probs is None:
             raise ValueError(f"{SHIELD}: reader {self.params.reader!r} forms no belief over the goal")
         avoid = unsure_moves(inp.observation, np.asarray(read.goal_probs), self.moves, self.config,
                              self.agent_index, self.params.min_belief)
-        moved = self.mover.act_avoiding(inp, rows, avoid)
-        return PolicyOutput(np.asarray(moved.actions, dtype=np.int64), read.goal_probs)
+        actions = np.asarray(self.mover.act_avoiding(inp, rows, avoid).actions, dtype=np.int64)
+        if self.config.allow_stay:
+            actions = np.where(avoid[np.arange(len(actions)), actions], STAY, actions)
+        return PolicyOutput(actions, read.goal_probs)
 
     def state_dict(self) -> dict:
         return {"mover": self.mover.state_dict(), "reader": self.reader.state_dict()}
