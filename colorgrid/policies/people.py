@@ -199,10 +199,8 @@ class PersonLeader(PersonDepartures, Seeker):
     Params = PersonStyle
 
     @staticmethod
-    def card_around(style: PersonStyle, cards: dict) -> "PolicyCard":
-        """What a person around another leader says of itself: named by that leader's card."""
-        from colorgrid.policies.styled import styled_card
-
+    def card_around(style: PersonStyle, cards: dict) -> PolicyCard:
+        """What a person around another leader (``StyledLeader``) says of itself: named by that leader's card."""
         return styled_card(style.base, cards["base"])
 
     def __init__(self, style: PersonStyle | None = None):
@@ -259,3 +257,11 @@ class PersonLeader(PersonDepartures, Seeker):
         logits -= logits.max(axis=1, keepdims=True)
         p = np.exp(logits)
         return p / p.sum(axis=1, keepdims=True)
+
+
+def styled_card(base: str, base_card: PolicyCard | None) -> PolicyCard:
+    """What ``person:base=BASE,...`` says of itself: a person-like leader around its base, named by the base's own
+    leader label (its policy name when it has none), not the A* person's words."""
+    shown = base_card.lead.label if base_card is not None and base_card.lead is not None else base
+    return PolicyCard(lead=Part("Person-like leader", f"{shown}, with the slips, late turns and mistakes of people"),
+                      summary=f"{base} with a person's departures (colorgrid/policies/styled.py)")

@@ -21,7 +21,6 @@ import numpy as np
 
 from colorgrid.config import EnvConfig
 from colorgrid.policies.base import AgentInput, Policy, PolicyOutput
-from colorgrid.policies.card import Part, PolicyCard
 from colorgrid.policies.people import PERSON, PersonDepartures, PersonStyle
 
 
@@ -66,10 +65,3 @@ class StyledLeader(PersonDepartures):
         super().load_state_dict(state)
         self.base.load_state_dict(state["base"])
 
-
-def styled_card(base: str, base_card: PolicyCard | None) -> PolicyCard:
-    """What ``person:base=BASE,...`` says of itself: a person-like leader around its base, named by the base's own
-    leader label (its policy name when it has none), not the A* person's words."""
-    shown = base_card.lead.label if base_card is not None and base_card.lead is not None else base
-    return PolicyCard(lead=Part("Person-like leader", f"{shown}, with the slips, late turns and mistakes of people"),
-                      summary=f"{base} with a person's departures (colorgrid/policies/styled.py)")
