@@ -2,15 +2,15 @@
 
 A study compares the levels of a factor (``leader = ["astar", "person:..."]``) on a measure of its ``trials`` table
 (``stated_accuracy``, ``follower_net_pickups``, ...). Given the smallest difference worth finding on that measure, the
-pilot export's spread gives the effect size, and statsmodels' power functions the sample size, for the study's design:
+pilot export's spread gives the effect size, and the t-test's power (``t_test_power``) the sample size, for the study's
+design:
 
 - **within participants** (``design.assignment = "within"``: every participant meets every condition): each
   participant's difference between the two levels (their mean over the trials at one level minus their mean at the
-  other), the paired t-test (``TTestPower``) on ``d_z = difference / sd(differences)``. The participants needed are
+  other), the paired t-test on ``d_z = difference / sd(differences)``. The participants needed are
   spread over the arms (the orders), so that each order is used equally often: a multiple of the number of arms.
-- **between participants**: each participant's mean at their one level, the two-sample t-test (``TTestIndPower``,
-  equal groups) on Cohen's ``d = difference / pooled sd``; each level's group is spread over the arms (conditions)
-  that have that level.
+- **between participants**: each participant's mean at their one level, the two-sample t-test (equal groups) on
+  Cohen's ``d = difference / pooled sd``; each level's group is spread over the arms (conditions) that have that level.
 
 Both are two-sided at level ``alpha``. A factor of more than two levels is taken pair by pair; the study needs what
 its hardest pair needs. A pilot is a handful of participants: its spread is itself uncertain, and the numbers it gives
@@ -148,9 +148,7 @@ def factor_levels(study: Study, factor: str | None) -> tuple[str, list]:
 def sample_size(study: Study, trials: pd.DataFrame, comparison: Comparison) -> dict:
     """Participants needed, per pair of the factor's levels and for the study (the hardest pair), from the pilot's
     ``trials`` (module docstring). Raises ``ValueError`` naming what is wrong with the measure, factor or pilot."""
-    require("study", "colorgrid study power", only=("statsmodels",))
-    from statsmodels.stats.power import TTestIndPower, TTestPower
-
+    require("study", "colorgrid study power", only=("scipy",))
     allowed = measures(study)
     if comparison.measure not in allowed:
         raise ValueError(f"--measure {comparison.measure!r} is invalid: a numeric column of the trials table, one "
@@ -171,8 +169,7 @@ def sample_size(study: Study, trials: pd.DataFrame, comparison: Comparison) -> d
             both = means.reindex(columns=[a, b]).dropna()
             spread = _spread(both[a] - both[b], f"{factor} {a!r} - {b!r}, within participants")
             effect = comparison.difference / spread
-            total = math.ceil(TTestPower().solve_power(effect_size=effect, alpha=comparison.alpha,
-                                                       power=comparison.power, alternative="two-sided"))
+            total = participants_needed(effect, comparison.alpha, comparison.power, paired=True)
             per_arm = math.ceil(total / num_arms)
             pairs.append({"levels": [a, b], "pilot_participants": len(both), "sd": spread, "effect_size": effect,
                           "participants": per_arm * num_arms, "per_arm": per_arm, "needed": total})
@@ -182,9 +179,7 @@ def sample_size(study: Study, trials: pd.DataFrame, comparison: Comparison) -> d
             pooled = math.sqrt(((len(groups[0]) - 1) * sds[0] ** 2 + (len(groups[1]) - 1) * sds[1] ** 2)
                                / (len(groups[0]) + len(groups[1]) - 2))
             effect = comparison.difference / pooled
-            group = math.ceil(TTestIndPower().solve_power(effect_size=effect, alpha=comparison.alpha,
-                                                          power=comparison.power, ratio=1.0,
-                                                          alternative="two-sided"))
+            group = participants_needed(effect, comparison.alpha, comparison.power, paired=False)
             conditions = max(sum(getattr(c, factor) == level for c in study.conditions) for level in (a, b))
             per_arm = math.ceil(group / conditions)
             pairs.append({"levels": [a, b], "pilot_participants": int(sum(len(g) for g in groups)), "sd": pooled,
@@ -195,6 +190,46 @@ def sample_size(study: Study, trials: pd.DataFrame, comparison: Comparison) -> d
             "difference": comparison.difference, "power": comparison.power, "alpha": comparison.alpha,
             "arms": num_arms, "quota": study.design.quota, "pairs": pairs, "per_arm": hardest["per_arm"],
             "participants": hardest["participants"]}
+
+
+def t_test_power(effect: float, n: int, alpha: float, paired: bool) -> float:
+    """The power of the two-sided t-test at ``alpha`` to find a standardized difference ``effect``: paired (one
+    sample of ``n`` differences, ``d_z``) or two equal groups of ``n`` (Cohen's ``d``). The noncentral t's tail,
+    integrated over the spread's chi-square (quantile by quantile), which stays exact where scipy's and statsmodels'
+    noncentral t lose their way (one or two degrees of freedom and a large effect)."""
+    from scipy import integrate, stats
+
+    df = n - 1 if paired else 2 * n - 2
+    shift = effect * math.sqrt(n if paired else n / 2)
+    critical = stats.t.ppf(1 - alpha / 2, df)
+
+    def rejected(u: float) -> float:  # P(|t| > critical) given the spread's chi-square at its quantile u
+        scale = critical * math.sqrt(stats.chi2.ppf(u, df) / df)
+        return stats.norm.sf(scale - shift) + stats.norm.cdf(-scale - shift)
+
+    return float(integrate.quad(rejected, 0.0, 1.0, limit=200)[0])
+
+
+def participants_needed(effect: float, alpha: float, power: float, paired: bool) -> int:
+    """The fewest participants (paired: in all; two groups: in each) whose t-test has at least ``power``
+    (``t_test_power``, which grows with them): G*Power's answer, and statsmodels' ``solve_power`` rounded up where
+    that converges; its solver fails, or stops short, for a large effect and a handful of participants."""
+    def enough(n: int) -> bool:
+        return t_test_power(effect, n, alpha, paired) >= power
+
+    high = 2
+    while not enough(high):
+        if high > 10**8:
+            raise ValueError(f"an effect size of {effect:.3g} needs more than 10^8 participants: plan on a larger "
+                             "difference")
+        high *= 2
+    low = max(2, high // 2)
+    if enough(low):
+        return low
+    while high - low > 1:  # enough(high), not enough(low)
+        middle = (low + high) // 2
+        low, high = (low, middle) if enough(middle) else (middle, high)
+    return high
 
 
 def _spread(values: pd.Series, what: str) -> float:
