@@ -36,7 +36,8 @@ class ServerSettings(ConfigBase):
     follower: str = "ippo-shielded"
     """Default follower: the best assistant for people on the held-out population (docs/ASSISTANT_RECIPE.md, "A
     shielded assistant": fewer wrong pickups than ``bayes-people`` beside every held-out leader, and more net pickups
-    on average; claims declared before the data); a policy name or a checkpoint path. Players may pick another
+    on average, about +1 beside three of the six leaders and about 0 beside the others; claims declared before the
+    data); a policy name or a checkpoint path. Players may pick another
     allowed one. A study names its own (``server.study.config``)."""
     followers: tuple[str, ...] = field(default_factory=offered_followers)
     """Followers a player may choose from (the default is always allowed); each team offers those that play it.

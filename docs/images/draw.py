@@ -4,8 +4,9 @@
 
 - ``board.png``: the renderer's picture (``colorgrid.render.render_rgb``, 16 pixels a cell) of step 20 of the
   released replay ``replays/default/astar+bayes_seed2026.replay.json`` (A* leader, Bayesian follower, seed 2026).
-- ``play.png``: the play page, one person leading the shipped follower (``bayes-people``) in turn-based mode, after a
-  few fixed key presses: the board, the scores and the follower's belief.
+- ``play.png``: the play page, one person leading the Bayesian follower for people (``bayes-people``, which also
+  plays in teams; the server's default is ``ippo-shielded``) in turn-based mode, after a few fixed key presses: the
+  board, the scores and the follower's belief.
 - ``play_team.png``: the play page in a team of one person and two Bayesian followers (1:2, ``bayes-people``), after
   a few fixed key presses: each follower's belief is shown.
 - ``replay_player.png``: the replay player at step 57 of the same released replay as ``board.png``.
@@ -92,7 +93,7 @@ def start_server(tmp: Path) -> tuple[subprocess.Popen, str]:
 
 
 def play(browser, url: str, name: str, size: tuple[int, int], team: str, keys: list[str]) -> None:
-    """Start a turn-based game of ``team`` with the default follower(s), press ``keys``, screenshot the page."""
+    """Start a turn-based game of ``team`` beside ``bayes-people`` (each AI follower), press ``keys``, screenshot the page."""
     from playwright.sync_api import expect
 
     page = browser.new_page(viewport={"width": size[0], "height": size[1]})

@@ -72,7 +72,7 @@ def add_study_commands(sub) -> None:
         description="How many participants an arm of the study needs to find a difference of --difference on "
                     "--measure between the levels of --factor, with the study's design (within participants: a paired "
                     "t-test on each participant's difference; between: a two-sample t-test), from the spread in a "
-                    "pilot's export (statsmodels' power functions). Example: colorgrid study power "
+                    "pilot's export (the t-test's power, with scipy). Example: colorgrid study power "
                     "studies/human_follower.toml --pilot pilot_data --measure stated_accuracy --difference 0.05")
     power.add_argument("study_file", type=study_path, help="the study file (or its shipped name)")
     power.add_argument("--pilot", type=Path, required=True, metavar="EXPORT_DIR",
