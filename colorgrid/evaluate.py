@@ -141,7 +141,8 @@ def evaluate(config: EnvConfig, leader: str | Policy, follower: str | Policy, ep
     report = summarize(batch)
     if record_dir is not None:
         report["replays"] = [str(p) for p in record_team(batch, names, policies, record_dir, source="eval")]
-    report.update({"env_id": config.env_id, "config": config.to_dict(), "episodes": episodes, "seed": seed})
+    report.update({"env_id": config.env_id, "config": config.to_dict(), "episodes": episodes, "seed": seed,
+                   "specs": dict(zip(config.agent_names, names))})
     first = {role: config.roles.index(role) for role in ROLES}
     report.update({role: policies[first[role]].describe() for role in ROLES})  # 1:1: the leader and the follower
     if not config.one_to_one:
@@ -228,13 +229,19 @@ def format_reports(reports: list[dict]) -> str:
 
 
 def _team_label(report: dict, config: EnvConfig) -> str:
-    """The column head: ``astar + bayes`` for 1:1; ``astar×2 + bayes`` (or ``astar/person + bayes``) for teams."""
-    if config.one_to_one:
-        return f"{report['leader']['policy']} + {report['follower']['policy']}"
+    """The column head: ``astar + bayes`` for 1:1; ``astar×2 + bayes`` (or ``astar/person + bayes``) for teams. A
+    policy given with parameters is named by its whole spec (``astar + shielded:mover=...,min_belief=0.8``), so that
+    two columns of one kind with different parameters read apart."""
+    def label(i: int) -> str:
+        name = config.agent_names[i]
+        spec = report.get("specs", {}).get(name, "")
+        if ":" in spec:
+            return spec
+        return (report["policies"][name] if "policies" in report else report[config.roles[i]])["policy"]
+
     parts = []
     for role in ROLES:
-        names = [report["policies"][config.agent_names[i]]["policy"]
-                 for i, r in enumerate(config.roles) if r == role]
+        names = [label(i) for i, r in enumerate(config.roles) if r == role]
         parts.append(names[0] + (f"×{len(names)}" if len(names) > 1 else "") if len(set(names)) == 1
                      else "/".join(names))
     return " + ".join(parts)

@@ -42,3 +42,15 @@ def test_eval_reports_bad_arguments_clearly():
     assert result.returncode == 2 and "unknown policy 'nope'" in result.stderr
     result = run_cli("eval", "--set", "wrong_penalty=-1", "--episodes", "2")
     assert result.returncode == 2 and "wrong_penalty must be a finite non-negative magnitude" in result.stderr
+
+
+def test_compare_columns_of_one_kind_with_different_parameters_read_apart():
+    from colorgrid.config import EnvConfig
+    from colorgrid.evaluate import evaluate, format_reports
+
+    config = EnvConfig(horizon=16)
+    specs = ["person:base=astar,slip=0.1", "person:base=astar,slip=0.3"]
+    reports = [evaluate(config, spec, "bayes", episodes=1, seed=0) for spec in specs]
+    assert [r["specs"]["leader"] for r in reports] == specs
+    head = format_reports(reports).splitlines()[0]
+    assert f"{specs[0]} + bayes" in head and f"{specs[1]} + bayes" in head

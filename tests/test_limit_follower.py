@@ -125,7 +125,7 @@ def test_colorgrid_eval_names_it(capsys):
     assert main(["eval", "--leader", "person:slip=0.1", "--compare", "bayes", "bayes-limit", "--episodes", "2",
                  "--set", "horizon=32"]) == 0
     out = capsys.readouterr().out
-    assert "person + bayes-limit" in out and "follower belief accuracy" in out
+    assert "person:slip=0.1 + bayes-limit" in out and "follower belief accuracy" in out
     assert main(["eval", "--leaders", "population:people#held_out", "--compare", "bayes", "bayes-limit",
                  "--episodes", "2", "--workers", "1", "--set", "horizon=32"]) == 0
     out = capsys.readouterr().out

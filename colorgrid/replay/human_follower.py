@@ -35,6 +35,7 @@ from colorgrid.evaluate import catch_lags, format_mean_ci, mean_ci
 
 LOG_LOSS_FLOOR = 1e-6
 PERSON = "person"
+"""The row of the person in the reports (the AI followers' rows are their names)."""
 MEASURE_WORDS = {"accuracy": "belief accuracy (stated steps)", "accuracy_all_steps": "belief accuracy (every step)",
                  "probe_accuracy": "probe answers right", "log_loss": "probe log-loss", "brier": "probe Brier score",
                  "switch_lags": "steps to catch each switch", "median_switch_lag": "median steps to catch a switch",
@@ -43,7 +44,6 @@ MEASURE_WORDS = {"accuracy": "belief accuracy (stated steps)", "accuracy_all_ste
 as ``person_measure_words``) name them so."""
 PAGE_MEASURES = ("accuracy", "accuracy_all_steps", "probe_accuracy", "log_loss", "brier", "switch_lags", "net_pickups")
 """The measures the replay page's panel shows, in its order (a game's own: its switches one by one, not a median)."""
-"""The row of the person in the reports (the AI followers' rows are their names)."""
 
 
 def human_followers(replay: Replay) -> list[str]:
