@@ -35,9 +35,11 @@ QUOTES = {  # (doc, a table row's first cell or a paragraph's first 40 character
     ("docs/REPRODUCTION.md", "Table 1: annealing makes learning possible"): [(T1, K02), (T1, K0), (T8, K02), (T8, K0)],
     ("docs/REPRODUCTION.md", "Table 1: the auxiliary loss helps (annealed)"): [(T1, AUX), (T8, AUX)],
     ("docs/REPRODUCTION.md", "Sparse rewards: the auxiliary loss prevents the collapse"): [
-        ("sparse_small", "the auxiliary loss prevents the collapse")],
+        ("sparse_small", "the auxiliary loss prevents the collapse"),
+        ("sparse_small_confirm", "the auxiliary loss prevents the collapse")],
     ("docs/REPRODUCTION.md", "Sparse rewards: kappa 0.4 is worse than 0.2"): [
-        ("sparse_small", "too much auxiliary loss is worse")],
+        ("sparse_small", "too much auxiliary loss is worse"),
+        ("sparse_small_confirm", "too much auxiliary loss is worse")],
     ("docs/REPRODUCTION.md", "Cost of exploration: +1/-1 collects fewer blocks than +4/-1"): [
         ("exploration_small", "pessimism collects fewer goal blocks"),
         ("exploration_small", "pessimism collects fewer wrong blocks")],
