@@ -229,7 +229,7 @@ def format_reports(reports: list[dict]) -> str:
 
 
 def _team_label(report: dict, config: EnvConfig) -> str:
-    """The column head: ``astar + bayes`` for 1:1; ``astar×2 + bayes`` (or ``astar/person + bayes``) for teams. A
+    """The column head: ``astar + bayes`` for 1:1; ``astar×2 + bayes`` (or ``astar/person:slip=0.1 + bayes``) for teams. A
     policy given with parameters is named by its whole spec (``astar + shielded:mover=...,min_belief=0.8``), so that
     two columns of one kind with different parameters read apart."""
     def label(i: int) -> str:

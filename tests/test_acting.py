@@ -86,6 +86,7 @@ def test_the_temperature_is_recorded_in_the_policy_description():
     ("ippo:heat=1", ["unknown parameter(s) ['heat']", "allowed: ['temperature', 'min_belief']"]),
     (f"{CHECKPOINT}:heat=1", ["unknown parameter(s) ['heat']", "a checkpoint path ending in .pt"]),
     ("ippo:temperature", ["expected NAME:KEY=VALUE"]),
+    ("ippo:temperature=[0.5", ["unbalanced brackets in 'temperature=[0.5'"]),
 ])
 def test_a_bad_temperature_or_parameter_is_refused_in_one_line(spec, words):
     with pytest.raises(ValueError) as err:

@@ -175,3 +175,14 @@ def test_acting_on_subsets_of_rows_matches_the_whole_batch():
         actions = np.stack([lead, full.actions], axis=1)
         obs, _, _, _, info = env.step(actions)
         last.record(actions, info)
+
+
+def test_parameters_split_only_at_commas_outside_brackets():
+    from colorgrid.policies import read_params
+
+    assert read_params("steps=[1,2],base=(x.pt:temperature=0.5,greedy=true),slip=0.1", "n") == {
+        "steps": [1, 2], "base": "x.pt:temperature=0.5,greedy=true", "slip": 0.1}
+    assert read_params("slip=0.1,notice_delay=3", "n") == {"slip": 0.1, "notice_delay": 3}
+    with pytest.raises(ValueError, match=r"unbalanced brackets in 'base=\(x\)\)'"):
+        read_params("base=(x))", "n")
+    assert make_policy("person:base=(astar),slip=0.1", "leader").describe()["params"]["slip"] == 0.1

@@ -119,6 +119,8 @@ def test_what_a_composite_plays_reads_and_says_comes_from_its_parts(tmp_path):
     ("shielded:mover=nothing", "mover 'nothing': unknown policy 'nothing'"),
     ("shielded:mover=shielded", "a policy name other than a shielded follower"),
     ("shielded:mover=ippo,speed=3", "unknown parameter(s) ['speed']"),
+    ("shielded:mover=ippo,reader=(bayes:rationality=3,lapse=0.05", "unbalanced brackets"),
+    ("shielded:mover=ippo,reader=bayes:rationality=3,lapse=0.05", "unknown parameter(s) ['lapse']"),
 ])
 def test_a_wrong_shield_is_refused_in_one_line(name, words):
     with pytest.raises(ValueError) as err:
@@ -192,3 +194,14 @@ def test_a_shield_around_a_yardstick_is_one_and_no_shield_holds_another():
     for inner in ("mover=ippo-people,reader=ippo-shielded", "mover=ippo-shielded"):
         with pytest.raises(ValueError, match="is a shielded follower itself"):
             make_policy(f"shielded:{inner}", "follower")
+
+
+def test_a_part_with_parameters_of_its_own_is_given_whole_in_parentheses():
+    """``reader=(bayes:rationality=3,lapse=0.05)``: the reader gets both of its parameters, the shield its own."""
+    name = "shielded:mover=ippo-people,reader=(bayes:rationality=3,lapse=0.05),min_belief=0.7"
+    assert inner_policies(name) == {"mover": "ippo-people", "reader": "bayes:rationality=3,lapse=0.05"}
+    policy = make_policy(name, "follower")
+    assert policy.params.min_belief == 0.7
+    described = describe_agent(policy.describe())
+    assert described["reader"]["params"]["rationality"] == 3 and described["reader"]["params"]["lapse"] == 0.05
+    assert policy_teams(name) == ("1:1",) and policy_files(name) == policy_files("ippo-people")

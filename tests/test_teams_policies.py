@@ -315,7 +315,7 @@ def test_eval_of_a_team_reports_every_agent_and_every_role(tmp_path):
     result = run_cli("eval", "--team", "2:2", "--compare", "copy", "bayes", "--agent", "leader_1=person:slip=0.1",
                      "--episodes", "3", "--set", "horizon=24", "--json", str(out))
     assert result.returncode == 0, result.stderr
-    assert "astar/person + copy×2" in result.stdout and "leaders (2) net pickups" in result.stdout
+    assert "astar/person:slip=0.1 + copy×2" in result.stdout and "leaders (2) net pickups" in result.stdout
     assert "follower_1 belief accuracy" in result.stdout and "colorgrid_teams_v0" in result.stdout
     reports = json.loads(out.read_text())["reports"]
     assert [r["policies"]["follower_0"]["policy"] for r in reports] == ["copy", "bayes"]

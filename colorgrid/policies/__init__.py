@@ -125,19 +125,45 @@ def policy_files(name: str, _within: frozenset[str] = frozenset()) -> list[str]:
 
 
 def read_params(text: str, name: str) -> dict:
-    """``"slip=0.1,notice_delay=3"`` -> ``{"slip": 0.1, "notice_delay": 3}`` (values read as JSON, else text)."""
+    """``"slip=0.1,notice_delay=3"`` -> ``{"slip": 0.1, "notice_delay": 3}`` (values read as JSON, else text).
+
+    Commas inside brackets do not split: a JSON list (``steps=[1,2]``) stays whole, and a policy name with
+    parameters of its own is given whole in parentheses, which are taken off
+    (``reader=(bayes:rationality=3,lapse=0.05)`` -> ``"bayes:rationality=3,lapse=0.05"``)."""
     import json
 
     values = {}
-    for item in filter(None, text.split(",")):
+    for item in split_params(text, name):
         key, sep, raw = item.partition("=")
         if not sep:
             raise ValueError(f"{name!r}: expected NAME:KEY=VALUE,KEY=VALUE, got {item!r}")
+        if raw.startswith("(") and raw.endswith(")"):
+            values[key.strip()] = raw[1:-1]
+            continue
         try:
             values[key.strip()] = json.loads(raw)
         except json.JSONDecodeError:
             values[key.strip()] = raw
     return values
+
+
+def split_params(text: str, name: str) -> list[str]:
+    """The ``KEY=VALUE`` items of a parameters' text: split at the commas outside ``()``, ``[]`` and ``{}``."""
+    items, depth, start = [], 0, 0
+    for i, char in enumerate(text):
+        if char in "([{":
+            depth += 1
+        elif char in ")]}":
+            depth -= 1
+        elif char == "," and depth == 0:
+            items.append(text[start:i])
+            start = i + 1
+        if depth < 0:
+            break
+    if depth != 0:
+        raise ValueError(f"{name!r}: unbalanced brackets in {text!r}; give a policy name with parameters of its own "
+                         "whole in parentheses: reader=(bayes:rationality=3,lapse=0.05)")
+    return [item for item in items + [text[start:]] if item]
 
 
 def parse_params(kind, text: str, name: str):
