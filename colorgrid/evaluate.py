@@ -16,6 +16,7 @@ import numpy as np
 from colorgrid.config import ROLES, EnvConfig
 from colorgrid.enums import Role
 from colorgrid.policies import Policy, make_policy
+from colorgrid.policies.names import read_name
 from colorgrid.rollout import EpisodeBatch, run_team
 
 
@@ -165,6 +166,28 @@ def record_batch(batch, leader: str, follower: str, leader_policy, follower_poli
     return record_team(batch, [leader, follower], [leader_policy, follower_policy], out_dir, source, meta)
 
 
+TAG_LENGTH = 60
+"""The most characters a policy's part of a replay's file name takes (``replay_tag``)."""
+
+
+def replay_tag(name: str) -> str:
+    """A policy's part of a replay's file name: the name with its parameters (two settings of one policy never
+    share a file: ``person_slip_0.1``, ``person_slip_0.3``), a checkpoint by its file's stem (``x`` of
+    ``runs/a/x.pt``, ``x_temperature_0`` of ``runs/a/x.pt:temperature=0``), in the characters a replay id allows
+    (``server/replays.py``); past ``TAG_LENGTH`` cut, with a hash of the whole name after it."""
+    import hashlib
+    import re
+
+    from colorgrid.policies import registry
+
+    found = registry.file_of(name)
+    text = name if found is None else Path(found).stem + name[len(found):]
+    tag = re.sub(r"[^A-Za-z0-9_.-]+", "_", text).strip("_") or "policy"
+    if len(tag) > TAG_LENGTH:
+        tag = f"{tag[:TAG_LENGTH - 9]}_{hashlib.sha256(name.encode()).hexdigest()[:8]}"
+    return tag
+
+
 def record_team(batch, names: Sequence[str], policies: Sequence[Policy], out_dir, source: str,
                 meta: dict | None = None) -> list[Path]:
     """Save every episode of ``batch`` as ``<policy>+<policy>+..._seed<N>.replay.json`` in ``out_dir`` (one
@@ -173,7 +196,7 @@ def record_team(batch, names: Sequence[str], policies: Sequence[Policy], out_dir
 
     agents = {agent: describe_agent(policy.describe(), name if name.endswith(".pt") else None)
               for agent, name, policy in zip(batch.config.agent_names, names, policies)}
-    tag = "+".join(Path(name).stem for name in names)
+    tag = "+".join(replay_tag(name) for name in names)
     paths = []
     for replay in from_batch(batch, agents, source, meta=meta):
         paths.append(save(replay, Path(out_dir) / f"{tag}_seed{replay.seed}.replay.json"))
@@ -235,7 +258,8 @@ def _team_label(report: dict, config: EnvConfig) -> str:
     def label(i: int) -> str:
         name = config.agent_names[i]
         spec = report.get("specs", {}).get(name, "")
-        if ":" in spec:
+        read = read_name(spec) if spec else None
+        if read is not None and read.params:
             return spec
         return (report["policies"][name] if "policies" in report else report[config.roles[i]])["policy"]
 

@@ -152,7 +152,8 @@ def check_follower_names(names: tuple[str, ...]) -> None:
     from colorgrid.policies.names import read_name
 
     for name in names:
-        joined = "," in name and not Path(name.split(":")[0]).is_file()
+        target = name.partition(":")[0]  # a comma among the parameters is a parameter's (bayes:lapse=0.2,rationality=3)
+        joined = "," in target and not Path(target).is_file()
         if read_name(name) is None or joined:
             one_each = " (one name a flag: --followers copy --followers bayes)" if "," in name else ""
             raise ValueError(f"--followers {name!r} is no policy: give one of {policy_names()} or a checkpoint path "

@@ -54,3 +54,19 @@ def test_compare_columns_of_one_kind_with_different_parameters_read_apart():
     assert [r["specs"]["leader"] for r in reports] == specs
     head = format_reports(reports).splitlines()[0]
     assert f"{specs[0]} + bayes" in head and f"{specs[1]} + bayes" in head
+
+
+def test_replays_of_two_settings_of_one_policy_keep_apart(tmp_path):
+    """``--compare`` of one policy at two settings with ``--record``: each setting's replays under its own name."""
+    from colorgrid.config import EnvConfig
+    from colorgrid.evaluate import evaluate, replay_tag
+    from colorgrid.replay import load
+
+    config = EnvConfig(horizon=16)
+    paths = [evaluate(config, "astar", f"bayes:lapse={lapse}", 2, 0, record_dir=tmp_path)["replays"]
+             for lapse in (0.1, 0.3)]
+    assert len(set(paths[0] + paths[1])) == 4 and len(list(tmp_path.glob("*.replay.json"))) == 4
+    assert [load(p).agents["follower"]["params"]["lapse"] for p in (paths[0][0], paths[1][0])] == [0.1, 0.3]
+    long = "shielded:mover=ippo-people,reader=(bayes:rationality=3,lapse=0.05),min_belief=0.8"
+    assert len(replay_tag(long)) == 60 and replay_tag(long) != replay_tag(long.replace("0.8", "0.9"))
+    assert replay_tag("runs/a/x.pt:temperature=0") == "x_temperature_0" and replay_tag("astar") == "astar"

@@ -155,3 +155,18 @@ def test_the_play_server_refuses_a_follower_that_is_no_policy_in_one_line(comman
     assert done.returncode == 2, done.stdout + done.stderr
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and words in lines[0], done.stderr
+
+
+def test_a_follower_whose_parameters_hold_commas_is_one_follower():
+    """A comma among a name's parameters is a parameter's, not a second follower; the menu's list, given as one
+    setting, keeps such a name whole in parentheses."""
+    from colorgrid.configkit.build import resolve
+    from server.cli import check_follower_names
+    from server.settings import ServerSettings
+
+    nested = "shielded:mover=ippo-people,reader=(bayes:rationality=3,lapse=0.05),min_belief=0.8"
+    check_follower_names(("bayes:lapse=0.2,rationality=3", nested))
+    with pytest.raises(ValueError, match="one name a flag"):
+        check_follower_names(("copy,bayes",))
+    settings = resolve(ServerSettings, overrides=[f"followers=copy,({nested}),(bayes:lapse=0.2,rationality=3)"])
+    assert settings.followers == ("copy", nested, "bayes:lapse=0.2,rationality=3")

@@ -205,3 +205,11 @@ def test_a_part_with_parameters_of_its_own_is_given_whole_in_parentheses():
     described = describe_agent(policy.describe())
     assert described["reader"]["params"]["rationality"] == 3 and described["reader"]["params"]["lapse"] == 0.05
     assert policy_teams(name) == ("1:1",) and policy_files(name) == policy_files("ippo-people")
+
+
+def test_a_person_whose_base_is_a_population_part_is_a_person():
+    from colorgrid.policies.names import PolicyKind, is_population, read_name
+
+    name = "person:base=(populations/people.json#training),slip=0.1"
+    assert not is_population(name) and read_name(name).kind is PolicyKind.SCRIPTED
+    assert is_population("populations/people.json#training") and is_population("population:people#held_out")

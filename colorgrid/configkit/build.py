@@ -188,8 +188,44 @@ def _coerce(cls, path: list[str], value, text: str, prefix: str = ""):
                               f"allowed: {sorted(fields)}")
         kind = plain_type(typing.get_type_hints(kind)[part])
     if is_tuple(kind) and isinstance(value, str):
-        return tuple(v for v in value.split(",") if v)
+        items = split_outside_brackets(value)
+        if items is None:
+            raise ConfigError(f"unbalanced brackets in {text!r}; give an item with commas of its own whole in "
+                              "parentheses: a,(b:x=1,y=2)")
+        return tuple(unwrap(v) for v in items)
     return value
+
+
+def split_outside_brackets(text: str) -> list[str] | None:
+    """The non-empty items of a comma-separated ``text``, split only at the commas outside ``()``, ``[]`` and
+    ``{}`` (``"a,(b:x=1,y=2),[1,2]"`` -> ``["a", "(b:x=1,y=2)", "[1,2]"]``); None when its brackets do not balance."""
+    items, depth, start = [], 0, 0
+    for i, char in enumerate(text):
+        if char in "([{":
+            depth += 1
+        elif char in ")]}":
+            depth -= 1
+            if depth < 0:
+                return None
+        elif char == "," and depth == 0:
+            items.append(text[start:i])
+            start = i + 1
+    return None if depth else [item for item in items + [text[start:]] if item]
+
+
+def unwrap(item: str) -> str:
+    """``item`` without the parentheses that hold it whole (``"(b:x=1,y=2)"`` -> ``"b:x=1,y=2"``), stripped of
+    spaces; anything else as it is (``"(a)(b)"``: its first parenthesis closes before its end)."""
+    item = item.strip()
+    if not (item.startswith("(") and item.endswith(")")):
+        return item
+    depth = 0
+    for i, char in enumerate(item):
+        depth += char == "("
+        depth -= char == ")"
+        if depth == 0:
+            return item[1:-1] if i == len(item) - 1 else item
+    return item
 
 
 def keys_named(cls, name: str, prefix: str = "") -> list[str]:

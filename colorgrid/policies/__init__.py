@@ -132,38 +132,26 @@ def read_params(text: str, name: str) -> dict:
     (``reader=(bayes:rationality=3,lapse=0.05)`` -> ``"bayes:rationality=3,lapse=0.05"``)."""
     import json
 
+    from colorgrid.configkit.build import split_outside_brackets, unwrap
+
+    items = split_outside_brackets(text)
+    if items is None:
+        raise ValueError(f"{name!r}: unbalanced brackets in {text!r}; give a policy name with parameters of its own "
+                         "whole in parentheses: reader=(bayes:rationality=3,lapse=0.05)")
     values = {}
-    for item in split_params(text, name):
+    for item in items:
         key, sep, raw = item.partition("=")
         if not sep:
             raise ValueError(f"{name!r}: expected NAME:KEY=VALUE,KEY=VALUE, got {item!r}")
-        if raw.startswith("(") and raw.endswith(")"):
-            values[key.strip()] = raw[1:-1]
+        raw = raw.strip()
+        if unwrap(raw) != raw:
+            values[key.strip()] = unwrap(raw)
             continue
         try:
             values[key.strip()] = json.loads(raw)
         except json.JSONDecodeError:
             values[key.strip()] = raw
     return values
-
-
-def split_params(text: str, name: str) -> list[str]:
-    """The ``KEY=VALUE`` items of a parameters' text: split at the commas outside ``()``, ``[]`` and ``{}``."""
-    items, depth, start = [], 0, 0
-    for i, char in enumerate(text):
-        if char in "([{":
-            depth += 1
-        elif char in ")]}":
-            depth -= 1
-        elif char == "," and depth == 0:
-            items.append(text[start:i])
-            start = i + 1
-        if depth < 0:
-            break
-    if depth != 0:
-        raise ValueError(f"{name!r}: unbalanced brackets in {text!r}; give a policy name with parameters of its own "
-                         "whole in parentheses: reader=(bayes:rationality=3,lapse=0.05)")
-    return [item for item in items + [text[start:]] if item]
 
 
 def parse_params(kind, text: str, name: str):

@@ -45,7 +45,10 @@ class PolicyName:
 
 
 def is_population(name: str) -> bool:
-    """Whether ``name`` names a population: ``population:NAME[#PART]`` or ``FILE.json[#PART]``."""
+    """Whether ``name`` names a population: ``population:NAME[#PART]`` or ``FILE.json[#PART]`` (not a scripted
+    policy whose parameters name one: ``person:base=(p.json#a),slip=0.1``)."""
+    if name.partition(":")[0] in SCRIPTED:
+        return False
     return name.startswith(POPULATION_PREFIX) or name.endswith(".json") or ".json#" in name
 
 
