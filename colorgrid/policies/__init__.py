@@ -143,9 +143,9 @@ def read_params(text: str, name: str) -> dict:
         key, sep, raw = item.partition("=")
         if not sep:
             raise ValueError(f"{name!r}: expected NAME:KEY=VALUE,KEY=VALUE, got {item!r}")
-        raw = raw.strip()
-        if unwrap(raw) != raw:
-            values[key.strip()] = unwrap(raw)
+        raw, inner = raw.strip(), unwrap(raw)
+        if inner != raw:  # a policy name given whole in parentheses
+            values[key.strip()] = inner
             continue
         try:
             values[key.strip()] = json.loads(raw)
