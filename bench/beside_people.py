@@ -4,6 +4,9 @@ table and the picture of docs/ASSISTANT_RECIPE.md's "Beside people".
     python bench/beside_people.py measure --episodes 100 --seed 0 --workers 2 \
         --out docs/reproduction/beside_people/beside_people.json      # 388 s on 2 CPU cores beside a training run
     python bench/beside_people.py draw docs/reproduction/beside_people/beside_people.json   # the tables; the picture
+    python bench/beside_people.py measure --episodes 100 --seed 0 --workers 2 --followers \
+        --arms runs/sweeps/assistant_partner runs/sweeps/assistant_partners_varied \
+        --add docs/reproduction/beside_people/beside_people.json --out docs/reproduction/beside_people/beside_people.json
 
 ``measure`` plays every follower beside A* and beside each member of ``population:people#held_out`` on the same
 episodes (env ``i`` seeded ``seed + i``) and keeps, per episode, the follower's net and wrong pickups, its belief
@@ -13,7 +16,14 @@ named the goal at each step after a switch. ``draw`` reads that file and prints 
 - left: net pickups against wrong pickups beside the held-out people, each follower with its 95% intervals over
   episodes (each episode its own seed; the six leaders' episodes pooled, 100 seeds each);
 - right: the share of goal switches whose new goal the follower's belief names, each step after the switch (95%
-  bands over switches), beside the held-out people.
+  bands over switches), beside the held-out people (the shipped followers; an arm is a point on the left only).
+
+An **arm** of a sweep (``--arms FOLDER``: a sweep's run folder, its finished trials in ``trials.csv``) is one
+follower made of its seeds' trained followers (each trial's last checkpoint): the ``episodes`` of each leader are
+split into as many consecutive blocks as it has seeds, block ``k`` played by the ``k``-th seed's follower on the
+same env seeds as every other follower. Its interval over episodes therefore holds the seed-to-seed spread too, and
+its gap to the limit stays paired by episode. ``--add FILE`` keeps a report's followers and adds the new ones
+(measured on the same episodes and seed, which it checks).
 
 The gap to the limit is paired: a follower's figure minus ``bayes-limit``'s on the same episodes (mean and 95%
 interval of the per-episode differences); for the steps to catch a switch, the difference of the two means, its
@@ -51,13 +61,53 @@ AFTER_SWITCH = 30
 """Steps after a goal switch over which the right panel follows the belief."""
 
 
+ARM = "arm:"
+"""How a report names an arm of a sweep: ``arm:SWEEP/CONFIGURATION`` (``arm:assistant_partner/partner=A*``)."""
+
+
 def label(follower: str) -> str:
-    """A follower's name in the table and the picture (a checkpoint by its file's stem)."""
+    """A follower's name in the table and the picture (a checkpoint by its file's stem, an arm by its sweep's
+    configuration)."""
+    if follower.startswith(ARM):
+        return follower.removeprefix(ARM).split("/", 1)[1].split("=", 1)[-1] + " (arm)"
     return Path(follower).stem.replace("follower_", "ippo-") if follower.endswith(".pt") else follower
 
 
-def cell(leader: str, follower: str, episodes: int, seed: int) -> dict:
-    """One leader beside one follower: per-episode figures (lists, JSON-ready)."""
+def sweep_arms(folder: Path) -> dict[str, list[str]]:
+    """``{arm:SWEEP/CONFIGURATION: [last checkpoint of each finished trial, in seed order]}`` for a sweep's run
+    folder."""
+    import csv
+
+    table = folder / "trials.csv"
+    if not table.is_file():
+        raise ValueError(f"--arms: {folder} has no trials.csv; give a sweep's run folder (runs/sweeps/NAME)")
+    arms: dict[str, list[tuple[int, str]]] = {}
+    for row in csv.DictReader(table.open()):
+        if row["finished"] != "True":
+            continue
+        checkpoint = folder / row["trial"] / "run" / "checkpoints" / "latest.pt"
+        if not checkpoint.is_file():
+            raise ValueError(f"--arms: {checkpoint} is missing; rerun the sweep to make it")
+        arms.setdefault(f"{ARM}{folder.name}/{row['configuration']}", []).append((int(row["seed"]), str(checkpoint)))
+    if not arms:
+        raise ValueError(f"--arms: {folder} has no finished trial")
+    return {name: [path for _, path in sorted(seeds)] for name, seeds in arms.items()}
+
+
+def cell(leader: str, follower: str | list[str], episodes: int, seed: int) -> dict:
+    """One leader beside one follower: per-episode figures (lists, JSON-ready). A list of followers (an arm's
+    seeds) plays the episodes in consecutive blocks, one a follower, on the same env seeds."""
+    if isinstance(follower, list):
+        blocks = np.array_split(np.arange(episodes), len(follower))
+        parts = [cell(leader, one, len(block), seed + int(block[0])) for one, block in zip(follower, blocks)
+                 if len(block)]
+        kept = set.intersection(*(set(part) for part in parts))  # a belief only where every seed has one
+        out = {key: sum((part[key] for part in parts), []) for key in parts[0]
+               if key in kept and key not in ("after_switch", "wall_seconds")}
+        if "after_switch" in kept:
+            out["after_switch"] = np.sum([part["after_switch"] for part in parts], axis=0).tolist()
+        out["wall_seconds"] = sum(part["wall_seconds"] for part in parts)
+        return out
     try:
         import torch
 
@@ -100,11 +150,15 @@ def after_switch(right: np.ndarray, goal: np.ndarray, steps: int) -> np.ndarray:
     return counts
 
 
-def measure(followers: list[str], episodes: int, seed: int, workers: int) -> dict:
+def measure(followers: list[str], episodes: int, seed: int, workers: int,
+            arms: dict[str, list[str]] | None = None) -> dict:
+    """Every follower (and each arm, its seeds' checkpoints) beside A* and each held-out leader."""
+    arms = arms or {}
     leaders = {"astar": "astar", **load_population(HELD_OUT.removeprefix("population:"))}
+    followers = [*followers, *arms]
     jobs = [(name, follower) for name in leaders for follower in followers]
     start = time.perf_counter()
-    args = [(leaders[n], f, episodes, seed) for n, f in jobs]
+    args = [(leaders[n], arms.get(f, f), episodes, seed) for n, f in jobs]
     if workers == 1:
         results = [cell(*a) for a in args]
     else:
@@ -114,7 +168,19 @@ def measure(followers: list[str], episodes: int, seed: int, workers: int) -> dic
     for (name, follower), result in zip(jobs, results):
         cells[name][follower] = result
     return {"episodes": episodes, "seed": seed, "leaders": leaders, "held_out": [n for n in leaders if n != "astar"],
-            "followers": followers, "cells": cells, "wall_seconds": time.perf_counter() - start}
+            "followers": followers, "arms": arms, "cells": cells, "wall_seconds": time.perf_counter() - start}
+
+
+def merge(kept: dict, new: dict) -> dict:
+    """``kept`` with ``new``'s followers added (replaced where both have one); both on the same episodes."""
+    for key in ("episodes", "seed", "leaders"):
+        if kept[key] != new[key]:
+            raise ValueError(f"--add: the kept report has {key} {kept[key]!r}, this measure {new[key]!r}; "
+                             "measure with the kept report's --episodes and --seed")
+    followers = [f for f in kept["followers"] if f not in new["followers"]] + new["followers"]
+    cells = {name: {**kept["cells"][name], **new["cells"][name]} for name in kept["cells"]}
+    return {**kept, "followers": followers, "arms": {**kept.get("arms", {}), **new["arms"]}, "cells": cells,
+            "wall_seconds": kept["wall_seconds"] + new["wall_seconds"]}
 
 
 def mean_ci(values) -> tuple[float, float]:
@@ -212,16 +278,17 @@ def draw(report: dict, png: Path) -> None:
     leaders = report["held_out"]
     rows = summary(report, leaders)
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.8))
-    colors = plt.get_cmap("tab10")
+    colors = plt.get_cmap("tab10" if len(rows) <= 10 else "tab20")
     names = []
     for i, (follower, row) in enumerate(rows.items()):
         (net, net_ci), (wrong, wrong_ci) = row["net"], row["wrong"]
-        marker = "*" if follower == LIMIT else ("s" if follower.startswith(("bayes", "copy")) else "o")
+        marker = ("*" if follower == LIMIT else "s" if follower.startswith(("bayes", "copy"))
+                  else "D" if follower.startswith(ARM) else "o")
         left.errorbar(wrong, net, xerr=wrong_ci, yerr=net_ci, fmt=marker, color=colors(i), capsize=3,
                       markersize=11 if marker == "*" else 7, label=label(follower))
         names.append(left.annotate(label(follower), (wrong, net), textcoords="offset points", xytext=(6, 5),
                                    fontsize=8))
-        if row["accuracy"] is None:
+        if row["accuracy"] is None or follower.startswith(ARM):  # the right panel: shipped followers only
             continue
         counts = sum(np.asarray(report["cells"][n][follower]["after_switch"]) for n in leaders)
         steps = np.arange(counts.shape[1])
@@ -272,7 +339,10 @@ def main(argv: list[str] | None = None) -> int:
     run = sub.add_parser("measure", help="play every follower beside A* and the held-out people; write JSON")
     run.add_argument("--episodes", type=int, default=100)
     run.add_argument("--seed", type=int, default=0)
-    run.add_argument("--followers", nargs="+", default=FOLLOWERS)
+    run.add_argument("--followers", nargs="*", default=FOLLOWERS, help="policy names (none: the arms alone)")
+    run.add_argument("--arms", nargs="+", type=Path, default=[], metavar="FOLDER",
+                     help="sweep run folders: each configuration an arm of its seeds' trained followers")
+    run.add_argument("--add", type=Path, help="a report to keep, the new followers added to it")
     run.add_argument("--workers", type=int, default=1, help="processes for the cells (the result is the same)")
     run.add_argument("--out", type=Path, required=True)
     pic = sub.add_parser("draw", help="print the table and draw the picture from measure's JSON")
@@ -282,7 +352,18 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "measure":
         if args.episodes < 2:
             parser.error(f"--episodes must be >= 2 (an interval needs two), got {args.episodes}")
-        report = measure(args.followers, args.episodes, args.seed, args.workers)
+        try:
+            arms = {name: paths for folder in args.arms for name, paths in sweep_arms(folder).items()}
+            if not args.followers and not arms:
+                raise ValueError("nothing to measure: give --followers, --arms or both")
+            kept = json.loads(args.add.read_text()) if args.add else None
+            if kept is not None:
+                merge(kept, {**kept, "episodes": args.episodes, "seed": args.seed, "followers": [], "arms": {}})
+            report = measure(args.followers, args.episodes, args.seed, args.workers, arms)
+            if kept is not None:
+                report = merge(kept, report)
+        except (ValueError, OSError) as error:
+            parser.error(str(error))
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps(report))
         print(f"wrote {args.out} ({report['wall_seconds']:.0f} s)")

@@ -194,6 +194,49 @@ def test_the_picture_script_runs_on_a_tiny_budget(tmp_path):
     limit_net = np.mean([np.mean(report["cells"][n]["bayes-limit"]["net"]) for n in report["held_out"]])
     assert f"{limit_net:+.2f}" in rows[2]
 
+    # an arm of a sweep added to the kept report: its two seeds' followers, one episode each
+    sweep = tmp_path / "runs" / "tiny_sweep"
+    rows = ["trial,configuration,seed,finished"]
+    for trial, seed, finished in (("t_b", 4, "True"), ("t_a", 3, "True"), ("t_c", 5, "False")):
+        rows.append(f"{trial},partner=A*,{seed},{finished}")
+        if finished == "True":
+            (sweep / trial / "run" / "checkpoints").mkdir(parents=True)
+            (sweep / trial / "run" / "checkpoints" / "latest.pt").write_bytes((ROOT / "checkpoints" / "follower.pt")
+                                                                               .read_bytes())
+    (sweep / "trials.csv").write_text("\n".join(rows) + "\n")
+    added = subprocess.run([*script, "measure", "--episodes", "2", "--followers", "--arms", str(sweep),
+                            "--add", str(data), "--out", str(data)], capture_output=True, text=True, timeout=600)
+    assert added.returncode == 0, added.stderr
+    merged = json.loads(data.read_text())
+    arm = "arm:tiny_sweep/partner=A*"
+    assert merged["followers"] == ["copy", "bayes-people", "bayes-limit", arm]
+    assert merged["arms"][arm] == [str(sweep / t / "run" / "checkpoints" / "latest.pt") for t in ("t_a", "t_b")]
+    assert merged["cells"]["late_8"]["copy"] == report["cells"]["late_8"]["copy"]  # the kept followers kept
+    assert len(merged["cells"]["wanderer"][arm]["net"]) == 2 and "accuracy" in merged["cells"]["wanderer"][arm]
+    drawn = subprocess.run([*script, "draw", str(data), "--png", str(png)], capture_output=True, text=True, timeout=300)
+    assert drawn.returncode == 0, drawn.stderr
+    assert "| `A* (arm)` |" in drawn.stdout
+    other = subprocess.run([*script, "measure", "--episodes", "3", "--followers", "copy", "--add", str(data),
+                            "--out", str(tmp_path / "other.json")], capture_output=True, text=True, timeout=600)
+    assert other.returncode == 2 and "the kept report has episodes 2, this measure 3" in other.stderr
+
+
+def test_an_arm_plays_its_episodes_in_blocks_one_a_seed():
+    """An arm's seeds split a leader's episodes in consecutive blocks, each on the env seeds it would have alone."""
+    sys.path.insert(0, str(ROOT / "bench"))
+    from beside_people import cell, sweep_arms
+    from colorgrid.policies.population import load_population
+
+    leader = load_population("people#held_out")["late_8"]
+    arm = cell(leader, ["bayes", "bayes-people"], 5, 3)
+    first, second = cell(leader, "bayes", 3, 3), cell(leader, "bayes-people", 2, 6)
+    for key in ("net", "wrong", "accuracy", "lags"):
+        assert arm[key] == first[key] + second[key], key
+    assert arm["after_switch"] == (np.asarray(first["after_switch"]) + second["after_switch"]).tolist()
+    assert "accuracy" not in cell(leader, ["bayes", "copy"], 2, 0)  # a belief only where every seed has one
+    with pytest.raises(ValueError, match="has no trials.csv"):
+        sweep_arms(ROOT / "docs")
+
 
 def test_without_the_limit_measured_no_follower_is_called_the_limit():
     sys.path.insert(0, str(ROOT / "bench"))
