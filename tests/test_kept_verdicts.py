@@ -73,6 +73,11 @@ QUOTES = {  # (doc, a table row's first cell or a paragraph's first 40 character
     ("docs/ASSISTANT_RECIPE.md", "**Not shown to be needed: the annealed p"): [
         (RECIPE, "the recipe without annealing matches the recipe")],
     ("docs/ASSISTANT_RECIPE.md", "**Not shown to be needed: the A* partner"): [(RECIPE, "the A* partner is needed")],
+    ("docs/ASSISTANT_RECIPE.md", "**`sweeps/assistant_partners_varied.toml"): [
+        ("assistant_partners_varied", c) for c in (
+            "partners that vary beat A* alone", "leaders at several skill levels beat A* alone",
+            "the mixture beats bayes-people (net)", "the mixture errs as bayes-people does",
+            "the mixture beats ippo-people (net)")],
     ("docs/ASSISTANT_RECIPE.md", "The paper's partner for a learning follo"): [
         (RECIPE, "the recipe beside an IPPO leader beats the copy follower")],
 }
