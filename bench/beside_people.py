@@ -68,8 +68,10 @@ ARM = "arm:"
 def label(follower: str) -> str:
     """A follower's name in the table and the picture (a checkpoint by its file's stem, an arm by its sweep's
     configuration)."""
-    if follower.startswith(ARM):
-        return follower.removeprefix(ARM).split("/", 1)[1].split("=", 1)[-1] + " (arm)"
+    if follower.startswith(ARM):  # its sweep and its configuration's values: two sweeps may share an arm's name
+        sweep, configuration = follower.removeprefix(ARM).split("/", 1)
+        one = ", " not in configuration  # one parameter: its value names the arm; more: the whole configuration
+        return f"{sweep}: " + (configuration.split("=", 1)[-1] if one else configuration)
     return Path(follower).stem.replace("follower_", "ippo-") if follower.endswith(".pt") else follower
 
 
@@ -278,30 +280,37 @@ def draw(report: dict, png: Path) -> None:
     leaders = report["held_out"]
     rows = summary(report, leaders)
     fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4.8))
-    colors = plt.get_cmap("tab10" if len(rows) <= 10 else "tab20")
-    names = []
-    for i, (follower, row) in enumerate(rows.items()):
+    shipped, arms = [f for f in rows if not f.startswith(ARM)], [f for f in rows if f.startswith(ARM)]
+    palette = {**{f: plt.get_cmap("tab10")(i % 10) for i, f in enumerate(shipped)},
+               **{f: plt.get_cmap("Dark2")(i % 8) for i, f in enumerate(arms)}}
+    names, arm_marks = [], []
+    for follower, row in rows.items():
         (net, net_ci), (wrong, wrong_ci) = row["net"], row["wrong"]
         marker = ("*" if follower == LIMIT else "s" if follower.startswith(("bayes", "copy"))
                   else "D" if follower.startswith(ARM) else "o")
-        left.errorbar(wrong, net, xerr=wrong_ci, yerr=net_ci, fmt=marker, color=colors(i), capsize=3,
-                      markersize=11 if marker == "*" else 7, label=label(follower))
-        names.append(left.annotate(label(follower), (wrong, net), textcoords="offset points", xytext=(6, 5),
-                                   fontsize=8))
+        mark = left.errorbar(wrong, net, xerr=wrong_ci, yerr=net_ci, fmt=marker, color=palette[follower], capsize=3,
+                             markersize=11 if marker == "*" else 7, label=label(follower))
+        if follower.startswith(ARM):  # the arms crowd one corner: a legend names them
+            arm_marks.append(mark)
+        else:
+            names.append(left.annotate(label(follower), (wrong, net), textcoords="offset points", xytext=(6, 5),
+                                       fontsize=8))
         if row["accuracy"] is None or follower.startswith(ARM):  # the right panel: shipped followers only
             continue
         counts = sum(np.asarray(report["cells"][n][follower]["after_switch"]) for n in leaders)
         steps = np.arange(counts.shape[1])
         share = counts[0] / np.maximum(counts[1], 1)
         half = 1.96 * np.sqrt(share * (1 - share) / np.maximum(counts[1], 1))
-        right.plot(steps, share, color=colors(i), label=label(follower), lw=2.2 if follower == LIMIT else 1.4,
+        right.plot(steps, share, color=palette[follower], label=label(follower), lw=2.2 if follower == LIMIT else 1.4,
                    ls="--" if follower == LIMIT else "-")
-        right.fill_between(steps, share - half, share + half, color=colors(i), alpha=0.12)
+        right.fill_between(steps, share - half, share + half, color=palette[follower], alpha=0.12)
     left.margins(x=0.15, y=0.08)  # room for the names beside the outermost points
     left.set_xlabel("wrong pickups per episode")
     left.set_ylabel("net pickups per episode (goal - wrong)")
     left.set_title(f"Beside the held-out people ({len(leaders)} leaders x {report['episodes']} seeds)", fontsize=10)
     left.grid(alpha=0.3)
+    if arm_marks:
+        left.legend(handles=arm_marks, title="sweep arms (diamonds)", fontsize=7, title_fontsize=7, loc="lower left")
     right.set_xlabel("steps after a goal switch")
     right.set_ylabel("share of switches whose new goal the belief names")
     right.set_title("Catching a switch, beside the held-out people (95% bands)", fontsize=10)

@@ -215,7 +215,7 @@ def test_the_picture_script_runs_on_a_tiny_budget(tmp_path):
     assert len(merged["cells"]["wanderer"][arm]["net"]) == 2 and "accuracy" in merged["cells"]["wanderer"][arm]
     drawn = subprocess.run([*script, "draw", str(data), "--png", str(png)], capture_output=True, text=True, timeout=300)
     assert drawn.returncode == 0, drawn.stderr
-    assert "| `A* (arm)` |" in drawn.stdout
+    assert "| `tiny_sweep: A*` |" in drawn.stdout
     other = subprocess.run([*script, "measure", "--episodes", "3", "--followers", "copy", "--add", str(data),
                             "--out", str(tmp_path / "other.json")], capture_output=True, text=True, timeout=600)
     assert other.returncode == 2 and "the kept report has episodes 2, this measure 3" in other.stderr
