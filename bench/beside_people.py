@@ -33,6 +33,7 @@ interval from the two intervals (their switches are the same, the catches each o
 from __future__ import annotations
 
 import argparse
+import csv
 import json
 import multiprocessing
 import sys
@@ -78,8 +79,6 @@ def label(follower: str) -> str:
 def sweep_arms(folder: Path) -> dict[str, list[str]]:
     """``{arm:SWEEP/CONFIGURATION: [last checkpoint of each finished trial, in seed order]}`` for a sweep's run
     folder."""
-    import csv
-
     table = folder / "trials.csv"
     if not table.is_file():
         raise ValueError(f"--arms: {folder} has no trials.csv; give a sweep's run folder (runs/sweeps/NAME)")
@@ -173,12 +172,18 @@ def measure(followers: list[str], episodes: int, seed: int, workers: int,
             "followers": followers, "arms": arms, "cells": cells, "wall_seconds": time.perf_counter() - start}
 
 
+def same_episodes(kept: dict, **measure) -> None:
+    """Refuse, in one line, a measure (its episodes, seed, leaders: whichever are given) not played on ``kept``'s
+    episodes."""
+    for key, value in measure.items():
+        if kept[key] != value:
+            raise ValueError(f"--add: the kept report has {key} {kept[key]!r}, this measure {value!r}; "
+                             "measure with the kept report's --episodes and --seed")
+
+
 def merge(kept: dict, new: dict) -> dict:
     """``kept`` with ``new``'s followers added (replaced where both have one); both on the same episodes."""
-    for key in ("episodes", "seed", "leaders"):
-        if kept[key] != new[key]:
-            raise ValueError(f"--add: the kept report has {key} {kept[key]!r}, this measure {new[key]!r}; "
-                             "measure with the kept report's --episodes and --seed")
+    same_episodes(kept, episodes=new["episodes"], seed=new["seed"], leaders=new["leaders"])
     followers = [f for f in kept["followers"] if f not in new["followers"]] + new["followers"]
     cells = {name: {**kept["cells"][name], **new["cells"][name]} for name in kept["cells"]}
     return {**kept, "followers": followers, "arms": {**kept.get("arms", {}), **new["arms"]}, "cells": cells,
@@ -367,7 +372,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise ValueError("nothing to measure: give --followers, --arms or both")
             kept = json.loads(args.add.read_text()) if args.add else None
             if kept is not None:
-                merge(kept, {**kept, "episodes": args.episodes, "seed": args.seed, "followers": [], "arms": {}})
+                same_episodes(kept, episodes=args.episodes, seed=args.seed)  # before the minutes of play
             report = measure(args.followers, args.episodes, args.seed, args.workers, arms)
             if kept is not None:
                 report = merge(kept, report)

@@ -389,6 +389,7 @@ def test_an_update_process_that_dies_fails_the_next_update_in_one_line(tmp_path)
     assert not trainer._processes
 
 
+@pytest.mark.timeout(method="thread")  # this test sets its own SIGALRM; the suite's bound (900 s) by a thread
 def test_ctrl_c_during_an_update_ends_the_update_processes_at_once(tmp_path):
     """SIGINT while the learners update (the follower in its process): the KeyboardInterrupt comes through, the
     process is ended at once rather than asked for a state it is still changing, and closing raises nothing."""
