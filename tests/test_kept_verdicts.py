@@ -33,7 +33,8 @@ K02, K0, AUX = ("annealing makes learning possible (kappa 0.2)", "annealing make
 RECIPE = "assistant_recipe"
 QUOTES = {  # (doc, a table row's first cell or a paragraph's first 40 characters): the claims it quotes, in order
     ("docs/REPRODUCTION.md", "Table 1: annealing makes learning possible"): [(T1, K02), (T1, K0), (T8, K02), (T8, K0)],
-    ("docs/REPRODUCTION.md", "Table 1: the auxiliary loss helps (annealed)"): [(T1, AUX), (T8, AUX)],
+    ("docs/REPRODUCTION.md", "Table 1: the auxiliary loss helps (annealed)"): [
+        (T1, AUX), ("table1_small_confirm", AUX), ("table1_small_aux_confirm", AUX), (T8, AUX)],
     ("docs/REPRODUCTION.md", "Sparse rewards: the auxiliary loss prevents the collapse"): [
         ("sparse_small", "the auxiliary loss prevents the collapse"),
         ("sparse_small_confirm", "the auxiliary loss prevents the collapse")],
