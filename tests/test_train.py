@@ -389,6 +389,36 @@ def test_an_update_process_that_dies_fails_the_next_update_in_one_line(tmp_path)
     assert not trainer._processes
 
 
+def test_an_update_process_that_blocks_is_ended_with_its_stacks_and_fails_the_update_in_one_line(tmp_path, capfd):
+    """A process alive but using no CPU while its answer is owed (here stopped by SIGSTOP before the update reaches
+    it) is taken as blocked after ``stall_s``: ended by SIGABRT, which writes its threads' stacks to stderr, and the
+    update fails in one line instead of waiting for ever."""
+    threads = torch.get_num_threads()
+    trainer = Trainer(tiny(threads=2), tmp_path, progress=False, tensorboard=False)
+    try:
+        trainer.collect_rollout()
+        trainer._update_learners()
+        update = trainer._processes[1]
+        views = trainer.learners[1].views  # (made before the fork: an update sends their step count, not their memory)
+        assert views and all(update._inherited[k] is v and v.is_shared() for k, v in views.items())
+        update.stall_s = 1.0
+        process = update.process
+        os.kill(process.pid, signal.SIGSTOP)
+        trainer.collect_rollout()
+        with pytest.raises(RuntimeError, match=r"^the follower learner's update process used no CPU for 1 s while its "
+                                               r"answer was owed: stopped \(exit code -6; its threads' stacks are on "
+                                               r"stderr\)$"):
+            trainer._update_learners()
+        assert not process.is_alive() and process.exitcode == -signal.SIGABRT
+    finally:
+        torch.set_num_threads(threads)
+        trainer.close()
+    assert not trainer._processes
+    err = capfd.readouterr().err
+    # where the process was: in _serve, waiting for the request
+    assert "Fatal Python error: Aborted" in err and "update_process.py\", line" in err and " in _serve\n" in err
+
+
 @pytest.mark.timeout(method="thread")  # this test sets its own SIGALRM; the suite's bound (900 s) by a thread
 def test_ctrl_c_during_an_update_ends_the_update_processes_at_once(tmp_path):
     """SIGINT while the learners update (the follower in its process): the KeyboardInterrupt comes through, the

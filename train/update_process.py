@@ -7,21 +7,32 @@ batch, and the updates take about 15% longer than on two processes, which take a
 
 The process is forked from the trainer (so a script that trains needs no ``__main__`` guard) and holds a
 ``Learner`` on the same network: its parameters are moved to shared memory first, so its updates are the
-trainer's network's, and the rollout's network views (in shared memory too) are read where they lie.
-Everything else the update reads or changes goes both ways by value: the rollout's small tensors and the
-bootstrap value go out, the learner's random generator goes out and comes back, and the statistics come
-back. The optimizer's state lives in the process; ``optimizer_state`` fetches it (for a checkpoint, and
-when the process ends) and ``load_optimizer`` sets it. The process runs the same operations on the same
+trainer's network's, and the rollout's network views (in shared memory too, made before the fork and
+written in place by every rollout) are read where the process inherited them: an update sends their step
+count, not their memory (a view made after the fork goes by value). Everything else the update reads or
+changes goes both ways by value: the rollout's small tensors and the bootstrap value go out, the learner's
+random generator goes out and comes back, and the statistics come back. The optimizer's state lives in the
+process; ``optimizer_state`` fetches it (for a checkpoint, and when the process ends) and ``load_optimizer``
+sets it. The process runs the same operations on the same
 inputs at one torch thread, as the trainer's thread would: the results are the same bit for bit
 (``tests/test_train.py`` checks). Where it cannot start (not Linux, no shared memory left, no process to be
 had, a daemonic parent), ``Unavailable`` says why and the trainer updates on threads.
+
+The trainer waits for an answer as long as the process works: a process that has died is an error at once (its
+exit code named), and one that is alive but has used no CPU for ``STALL_S`` while an answer is owed (blocked:
+an update waits on nothing) is stopped with SIGABRT, which makes it write every thread's
+stack to stderr (``faulthandler``) as it ends, and is an error naming it. A run never hangs on its update
+process.
 """
 
 from __future__ import annotations
 
+import faulthandler
 import multiprocessing
+import os
 import signal
 import sys
+import time
 import traceback
 import weakref
 
@@ -34,6 +45,10 @@ AVAILABLE = sys.platform.startswith("linux")
 """Whether update processes start here: forked, on Linux (macOS's system libraries are not safe to use after a
 fork; Windows has none). A forked process needs no import of the script that trains (a spawned one would run
 a script without an ``if __name__ == "__main__"`` guard again)."""
+
+STALL_S = 120.0
+"""Seconds an update process may use no CPU while an answer is owed before it is taken as blocked (an update at
+the paper's batch takes about 0.2 s of CPU; a process that only waits for a core still gets some)."""
 
 
 def _out(t):
@@ -60,14 +75,14 @@ class Unavailable(RuntimeError):
 class UpdateProcess:
     """``learner``'s updates in a process of its own (forked here; ``close`` ends it, ``kill`` at once)."""
 
-    def __init__(self, learner: Learner):
+    def __init__(self, learner: Learner, stall_s: float = STALL_S):
         if learner.device.type != "cpu" or not AVAILABLE:
             raise Unavailable(f"an update process is forked (Linux) and shares a CPU learner's memory; "
                               f"{learner.name} is on {learner.device}, on {sys.platform}")
         if multiprocessing.current_process().daemon:
             raise Unavailable("this trainer runs in a daemonic process, which may not start processes")
-        self.name = learner.name
-        try:  # before the fork: the process's network is this one
+        self.name, self.stall_s = learner.name, stall_s
+        try:  # before the fork: the process's network and views are these
             learner.model.share_memory()
             share_views(learner)
         except (RuntimeError, OSError) as error:  # e.g. a container's small /dev/shm
@@ -75,8 +90,10 @@ class UpdateProcess:
         context = multiprocessing.get_context("fork")
         self.conn, theirs = context.Pipe()
         lr = learner.optimizer.param_groups[0]["lr"]
+        self._inherited = dict(learner.views)  # the views the process holds from its fork (by name)
         self.process = context.Process(target=_serve, name=f"update-{learner.name}", daemon=True,
-                                       args=(theirs, learner.model, learner.ppo, learner.weights, lr, learner.name))
+                                       args=(theirs, learner.model, learner.ppo, learner.weights, lr, learner.name,
+                                             self._inherited))
         _OPEN.add(self)  # (before the fork: the process closes its copy of this end)
         try:
             self.process.start()
@@ -93,7 +110,10 @@ class UpdateProcess:
         """Start ``learner.update(bootstrap_value)`` at one torch thread; ``finish`` waits for it."""
         self._idle("start an update")
         share_views(learner)
-        self._send("update", {"batch": _out(learner.stacked()), "bootstrap": _out(bootstrap_value),
+        batch = learner.stacked()
+        batch["view"] = {k: (learner.steps if self._inherited.get(k) is learner.views[k] else _out(v))
+                         for k, v in batch["view"].items()}  # (the step count of a view the process holds)
+        self._send("update", {"batch": _out(batch), "bootstrap": _out(bootstrap_value),
                               "initial_state": _out(learner.initial_state),
                               "generator": _out(learner.generator.get_state())})
         self.pending = True
@@ -150,6 +170,7 @@ class UpdateProcess:
             raise RuntimeError(self._stopped(error)) from error
 
     def _receive(self):
+        self._wait()
         try:
             ok, answer = self.conn.recv()
         except (OSError, EOFError) as error:
@@ -157,6 +178,26 @@ class UpdateProcess:
         if not ok:
             raise RuntimeError(f"the {self.name} learner's update process failed:\n{answer}")
         return answer
+
+    def _wait(self) -> None:
+        """Until an answer (or the end of the pipe) is there to read; a process that died, or that has used no CPU
+        for ``stall_s``, raises (see the module docstring)."""
+        cpu, since = _cpu_ticks(self.process.pid), time.monotonic()
+        while not self.conn.poll(min(1.0, self.stall_s)):
+            if not self.process.is_alive():
+                if self.conn.poll():  # (its answer, or the end of the pipe, came as it ended)
+                    return
+                raise RuntimeError(self._stopped(EOFError("no answer")))
+            now = _cpu_ticks(self.process.pid)
+            if now != cpu:
+                cpu, since = now, time.monotonic()
+            elif time.monotonic() - since >= self.stall_s:
+                os.kill(self.process.pid, signal.SIGABRT)  # faulthandler writes its threads' stacks as it ends
+                os.kill(self.process.pid, signal.SIGCONT)  # (a stopped process takes the signal once continued)
+                self.process.join(10)
+                raise RuntimeError(f"the {self.name} learner's update process used no CPU for {self.stall_s:g} s "
+                                   f"while its answer was owed: stopped (exit code {self.process.exitcode}; its "
+                                   f"threads' stacks are on stderr)")
 
     def _stopped(self, error: Exception) -> str:
         self.process.join(1)
@@ -169,16 +210,29 @@ _OPEN: weakref.WeakSet[UpdateProcess] = weakref.WeakSet()
 their pipe ends, so that each one sees its own trainer end (EOF) rather than waiting for its siblings."""
 
 
+def _cpu_ticks(pid: int) -> int:
+    """The CPU time process ``pid`` has used, user and system, in clock ticks (``/proc/PID/stat``); -1 once it is
+    gone."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as f:
+            fields = f.read().rsplit(b")", 1)[1].split()  # (after the command's name, which may hold spaces)
+    except OSError:
+        return -1
+    return int(fields[11]) + int(fields[12])  # utime, stime: the stat file's 14th and 15th fields
+
+
 def share_views(learner: Learner) -> None:
     """The learner's rollout storage in shared memory (moved once, then kept: the process reads it in place)."""
     for view in learner.views.values():
         view.share_memory_()
 
 
-def _serve(conn, model, ppo, weights, lr: float, name: str) -> None:
+def _serve(conn, model, ppo, weights, lr: float, name: str, views: dict) -> None:
     """The process: a learner on the shared network, answering ``UpdateProcess``'s requests until ``stop`` or
-    until the trainer's end of the pipe closes (the trainer ended)."""
+    until the trainer's end of the pipe closes (the trainer ended). ``views``: the rollout's views at the fork,
+    in shared memory, which an update names by its step count."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C is the trainer's to handle: it ends this process
+    faulthandler.enable(all_threads=True)  # a SIGABRT from a trainer that finds it blocked: its stacks to stderr
     for other in list(_OPEN):  # (forked with them): the trainer's ends of every update process's pipe, this one's
         other.conn.close()     # too, so that the trainer's closing its end is this end's EOF
     torch.set_num_threads(1)  # one thread: OpenMP's threads do not survive a fork, and none are started here
@@ -194,7 +248,9 @@ def _serve(conn, model, ppo, weights, lr: float, name: str) -> None:
             if what == "update":
                 learner.generator.set_state(_in(payload["generator"]))
                 learner.initial_state = _in(payload["initial_state"])
-                stats = learner.update_on(_in(payload["batch"]), _in(payload["bootstrap"]))
+                batch = _in(payload["batch"])
+                batch["view"] = {k: views[k][:v] if isinstance(v, int) else v for k, v in batch["view"].items()}
+                stats = learner.update_on(batch, _in(payload["bootstrap"]))
                 answer = {"stats": stats, "generator": _out(learner.generator.get_state())}
             elif what == "optimizer_state":
                 answer = _out(learner.optimizer.state_dict())
