@@ -419,6 +419,27 @@ def test_an_update_process_that_blocks_is_ended_with_its_stacks_and_fails_the_up
     assert "Fatal Python error: Aborted" in err and "update_process.py\", line" in err and " in _serve\n" in err
 
 
+def test_a_script_without_a_main_guard_trains_with_update_processes_and_runs_once(tmp_path):
+    """The update process starts from the fork server and runs a function of ``train.update_process``, never the
+    script that trains: a script with no ``if __name__ == "__main__"`` guard runs once, its follower updating in a
+    process of its own, as when forked from the trainer."""
+    script = tmp_path / "train_me.py"
+    script.write_text(f"""import sys
+from train.config import from_dict
+from train.trainer import Trainer
+print("the script ran", flush=True)
+trainer = Trainer(from_dict({dict(TINY, threads=2)!r}), sys.argv[1], progress=False, tensorboard=False)
+trainer.collect_rollout()
+trainer._update_learners()
+print("update processes:", sorted(trainer._processes), flush=True)
+trainer.close()
+""")
+    done = subprocess.run([sys.executable, str(script), str(tmp_path / "run")], capture_output=True, text=True,
+                          timeout=300, cwd=Path(__file__).resolve().parents[1])
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.splitlines() == ["the script ran", "update processes: [1]"], done.stdout
+
+
 @pytest.mark.timeout(method="thread")  # this test sets its own SIGALRM; the suite's bound (900 s) by a thread
 def test_ctrl_c_during_an_update_ends_the_update_processes_at_once(tmp_path):
     """SIGINT while the learners update (the follower in its process): the KeyboardInterrupt comes through, the
@@ -651,9 +672,9 @@ def test_cli_trains_exports_and_evaluates_a_checkpoint(tmp_path):
 
 
 def test_ctrl_c_stops_training_after_the_iteration_with_a_checkpoint_that_resumes(tmp_path):
-    """Ctrl+C (SIGINT to the process group) on ``colorgrid train`` at two torch threads (the follower's update in its process): the
-    iteration ends, its checkpoint is written, the command names the step and how to go on (exit code 130), no
-    process is left, and ``--resume`` continues from that step."""
+    """Ctrl+C (SIGINT to the process group) on ``colorgrid train`` at two torch threads (the follower's update in its
+    process): the iteration ends, its checkpoint is written, the command names the step and how to go on (exit code
+    130), every process it started ends, and ``--resume`` continues from that step."""
     run = tmp_path / "run"
     tiny_run = ["--set", "ppo.num_envs=4", "--set", "ppo.num_steps=16", "--set", "env.horizon=12", "--set",
                 "eval_every=0", "--set", "threads=2", "--no-progress", "--no-tensorboard"]
@@ -665,8 +686,10 @@ def test_ctrl_c_stops_training_after_the_iteration_with_a_checkpoint_that_resume
     while not (metrics.is_file() and metrics.read_text().count('"train"') >= 3):
         assert train.poll() is None and time.monotonic() < deadline, train.communicate()
         time.sleep(0.1)
-    children = [int(p) for p in Path(f"/proc/{train.pid}/task/{train.pid}/children").read_text().split()]
-    assert children  # the follower's update process
+    children = lambda pid: [int(p) for p in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]  # noqa: E731
+    started = [(p, children(p)) for p in children(train.pid)]  # the fork server, with the follower's update process
+    started = [p for p, below in started for p in (p, *below)]
+    assert len(started) >= 2, started
     os.killpg(train.pid, signal.SIGINT)  # as a terminal's Ctrl+C: to the process group, the update process too
     out, err = train.communicate(timeout=120)
     assert train.returncode == 130, err
@@ -674,7 +697,10 @@ def test_ctrl_c_stops_training_after_the_iteration_with_a_checkpoint_that_resume
                          out).group(1))
     assert "stopping after this iteration" in err and "Traceback" not in err
     assert load_checkpoint(run / "checkpoints" / "latest.pt")["step"] == step > 0
-    assert not [p for p in children if Path(f"/proc/{p}").exists()]
+    deadline = time.monotonic() + 60  # (the fork server ends when it sees its trainer's end, the update process before)
+    while [p for p in started if Path(f"/proc/{p}").exists()]:
+        assert time.monotonic() < deadline, [p for p in started if Path(f"/proc/{p}").exists()]
+        time.sleep(0.05)
     resumed = subprocess.run([sys.executable, "-m", "colorgrid_apps", "train", "--resume", str(run), "--set",
                               f"total_steps={step + 128}", "--no-progress", "--no-tensorboard"],
                              capture_output=True, text=True, timeout=300)

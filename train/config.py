@@ -167,7 +167,7 @@ class TrainConfig(ConfigBase):
     """Torch CPU threads (0: all cores)."""
     update_processes: bool = True
     """Where learners update side by side on a CPU at one torch thread each (as many learners as threads: two on
-    two cores), each learner after the first updates in a forked process of its own, its weights in shared
+    two cores), each learner after the first updates in a process of its own, its weights in shared
     memory (``train/update_process.py``): threads of one process hand Python's GIL to each other at every
     operation and update about 15% slower. The same results bit for bit; false: threads."""
     keep_freed_memory: bool = False

@@ -1,4 +1,4 @@
-"""Where the learners run: one after the other, side by side on threads, their updates in forked processes, or
+"""Where the learners run: one after the other, side by side on threads, their updates in processes of their own, or
 their acting through one stacked batch. The trainer says *what* runs; a ``Placement`` decides *where*.
 
 A ``Placement`` serves one trainer's learners for the whole run (or a pack's: below):
@@ -7,7 +7,7 @@ A ``Placement`` serves one trainer's learners for the whole run (or a pack's: be
   (``act(inputs_of) -> {key: (actions, goal_probs)}``), on threads (``side_by_side``), or through
   ``train.stacked.StackedActing`` where the networks allow it (``can_stack``);
 - ``update(inputs)``: every learner's PPO update on the rollout just collected, on threads, or with
-  all but the first in a forked ``train.update_process.UpdateProcess`` each;
+  all but the first in a ``train.update_process.UpdateProcess`` each;
 - ``sync_optimizers()``: each learner's optimizer state brought back from the process it updates in
   (for a checkpoint); ``close()``: the threads and processes ended (the next update starts them again).
 

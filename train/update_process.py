@@ -5,15 +5,22 @@ operation: each hand-over is a context switch, about 900-1,100 of them for two u
 batch, and the updates take about 15% longer than on two processes, which take about what one takes alone
 (``bench/bench_update.py`` prints both; docs/PERFORMANCE.md, "Each learner's update in a process of its own").
 
-The process is forked from the trainer (so a script that trains needs no ``__main__`` guard) and holds a
-``Learner`` on the same network: its parameters are moved to shared memory first, so its updates are the
-trainer's network's, and the rollout's network views (in shared memory too, made before the fork and
-written in place by every rollout) are read where the process inherited them: an update sends their step
-count, not their memory (a view made after the fork goes by value). Everything else the update reads or
+The process is forked from a server process of multiprocessing's ``forkserver`` (a fresh interpreter that
+imported this module and ran nothing else), never from the trainer: a trainer's process may hold threads in
+the middle of anything at the moment it forks (MKL's buffer allocator, OpenMP's pools, a Ray client's gRPC
+threads), and a process forked from it could wait for ever on a lock that no thread of its own will release
+(on an Intel Xeon, after a test process had run Ray, one spun in MKL's allocator at its first matrix product).
+The process runs a function of this module, never the script that trains (so a script needs no
+``if __name__ == "__main__"`` guard: ``_ForkserverPopen``). It holds a ``Learner`` on the same network: its
+parameters are moved to shared memory first and sent to the process as shared memory, so its updates are the
+trainer's network's, and the rollout's network views (in shared memory too, sent when the process starts and
+written in place by every rollout) are read where they lie: an update sends their step count, not their
+memory (a view made after the process started goes by value). Everything else the update reads or
 changes goes both ways by value: the rollout's small tensors and the bootstrap value go out, the learner's
 random generator goes out and comes back, and the statistics come back. The optimizer's state lives in the
 process; ``optimizer_state`` fetches it (for a checkpoint, and when the process ends) and ``load_optimizer``
-sets it. The process runs the same operations on the same
+sets it. The server starts once a trainer's process (about 3-4 s: it imports torch), each process from it in
+a fraction of a second. The process runs the same operations on the same
 inputs at one torch thread, as the trainer's thread would: the results are the same bit for bit
 (``tests/test_train.py`` checks). Where it cannot start (not Linux, no shared memory left, no process to be
 had, a daemonic parent), ``Unavailable`` says why and the trainer updates on threads.
@@ -28,13 +35,15 @@ process.
 from __future__ import annotations
 
 import faulthandler
+import io
 import multiprocessing
 import os
 import signal
 import sys
 import time
 import traceback
-import weakref
+from multiprocessing import forkserver, popen_forkserver, reduction, spawn, util
+from multiprocessing.context import ForkServerProcess, set_spawning_popen
 
 import numpy as np
 import torch
@@ -42,9 +51,8 @@ import torch
 from train.learner import Learner
 
 AVAILABLE = sys.platform.startswith("linux")
-"""Whether update processes start here: forked, on Linux (macOS's system libraries are not safe to use after a
-fork; Windows has none). A forked process needs no import of the script that trains (a spawned one would run
-a script without an ``if __name__ == "__main__"`` guard again)."""
+"""Whether update processes start here: from a fork server, on Linux (macOS's system libraries are not safe to
+use after a fork; Windows has none)."""
 
 STALL_S = 120.0
 """Seconds an update process may use no CPU while an answer is owed before it is taken as blocked (an update at
@@ -73,7 +81,7 @@ class Unavailable(RuntimeError):
 
 
 class UpdateProcess:
-    """``learner``'s updates in a process of its own (forked here; ``close`` ends it, ``kill`` at once)."""
+    """``learner``'s updates in a process of its own (from the fork server; ``close`` ends it, ``kill`` at once)."""
 
     def __init__(self, learner: Learner, stall_s: float = STALL_S):
         if learner.device.type != "cpu" or not AVAILABLE:
@@ -82,23 +90,21 @@ class UpdateProcess:
         if multiprocessing.current_process().daemon:
             raise Unavailable("this trainer runs in a daemonic process, which may not start processes")
         self.name, self.stall_s = learner.name, stall_s
-        try:  # before the fork: the process's network and views are these
+        try:  # before the start: the process's network and views are these, where they lie
             learner.model.share_memory()
             share_views(learner)
         except (RuntimeError, OSError) as error:  # e.g. a container's small /dev/shm
             raise Unavailable(f"no shared memory for the {learner.name} learner ({error})") from error
-        context = multiprocessing.get_context("fork")
-        self.conn, theirs = context.Pipe()
+        self.conn, theirs = multiprocessing.Pipe()
         lr = learner.optimizer.param_groups[0]["lr"]
-        self._inherited = dict(learner.views)  # the views the process holds from its fork (by name)
-        self.process = context.Process(target=_serve, name=f"update-{learner.name}", daemon=True,
-                                       args=(theirs, learner.model, learner.ppo, learner.weights, lr, learner.name,
-                                             self._inherited))
-        _OPEN.add(self)  # (before the fork: the process closes its copy of this end)
+        self._inherited = dict(learner.views)  # the views the process holds from its start (by name)
+        self.process = _UpdateServer(target=_serve, name=f"update-{learner.name}", daemon=True,
+                                     args=(theirs, learner.model, learner.ppo, learner.weights, lr, learner.name,
+                                           self._inherited, _Fd(2)))  # (its stderr: the trainer's now)
         try:
+            sys.stderr.flush()
             self.process.start()
         except OSError as error:  # no process to be had (a limit on processes, no memory)
-            _OPEN.discard(self)
             self.conn.close()
             raise Unavailable(f"no process for the {learner.name} learner's update ({error})") from error
         finally:
@@ -157,7 +163,6 @@ class UpdateProcess:
             self.process.kill()
         self.process.join()
         self.conn.close()
-        _OPEN.discard(self)
 
     def _idle(self, what: str) -> None:
         if self.pending:
@@ -205,9 +210,51 @@ class UpdateProcess:
                 f"{type(error).__name__}")
 
 
-_OPEN: weakref.WeakSet[UpdateProcess] = weakref.WeakSet()
-"""The update processes this process has started and not ended: a process forked later closes its copies of
-their pipe ends, so that each one sees its own trainer end (EOF) rather than waiting for its siblings."""
+class _ForkserverPopen(popen_forkserver.Popen):
+    """The fork server's start of a process, less the script that trains: ``popen_forkserver.Popen._launch``
+    (Python 3.11-3.13) with the preparation's ``init_main_from_path`` and ``init_main_from_name`` left out, so
+    the process imports this module (it runs ``_serve``) and never runs the trainer's ``__main__`` again."""
+
+    def _launch(self, process_obj):
+        prep_data = {k: v for k, v in spawn.get_preparation_data(process_obj._name).items()
+                     if k not in ("init_main_from_path", "init_main_from_name")}
+        buf = io.BytesIO()
+        set_spawning_popen(self)
+        try:
+            reduction.dump(prep_data, buf)
+            reduction.dump(process_obj, buf)
+        finally:
+            set_spawning_popen(None)
+        self.sentinel, w = forkserver.connect_to_new_process(self._fds)
+        _parent_w = os.dup(w)  # (the process's sentinel of its parent, as the standard library keeps it)
+        self.finalizer = util.Finalize(self, util.close_fds, (_parent_w, self.sentinel))
+        with open(w, "wb", closefd=True) as f:
+            f.write(buf.getbuffer())
+        self.pid = forkserver.read_signed(self.sentinel)
+
+
+class _UpdateServer(ForkServerProcess):
+    """An update process, started by ``_ForkserverPopen``; the fork server imports this module before its first
+    fork, so that each process starts with torch imported."""
+
+    @staticmethod
+    def _Popen(process_obj):
+        forkserver.set_forkserver_preload([__name__])  # (read when the server starts: the first process)
+        return _ForkserverPopen(process_obj)
+
+
+class _Fd:
+    """A file descriptor of the trainer's, sent to the process with it (the fork server's way of sending one)."""
+
+    def __init__(self, fd: int):
+        self.fd = fd
+
+    def __reduce__(self):
+        return _Fd._detach, (reduction.DupFd(self.fd),)  # (pickled while the process starts: sent with it)
+
+    @staticmethod
+    def _detach(fd) -> int:
+        return fd.detach()
 
 
 def _cpu_ticks(pid: int) -> int:
@@ -227,15 +274,16 @@ def share_views(learner: Learner) -> None:
         view.share_memory_()
 
 
-def _serve(conn, model, ppo, weights, lr: float, name: str, views: dict) -> None:
+def _serve(conn, model, ppo, weights, lr: float, name: str, views: dict, stderr: int) -> None:
     """The process: a learner on the shared network, answering ``UpdateProcess``'s requests until ``stop`` or
-    until the trainer's end of the pipe closes (the trainer ended). ``views``: the rollout's views at the fork,
-    in shared memory, which an update names by its step count."""
+    until the trainer's end of the pipe closes (the trainer ended). ``views``: the rollout's views when it
+    started, in shared memory, which an update names by its step count; ``stderr``: where the trainer's stderr
+    went when it started, this process's from now on."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C is the trainer's to handle: it ends this process
+    os.dup2(stderr, 2)
+    os.close(stderr)
     faulthandler.enable(all_threads=True)  # a SIGABRT from a trainer that finds it blocked: its stacks to stderr
-    for other in list(_OPEN):  # (forked with them): the trainer's ends of every update process's pipe, this one's
-        other.conn.close()     # too, so that the trainer's closing its end is this end's EOF
-    torch.set_num_threads(1)  # one thread: OpenMP's threads do not survive a fork, and none are started here
+    torch.set_num_threads(1)  # one thread, as the trainer's thread would update
     learner = Learner(model, ppo, weights, lr, seed=0, device=torch.device("cpu"), name=name)
     while True:
         try:
