@@ -1,6 +1,7 @@
 """The sweep file: every kind of mistake gets one line naming the place and what is allowed, exit code 2;
 good files build the trials' training configs as ``colorgrid train --set`` would. No Ray is started here."""
 
+import hashlib
 import json
 from pathlib import Path
 
@@ -244,6 +245,39 @@ def test_checkpoint_files_the_trials_name_must_exist(tmp_path, capsys, monkeypat
         (tmp_path / made).parent.mkdir()
         (tmp_path / made).write_bytes(b"")
     assert main(["sweep", "check", str(partner)]) == 0
+
+
+def test_a_pinned_file_must_be_there_and_be_the_one_pinned(tmp_path, capsys, monkeypatch):
+    """``[pinned]`` names a file the trials read with the sha256 the verdicts are about: ``sweep check`` (and every
+    start of the trials, which checks the same) refuses in one line, exit code 2, while it is missing or differs, and
+    a value that is not a sha256 is refused as the file is read."""
+    monkeypatch.chdir(tmp_path)
+    warm = tmp_path / "warm" / "latest.pt"
+    warm.parent.mkdir()
+    warm.write_bytes(b"the checkpoint the verdicts are about")
+    pinned = hashlib.sha256(warm.read_bytes()).hexdigest()
+    text = GOOD.replace('[params.annealing.options]\nnone = {}',
+                        '[params.annealing.options]\nnone = { "follower.init" = "warm/latest.pt" }')
+    path = write(tmp_path, text + f'\n[pinned]\n"warm/latest.pt" = "{pinned}"\n')
+    assert load_sweep(path).pinned == {"warm/latest.pt": pinned}
+    assert main(["sweep", "check", str(path)]) == 0
+    capsys.readouterr()
+    warm.write_bytes(b"another checkpoint, made on another CPU")
+    assert main(["sweep", "check", str(path)]) == 2
+    err = capsys.readouterr().err
+    now = hashlib.sha256(warm.read_bytes()).hexdigest()
+    assert err.count("\n") == 1 and f"[pinned] warm/latest.pt has sha256 {now}, not the {pinned} the file pins" in err
+    warm.unlink()
+    assert main(["sweep", "check", str(path)]) == 2  # (the init is missing too: named first)
+    assert "follower.init=warm/latest.pt" in capsys.readouterr().err
+    bare = write(tmp_path, GOOD + f'\n[pinned]\n"warm/latest.pt" = "{pinned}"\n', "bare.toml")
+    assert main(["sweep", "check", str(bare)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"[pinned] warm/latest.pt does not exist (read from {tmp_path})" in err
+    assert f"its sha256 must be {pinned}" in err
+    with pytest.raises(SweepError, match=r"pinned=\{'warm/latest.pt': 'not a digest'\} is invalid: a table of "
+                                         r'"PATH" = "SHA256" \(64 lowercase hexadecimal digits'):
+        load_sweep(write(tmp_path, GOOD + '\n[pinned]\n"warm/latest.pt" = "not a digest"\n', "bad.toml"))
 
 
 def test_files_named_inside_a_partner_must_exist_too(tmp_path, monkeypatch):

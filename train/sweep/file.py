@@ -9,6 +9,7 @@ the paper's figures and claims against the parameters) is checked by ``train.swe
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -21,6 +22,7 @@ RANDOM_KINDS = ("choice", "uniform", "loguniform")
 KINDS = GRID_KINDS + RANDOM_KINDS
 MODES = ("max", "min")
 SCHEDULERS = ("none", "asha")
+SHA256 = re.compile(r"[0-9a-f]{64}")
 
 
 
@@ -253,6 +255,10 @@ class SweepFile(Table):
     baselines: tuple[str, ...] = ()
     """Baselines (``<partner>/<policy>``) kept beside the results besides those the claims name, to show beside the
     arms: ``colorgrid sweep baselines`` evaluates both into the results folder's ``baselines.json``."""
+    pinned: dict = field(default_factory=dict)
+    """``[pinned]``: ``"PATH" = "SHA256"`` for each file the trials read whose contents the verdicts are about (a
+    warm start's checkpoint): ``sweep check``, ``sweep run`` and a resume refuse to start when one is missing or
+    differs (``SweepSpec.check_files``)."""
 
     def __post_init__(self):
         for name in ("description", "preset", "out"):
@@ -279,6 +285,11 @@ class SweepFile(Table):
                                   "expect = '>', '<' or '~'")
         if not isinstance(self.baselines, tuple) or not all(isinstance(b, str) for b in self.baselines):
             refuse(self, "baselines", "a list of '<partner>/<policy>' strings, e.g. ['astar/copy']")
+        if not isinstance(self.pinned, dict) or not all(
+                isinstance(path, str) and path.strip() and isinstance(digest, str) and SHA256.fullmatch(digest)
+                for path, digest in self.pinned.items()):
+            refuse(self, "pinned", 'a table of "PATH" = "SHA256" (64 lowercase hexadecimal digits, as sha256sum '
+                                   'prints them)')
         if self.results is not None and (not isinstance(self.results, str) or not self.results.strip()):
             refuse(self, "results", "a folder for the finished trials' results, e.g. 'docs/reproduction/x'")
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from colorgrid.configkit import ConfigError, from_dict, read_toml, resolve_data
+from colorgrid.replay.format import file_sha256
 from train.config import TrainConfig, load_preset, parse_override, resolve
 from train.sweep.checks import SweepError, bad
 from train.sweep.claim_spec import Baseline, matches, parse_claims
@@ -96,6 +97,8 @@ class SweepSpec:
     """Baselines kept beside the results besides those the claims name (``claim_spec.Baseline``): rows to show
     beside the arms (``colorgrid sweep baselines`` evaluates both)."""
     description: str = ""
+    pinned: dict[str, str] = field(default_factory=dict)
+    """``[pinned]``: files the trials read, by path, each with the sha256 the verdicts are about."""
     text: str = ""
     """The file as read (kept in the sweep's folder, so that ``sweep resume`` rebuilds the same trials)."""
 
@@ -139,12 +142,22 @@ class SweepSpec:
 
     def check_files(self) -> None:
         """Refuse, in one line, a sweep whose trials name checkpoint files that do not exist (``missing_files``):
-        every trial would fail at its start."""
+        every trial would fail at its start; or whose pinned files (``[pinned]``) are missing or are not the ones
+        pinned: its trials would train from another file than the one its verdicts are about."""
         missing = self.missing_files()
         if missing:
             raise SweepError(f"{self.path}: the trials name checkpoint files that do not exist (read from "
                              f"{Path.cwd()}): {', '.join(missing)}; make them first (the file's description may "
                              f"say how) or name others")
+        for path, pinned in self.pinned.items():
+            if not Path(path).is_file():
+                raise SweepError(f"{self.path}: [pinned] {path} does not exist (read from {Path.cwd()}); make it "
+                                 f"first (the file's description may say how): its sha256 must be {pinned}")
+            digest = file_sha256(path)
+            if digest != pinned:
+                raise SweepError(f"{self.path}: [pinned] {path} has sha256 {digest}, not the {pinned} the file pins: "
+                                 f"the file's trials and verdicts are about that one; a different file belongs in "
+                                 f"a new sweep file")
 
     def configurations(self) -> list[dict]:
         """Every configuration of the grid: ``{parameter: value}`` for each combination of the listed values (the
@@ -282,7 +295,7 @@ def parse_sweep(data: dict, path: Path, text: str = "", out: str | Path | None =
         out=Path(out if out is not None else file.out or f"runs/sweeps/{path.stem}"), resources=file.resources,
         scheduler=file.scheduler, description=file.description, text=text,
         results=Path(file.results) if file.results else None,
-        baselines=tuple(Baseline(name) for name in file.baselines))
+        baselines=tuple(Baseline(name) for name in file.baselines), pinned=dict(file.pinned))
     check_configs(spec)
     check_metric(spec)
     spec = dataclasses.replace(spec, paper=tuple(paper_figure(spec, i, row) for i, row in enumerate(file.paper)),
