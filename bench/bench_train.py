@@ -94,17 +94,24 @@ def measure(name: str, iterations: int, threads: int, device: str, num_envs: int
 
 
 def cpu_seconds() -> float:
-    """CPU seconds of this process and of its children still running (a learner's update process; Linux)."""
-    total = time.process_time()
-    tick = os.sysconf("SC_CLK_TCK")
+    """CPU seconds of this process and of the processes below it still running (a learner's update process, a
+    child of the fork server that is this process's child; Linux)."""
+    ticks: dict[int, tuple[int, int]] = {}  # pid: (parent, CPU ticks)
     for stat in Path("/proc").glob("[0-9]*/stat"):
         try:
             fields = stat.read_text().rsplit(")", 1)[1].split()
         except OSError:  # ended meanwhile
             continue
-        if int(fields[1]) == os.getpid():  # fields from the state on: ppid, ..., utime (12th), stime (13th)
-            total += (int(fields[11]) + int(fields[12])) / tick
-    return total
+        # fields from the state on: ppid, ..., utime (12th), stime (13th)
+        ticks[int(stat.parent.name)] = (int(fields[1]), int(fields[11]) + int(fields[12]))
+    below, total = {os.getpid()}, 0
+    while True:
+        more = {pid for pid, (parent, _) in ticks.items() if parent in below} - below
+        if not more:
+            break
+        below |= more
+        total += sum(ticks[pid][1] for pid in more)
+    return time.process_time() + total / os.sysconf("SC_CLK_TCK")
 
 
 def flops_per_env_step(name: str) -> float:
