@@ -19,8 +19,8 @@ memory (a view made after the process started goes by value). Everything else th
 changes goes both ways by value: the rollout's small tensors and the bootstrap value go out, the learner's
 random generator goes out and comes back, and the statistics come back. The optimizer's state lives in the
 process; ``optimizer_state`` fetches it (for a checkpoint, and when the process ends) and ``load_optimizer``
-sets it. The server starts once a trainer's process (about 3-4 s: it imports torch), each process from it in
-a fraction of a second. The process runs the same operations on the same
+sets it. The server starts once a trainer's process (it imports torch and makes one optimizer,
+``train.update_server``), each process from it in a fraction of a second. The process runs the same operations on the same
 inputs at one torch thread, as the trainer's thread would: the results are the same bit for bit
 (``tests/test_train.py`` checks). Where it cannot start (not Linux, no shared memory left, no process to be
 had, a daemonic parent), ``Unavailable`` says why and the trainer updates on threads.
@@ -234,12 +234,12 @@ class _ForkserverPopen(popen_forkserver.Popen):
 
 
 class _UpdateServer(ForkServerProcess):
-    """An update process, started by ``_ForkserverPopen``; the fork server imports this module before its first
-    fork, so that each process starts with torch imported."""
+    """An update process, started by ``_ForkserverPopen``; the fork server loads ``train.update_server`` before its
+    first fork, so that each process starts with torch imported and its optimizer's first use behind it."""
 
     @staticmethod
     def _Popen(process_obj):
-        forkserver.set_forkserver_preload([__name__])  # (read when the server starts: the first process)
+        forkserver.set_forkserver_preload(["train.update_server"])  # (read when the server starts: the first process)
         return _ForkserverPopen(process_obj)
 
 
