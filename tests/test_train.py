@@ -688,8 +688,8 @@ def test_ctrl_c_stops_training_after_the_iteration_with_a_checkpoint_that_resume
         time.sleep(0.1)
     children = lambda pid: [int(p) for p in Path(f"/proc/{pid}/task/{pid}/children").read_text().split()]  # noqa: E731
     started = [(p, children(p)) for p in children(train.pid)]  # the fork server, with the follower's update process
+    assert any(below for _, below in started), started  # (the resource tracker, a child too, has none)
     started = [p for p, below in started for p in (p, *below)]
-    assert len(started) >= 2, started
     os.killpg(train.pid, signal.SIGINT)  # as a terminal's Ctrl+C: to the process group, the update process too
     out, err = train.communicate(timeout=120)
     assert train.returncode == 130, err

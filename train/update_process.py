@@ -34,10 +34,12 @@ process.
 
 from __future__ import annotations
 
+import contextlib
 import faulthandler
 import io
 import multiprocessing
 import os
+import resource
 import signal
 import sys
 import time
@@ -101,16 +103,21 @@ class UpdateProcess:
         self.process = _UpdateServer(target=_serve, name=f"update-{learner.name}", daemon=True,
                                      args=(theirs, learner.model, learner.ppo, learner.weights, lr, learner.name,
                                            self._inherited, _Fd(2)))  # (its stderr: the trainer's now)
+        self.pending = False  # an update started and its answer not yet read
         try:
             sys.stderr.flush()
             self.process.start()
-        except OSError as error:  # no process to be had (a limit on processes, no memory)
-            self.conn.close()
+        except (OSError, EOFError, ValueError) as error:  # no process to be had (a limit on processes, no memory,
+            self.conn.close()                               # a fork server that could not start)
             raise Unavailable(f"no process for the {learner.name} learner's update ({error})") from error
         finally:
             theirs.close()
-        self.pending = False  # an update started and its answer not yet read
-        self.load_optimizer(learner.optimizer.state_dict())
+        try:
+            self._receive()  # ready: its learner made (waited for as any answer is: never for ever)
+            self.load_optimizer(learner.optimizer.state_dict())
+        except BaseException:
+            self.kill()
+            raise
 
     def start(self, learner: Learner, bootstrap_value: torch.Tensor) -> None:
         """Start ``learner.update(bootstrap_value)`` at one torch thread; ``finish`` waits for it."""
@@ -187,19 +194,24 @@ class UpdateProcess:
     def _wait(self) -> None:
         """Until an answer (or the end of the pipe) is there to read; a process that died, or that has used no CPU
         for ``stall_s``, raises (see the module docstring)."""
-        cpu, since = _cpu_ticks(self.process.pid), time.monotonic()
+        cpu, still, last = _cpu_ticks(self.process.pid), 0.0, time.monotonic()
         while not self.conn.poll(min(1.0, self.stall_s)):
             if not self.process.is_alive():
                 if self.conn.poll():  # (its answer, or the end of the pipe, came as it ended)
                     return
                 raise RuntimeError(self._stopped(EOFError("no answer")))
-            now = _cpu_ticks(self.process.pid)
-            if now != cpu:
-                cpu, since = now, time.monotonic()
-            elif time.monotonic() - since >= self.stall_s:
-                os.kill(self.process.pid, signal.SIGABRT)  # faulthandler writes its threads' stacks as it ends
-                os.kill(self.process.pid, signal.SIGCONT)  # (a stopped process takes the signal once continued)
+            now, clock = _cpu_ticks(self.process.pid), time.monotonic()
+            # (at most 2 s a pass: a trainer stopped itself, by Ctrl+Z or a suspended job, counts no stall)
+            still, last = (0.0 if now != cpu else still + min(clock - last, 2.0)), clock
+            cpu = now
+            if still >= self.stall_s:
+                with contextlib.suppress(ProcessLookupError):  # (ended meanwhile: its exit code says how)
+                    os.kill(self.process.pid, signal.SIGABRT)  # faulthandler writes its threads' stacks as it ends
+                    os.kill(self.process.pid, signal.SIGCONT)  # (a stopped process takes the signal once continued)
                 self.process.join(10)
+                if self.process.is_alive():
+                    self.process.kill()
+                    self.process.join()
                 raise RuntimeError(f"the {self.name} learner's update process used no CPU for {self.stall_s:g} s "
                                    f"while its answer was owed: stopped (exit code {self.process.exitcode}; its "
                                    f"threads' stacks are on stderr)")
@@ -280,11 +292,14 @@ def _serve(conn, model, ppo, weights, lr: float, name: str, views: dict, stderr:
     started, in shared memory, which an update names by its step count; ``stderr``: where the trainer's stderr
     went when it started, this process's from now on."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl+C is the trainer's to handle: it ends this process
-    os.dup2(stderr, 2)
-    os.close(stderr)
+    if stderr != 2:
+        os.dup2(stderr, 2)
+        os.close(stderr)
+    resource.setrlimit(resource.RLIMIT_CORE, (0, 0))  # (a SIGABRT writes its stacks, not a core of shared memory)
     faulthandler.enable(all_threads=True)  # a SIGABRT from a trainer that finds it blocked: its stacks to stderr
     torch.set_num_threads(1)  # one thread, as the trainer's thread would update
     learner = Learner(model, ppo, weights, lr, seed=0, device=torch.device("cpu"), name=name)
+    conn.send((True, None))  # ready
     while True:
         try:
             what, payload = conn.recv()

@@ -13,6 +13,7 @@ on is checked in ``train.sweep.spec_checks``. See docs/SWEEPS.md.
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import itertools
 import math
 import re
@@ -20,7 +21,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from colorgrid.configkit import ConfigError, from_dict, read_toml, resolve_data
-from colorgrid.replay.format import file_sha256
 from train.config import TrainConfig, load_preset, parse_override, resolve
 from train.sweep.checks import SweepError, bad
 from train.sweep.claim_spec import Baseline, matches, parse_claims
@@ -153,7 +153,8 @@ class SweepSpec:
             if not Path(path).is_file():
                 raise SweepError(f"{self.path}: [pinned] {path} does not exist (read from {Path.cwd()}); make it "
                                  f"first (the file's description may say how): its sha256 must be {pinned}")
-            digest = file_sha256(path)
+            with open(path, "rb") as f:  # (read each time: a file made again may keep its size and time)
+                digest = hashlib.file_digest(f, "sha256").hexdigest()
             if digest != pinned:
                 raise SweepError(f"{self.path}: [pinned] {path} has sha256 {digest}, not the {pinned} the file pins: "
                                  f"the file's trials and verdicts are about that one; a different file belongs in "
