@@ -6,7 +6,7 @@ batch, and the updates take about 15% longer than on two processes, which take a
 (``bench/bench_update.py`` prints both; docs/PERFORMANCE.md, "Each learner's update in a process of its own").
 
 The process is forked from a server process of multiprocessing's ``forkserver`` (a fresh interpreter that
-imported this module and ran nothing else), never from the trainer: a trainer's process may hold threads in
+loaded ``train.update_server`` and ran nothing else), never from the trainer: a trainer's process may hold threads in
 the middle of anything at the moment it forks (MKL's buffer allocator, OpenMP's pools, a Ray client's gRPC
 threads), and a process forked from it could wait for ever on a lock that no thread of its own will release
 (on an Intel Xeon, after a test process had run Ray, one spun in MKL's allocator at its first matrix product).
@@ -19,9 +19,9 @@ memory (a view made after the process started goes by value). Everything else th
 changes goes both ways by value: the rollout's small tensors and the bootstrap value go out, the learner's
 random generator goes out and comes back, and the statistics come back. The optimizer's state lives in the
 process; ``optimizer_state`` fetches it (for a checkpoint, and when the process ends) and ``load_optimizer``
-sets it. The server starts once a trainer's process (it imports torch and makes one optimizer,
-``train.update_server``), each process from it in a fraction of a second. The process runs the same operations on the same
-inputs at one torch thread, as the trainer's thread would: the results are the same bit for bit
+sets it. The server starts once a trainer's process, each process from it in a fraction of a second
+(``bench/bench_update_start.py``). The process runs the same operations on the same inputs at one torch
+thread, as the trainer's thread would: the results are the same bit for bit
 (``tests/test_train.py`` checks). Where it cannot start (not Linux, no shared memory left, no process to be
 had, a daemonic parent), ``Unavailable`` says why and the trainer updates on threads.
 

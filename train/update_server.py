@@ -1,7 +1,8 @@
 """What the fork server of update processes (``train.update_process``) loads before its first fork, so that each
 process it forks starts ready: that module, and torch's Adam made once. A process's first ``torch.optim.Adam``
-imports about 1.5 s of torch's compiler front end (``torch._dynamo``) lazily; made here, every process inherits it
-imported. Nothing here starts a thread (the server forks with the one it has, and OpenBLAS's, which is safe to fork).
+imports part of torch (its compiler's front end, ``torch._dynamo``) lazily, which ``bench/bench_update_start.py``
+times; made here, every process inherits it imported. Nothing here starts a thread (the server forks with the one
+it has, and OpenBLAS's, which is safe to fork).
 """
 
 import torch
