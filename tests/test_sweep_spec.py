@@ -66,6 +66,24 @@ def test_shipped_sweep_files_load():
         assert spec.num_trials() >= 1 and spec.description
 
 
+def test_pinned_files_kept_in_the_repository_are_the_ones_pinned(monkeypatch):
+    """A shipped sweep file that pins a file outside ``runs/`` (which a command makes again) pins one kept here,
+    in ``sweeps/inputs/``, unchanged since it was pinned: ``sweep check`` accepts the file from the checkout."""
+    monkeypatch.chdir(ROOT)
+    kept = {}
+    for path in sorted((ROOT / "sweeps").glob("*.toml")):
+        spec = load_sweep(path)
+        inside = {name: digest for name, digest in spec.pinned.items() if not name.startswith("runs/")}
+        for name, digest in inside.items():
+            assert name.startswith("sweeps/inputs/"), f"{path.name} pins {name}: keep it in sweeps/inputs/"
+            with open(name, "rb") as f:
+                assert hashlib.file_digest(f, "sha256").hexdigest() == digest, f"{path.name}: {name} changed"
+        if inside:
+            spec.check_files()
+            kept[path.name] = inside
+    assert "paper_warmstart_small_confirm_kept.toml" in kept, kept
+
+
 MISTAKES = {
     "unknown top-level field": ("sedes = [1]\n" + GOOD, "unknown field 'sedes'"),
     "seeds not distinct": (GOOD.replace("seeds = [0, 1]", "seeds = [1, 1]"),
