@@ -1,5 +1,5 @@
 """How long a learner's update process takes to start (``train/update_process.py``): the first trainer of a
-process starts multiprocessing's fork server (a fresh interpreter loading ``train/update_server.py``) at its first
+process starts its fork server (a fresh interpreter loading ``train/update_server.py``) at its first
 update; every trainer after it only forks a process from that server. Prints, for ``--trainers`` trainers made
 one after the other in this process (the fast network, two learners, two torch threads, a small batch), the
 first update (which starts the process) and the second (which does not), in wall seconds; then, with the server

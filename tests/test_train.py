@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import math
+import multiprocessing.forkserver
 import os
 import re
 import signal
@@ -10,6 +11,7 @@ import subprocess
 import sys
 import threading
 import time
+from multiprocessing import forkserver
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +28,7 @@ from train.learner import sample
 from train.nets import ActorCritic, FastEncoder, count_parameters, egocentric, goal_planes, layers
 from train.policy import load_policy
 from train.ppo import LossWeights, compute_gae, ppo_loss
+from train import update_process
 from train.trainer import Trainer
 
 TINY = {"ppo": {"num_envs": 4, "num_steps": 16, "num_minibatches": 2, "update_epochs": 2},
@@ -417,6 +420,43 @@ def test_an_update_process_that_blocks_is_ended_with_its_stacks_and_fails_the_up
     err = capfd.readouterr().err
     # where the process was: in _serve, waiting for the request
     assert "Fatal Python error: Aborted" in err and "update_process.py\", line" in err and " in _serve\n" in err
+
+
+def parent_pid(pid: int) -> int:
+    status = Path(f"/proc/{pid}/status").read_text()
+    return int(status.split("\nPPid:", 1)[1].split()[0])
+
+
+def test_update_processes_come_from_a_fork_server_of_their_own_whose_blocked_start_is_ended(tmp_path, capfd,
+                                                                                             monkeypatch):
+    """An update process is the child of ``train.update_process``'s own fork server, not of multiprocessing's shared
+    one (which anything in the trainer's process may start with other modules). A server whose start blocks (here
+    a module it loads waits for ever) is held to the process's rule: after ``stall_s`` with no CPU it is ended by
+    SIGABRT, its stacks on stderr, and the process is ``Unavailable`` (the trainer then updates on threads)."""
+    threads = torch.get_num_threads()
+    trainer = Trainer(tiny(threads=2), tmp_path / "run", progress=False, tensorboard=False)
+    try:
+        trainer.collect_rollout()
+        trainer._update_learners()
+        process = trainer._processes[1].process
+        assert parent_pid(process.pid) == update_process._SERVER._forkserver_pid != multiprocessing.forkserver.\
+            _forkserver._forkserver_pid
+        (tmp_path / "blocked_preload.py").write_text("import threading\nthreading.Event().wait()\n")
+        monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(tmp_path), os.environ.get("PYTHONPATH")])))
+        blocked = forkserver.ForkServer()
+        blocked.set_forkserver_preload(["train.update_server", "blocked_preload"])
+        monkeypatch.setattr(update_process, "_SERVER", blocked)
+        with pytest.raises(update_process.Unavailable, match=r"^no process for the follower learner's update \(the "
+                           r"update processes' fork server \(pid (\d+)\) used no CPU for 1 s before forking: stopped "
+                           r"\(its threads' stacks are on stderr\)\)$") as raised:
+            update_process.UpdateProcess(trainer.learners[1], stall_s=1.0)
+        server = int(re.search(r"pid (\d+)", str(raised.value)).group(1))
+        assert blocked._forkserver_pid is None and not Path(f"/proc/{server}").exists()  # ended, and waited for
+    finally:
+        torch.set_num_threads(threads)
+        trainer.close()
+    err = capfd.readouterr().err
+    assert "Fatal Python error: Aborted" in err and "blocked_preload.py\", line 2" in err  # where the server waited
 
 
 def test_a_script_without_a_main_guard_trains_with_update_processes_and_runs_once(tmp_path):

@@ -5,8 +5,10 @@ operation: each hand-over is a context switch, about 900-1,100 of them for two u
 batch, and the updates take about 15% longer than on two processes, which take about what one takes alone
 (``bench/bench_update.py`` prints both; docs/PERFORMANCE.md, "Each learner's update in a process of its own").
 
-The process is forked from a server process of multiprocessing's ``forkserver`` (a fresh interpreter that
-loaded ``train.update_server`` and ran nothing else), never from the trainer: a trainer's process may hold threads in
+The process is forked from a fork server of this module's own (``_SERVER``, a ``multiprocessing.forkserver``
+``ForkServer``: a fresh interpreter that loaded ``train.update_server`` and ran nothing else; not multiprocessing's
+shared one, which anything else in the trainer's process may have started with other modules), never from the
+trainer: a trainer's process may hold threads in
 the middle of anything at the moment it forks (MKL's buffer allocator, OpenMP's pools, a Ray client's gRPC
 threads), and a process forked from it could wait for ever on a lock that no thread of its own will release
 (on an Intel Xeon, after a test process had run Ray, one spun in MKL's allocator at its first matrix product).
@@ -28,8 +30,9 @@ had, a daemonic parent), ``Unavailable`` says why and the trainer updates on thr
 The trainer waits for an answer as long as the process works: a process that has died is an error at once (its
 exit code named), and one that is alive but has used no CPU for ``STALL_S`` while an answer is owed (blocked:
 an update waits on nothing) is stopped with SIGABRT, which makes it write every thread's
-stack to stderr (``faulthandler``) as it ends, and is an error naming it. A run never hangs on its update
-process.
+stack to stderr (``faulthandler``) as it ends, and is an error naming it. The fork server is held to the same
+rule while a process is asked of it: one that has used no CPU for ``STALL_S`` before it forks (its start blocked) is
+ended the same way, and the trainer updates on threads (``Unavailable``). A run never hangs on its update process.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ import io
 import multiprocessing
 import os
 import resource
+import select
 import signal
 import sys
 import time
@@ -100,7 +104,7 @@ class UpdateProcess:
         self.conn, theirs = multiprocessing.Pipe()
         lr = learner.optimizer.param_groups[0]["lr"]
         self._inherited = dict(learner.views)  # the views the process holds from its start (by name)
-        self.process = _UpdateServer(target=_serve, name=f"update-{learner.name}", daemon=True,
+        self.process = _UpdateServer(target=_serve, name=f"update-{learner.name}", daemon=True, stall_s=stall_s,
                                      args=(theirs, learner.model, learner.ppo, learner.weights, lr, learner.name,
                                            self._inherited, _Fd(2)))  # (its stderr: the trainer's now)
         self.pending = False  # an update started and its answer not yet read
@@ -194,27 +198,20 @@ class UpdateProcess:
     def _wait(self) -> None:
         """Until an answer (or the end of the pipe) is there to read; a process that died, or that has used no CPU
         for ``stall_s``, raises (see the module docstring)."""
-        cpu, still, last = _cpu_ticks(self.process.pid), 0.0, time.monotonic()
-        while not self.conn.poll(min(1.0, self.stall_s)):
-            if not self.process.is_alive():
-                if self.conn.poll():  # (its answer, or the end of the pipe, came as it ended)
-                    return
-                raise RuntimeError(self._stopped(EOFError("no answer")))
-            now, clock = _cpu_ticks(self.process.pid), time.monotonic()
-            # (at most 2 s a pass: a trainer stopped itself, by Ctrl+Z or a suspended job, counts no stall)
-            still, last = (0.0 if now != cpu else still + min(clock - last, 2.0)), clock
-            cpu = now
-            if still >= self.stall_s:
-                with contextlib.suppress(ProcessLookupError):  # (ended meanwhile: its exit code says how)
-                    os.kill(self.process.pid, signal.SIGABRT)  # faulthandler writes its threads' stacks as it ends
-                    os.kill(self.process.pid, signal.SIGCONT)  # (a stopped process takes the signal once continued)
-                self.process.join(10)
-                if self.process.is_alive():
-                    self.process.kill()
-                    self.process.join()
-                raise RuntimeError(f"the {self.name} learner's update process used no CPU for {self.stall_s:g} s "
-                                   f"while its answer was owed: stopped (exit code {self.process.exitcode}; its "
-                                   f"threads' stacks are on stderr)")
+        if _working(self.conn.poll, self.process.pid, self.stall_s, ended=lambda: not self.process.is_alive()):
+            if self.conn.poll():  # (its answer, or the end of the pipe, came, perhaps as it ended)
+                return
+            raise RuntimeError(self._stopped(EOFError("no answer")))
+        with contextlib.suppress(ProcessLookupError):  # (ended meanwhile: its exit code says how)
+            os.kill(self.process.pid, signal.SIGABRT)  # faulthandler writes its threads' stacks as it ends
+            os.kill(self.process.pid, signal.SIGCONT)  # (a stopped process takes the signal once continued)
+        self.process.join(10)
+        if self.process.is_alive():
+            self.process.kill()
+            self.process.join()
+        raise RuntimeError(f"the {self.name} learner's update process used no CPU for {self.stall_s:g} s "
+                           f"while its answer was owed: stopped (exit code {self.process.exitcode}; its "
+                           f"threads' stacks are on stderr)")
 
     def _stopped(self, error: Exception) -> str:
         self.process.join(1)
@@ -237,22 +234,82 @@ class _ForkserverPopen(popen_forkserver.Popen):
             reduction.dump(process_obj, buf)
         finally:
             set_spawning_popen(None)
-        self.sentinel, w = forkserver.connect_to_new_process(self._fds)
+        self.sentinel, w = _SERVER.connect_to_new_process(self._fds)  # (starts the server if it is not running)
         _parent_w = os.dup(w)  # (the process's sentinel of its parent, as the standard library keeps it)
         self.finalizer = util.Finalize(self, util.close_fds, (_parent_w, self.sentinel))
         with open(w, "wb", closefd=True) as f:
             f.write(buf.getbuffer())
-        self.pid = forkserver.read_signed(self.sentinel)
+        self.pid = _forked_pid(self.sentinel, process_obj.stall_s)
 
 
 class _UpdateServer(ForkServerProcess):
-    """An update process, started by ``_ForkserverPopen``; the fork server loads ``train.update_server`` before its
-    first fork, so that each process starts with torch imported and its optimizer's first use behind it."""
+    """An update process, started by ``_ForkserverPopen`` from ``_SERVER``, which loads ``train.update_server``
+    before its first fork, so that each process starts with torch imported and its optimizer's first use behind
+    it; ``stall_s`` bounds the server's answer as it bounds the process's."""
+
+    def __init__(self, *args, stall_s: float, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.stall_s = stall_s
 
     @staticmethod
     def _Popen(process_obj):
-        forkserver.set_forkserver_preload(["train.update_server"])  # (read when the server starts: the first process)
         return _ForkserverPopen(process_obj)
+
+
+def _new_server() -> forkserver.ForkServer:
+    server = forkserver.ForkServer()
+    server.set_forkserver_preload(["train.update_server"])  # (read when the server starts: at the first process)
+    return server
+
+
+_SERVER = _new_server()
+"""The fork server of this process's update processes (started at the first; it ends with this process)."""
+
+
+def _forget_server() -> None:  # a process forked from the trainer (not from the server) starts its own server
+    global _SERVER
+    _SERVER = _new_server()
+
+
+os.register_at_fork(after_in_child=_forget_server)
+
+
+def _forked_pid(sentinel: int, stall_s: float) -> int:
+    """The pid of the process ``_SERVER`` forks for a request whose status pipe is ``sentinel``, read as long as the
+    server works: a server that has used no CPU for ``stall_s`` (its start blocked) is ended with SIGABRT (its
+    stacks to stderr, ``train.update_server`` enabled ``faulthandler``) and raises ``OSError``; one that ended
+    raises ``EOFError`` (the standard library's)."""
+    server = _SERVER._forkserver_pid
+    if not _working(lambda timeout: bool(select.select([sentinel], [], [], timeout)[0]), server, stall_s):
+        with contextlib.suppress(ProcessLookupError):  # (not yet waited for: it is there, ended or not)
+            os.kill(server, signal.SIGABRT)
+            os.kill(server, signal.SIGCONT)
+            ended = os.pidfd_open(server)
+            try:
+                if not select.select([ended], [], [], 10)[0]:
+                    os.kill(server, signal.SIGKILL)
+            finally:
+                os.close(ended)
+        _SERVER._stop()  # (waits for it; the next process starts a new server)
+        raise OSError(f"the update processes' fork server (pid {server}) used no CPU for {stall_s:g} s before "
+                      f"forking: stopped (its threads' stacks are on stderr)")
+    return forkserver.read_signed(sentinel)
+
+
+def _working(ready, pid: int, stall_s: float, ended=lambda: False) -> bool:
+    """Wait until ``ready(timeout)`` says there is something to read, or ``ended()``, while process ``pid`` works: true
+    then; false once ``pid`` has used no CPU for ``stall_s`` (blocked)."""
+    cpu, still, last = _cpu_ticks(pid), 0.0, time.monotonic()
+    while not ready(min(1.0, stall_s)):
+        if ended():
+            return True
+        now, clock = _cpu_ticks(pid), time.monotonic()
+        # (at most 2 s a pass: a trainer stopped itself, by Ctrl+Z or a suspended job, counts no stall)
+        still, last = (0.0 if now != cpu else still + min(clock - last, 2.0)), clock
+        cpu = now
+        if still >= stall_s:
+            return False
+    return True
 
 
 class _Fd:
