@@ -3,7 +3,6 @@
 import dataclasses
 import json
 import math
-import multiprocessing.forkserver
 import os
 import re
 import signal
@@ -432,31 +431,44 @@ def test_update_processes_come_from_a_fork_server_of_their_own_whose_blocked_sta
     """An update process is the child of ``train.update_process``'s own fork server, not of multiprocessing's shared
     one (which anything in the trainer's process may start with other modules). A server whose start blocks (here
     a module it loads waits for ever) is held to the process's rule: after ``stall_s`` with no CPU it is ended by
-    SIGABRT, its stacks on stderr, and the process is ``Unavailable`` (the trainer then updates on threads)."""
+    SIGABRT, its stacks on stderr, and the process is ``Unavailable`` (the trainer then updates on threads), as is
+    every process asked for after it, at once."""
     threads = torch.get_num_threads()
     trainer = Trainer(tiny(threads=2), tmp_path / "run", progress=False, tensorboard=False)
     try:
         trainer.collect_rollout()
         trainer._update_learners()
         process = trainer._processes[1].process
-        assert parent_pid(process.pid) == update_process._SERVER._forkserver_pid != multiprocessing.forkserver.\
-            _forkserver._forkserver_pid
-        (tmp_path / "blocked_preload.py").write_text("import threading\nthreading.Event().wait()\n")
+        assert parent_pid(process.pid) == update_process._SERVER._forkserver_pid
+        assert update_process._SERVER is not forkserver._forkserver
+        waiting = tmp_path / "waiting"
+        (tmp_path / "blocked_preload.py").write_text(f"import pathlib, threading\npathlib.Path({str(waiting)!r})."
+                                                     f"touch()\nthreading.Event().wait()\n")
         monkeypatch.setenv("PYTHONPATH", os.pathsep.join(filter(None, [str(tmp_path), os.environ.get("PYTHONPATH")])))
         blocked = forkserver.ForkServer()
         blocked.set_forkserver_preload(["train.update_server", "blocked_preload"])
         monkeypatch.setattr(update_process, "_SERVER", blocked)
-        with pytest.raises(update_process.Unavailable, match=r"^no process for the follower learner's update \(the "
-                           r"update processes' fork server \(pid (\d+)\) used no CPU for 1 s before forking: stopped "
-                           r"\(its threads' stacks are on stderr\)\)$") as raised:
+        monkeypatch.setattr(update_process, "_SERVER_BLOCKED", None)
+        blocked.ensure_running()
+        server = blocked._forkserver_pid
+        while not waiting.exists():  # (the server is in the module's wait: it has loaded train.update_server)
+            assert os.waitpid(server, os.WNOHANG)[0] == 0, "the server ended before it blocked"
+            time.sleep(0.05)
+        reason = (f"the update processes' fork server (pid {server}) used no CPU for 1 s before forking: stopped "
+                  f"(its threads' stacks are on stderr)")
+        with pytest.raises(update_process.Unavailable, match=f"^no process for the follower learner's update "
+                                                             f"\\({re.escape(reason)}\\)$"):
             update_process.UpdateProcess(trainer.learners[1], stall_s=1.0)
-        server = int(re.search(r"pid (\d+)", str(raised.value)).group(1))
-        assert blocked._forkserver_pid is None and not Path(f"/proc/{server}").exists()  # ended, and waited for
+        assert not Path(f"/proc/{server}").exists()  # ended, and waited for
+        assert update_process._SERVER is not blocked and update_process._SERVER._forkserver_pid is None
+        with pytest.raises(update_process.Unavailable, match=f"\\({re.escape(reason)} before\\)$"):
+            update_process.UpdateProcess(trainer.learners[1])  # not tried again: no new server started
+        assert update_process._SERVER._forkserver_pid is None
     finally:
         torch.set_num_threads(threads)
         trainer.close()
     err = capfd.readouterr().err
-    assert "Fatal Python error: Aborted" in err and "blocked_preload.py\", line 2" in err  # where the server waited
+    assert "Fatal Python error: Aborted" in err and "blocked_preload.py\", line 3" in err  # where the server waited
 
 
 def test_a_script_without_a_main_guard_trains_with_update_processes_and_runs_once(tmp_path):

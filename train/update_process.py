@@ -5,12 +5,12 @@ operation: each hand-over is a context switch, about 900-1,100 of them for two u
 batch, and the updates take about 15% longer than on two processes, which take about what one takes alone
 (``bench/bench_update.py`` prints both; docs/PERFORMANCE.md, "Each learner's update in a process of its own").
 
-The process is forked from a fork server of this module's own (``_SERVER``, a ``multiprocessing.forkserver``
-``ForkServer``: a fresh interpreter that loaded ``train.update_server`` and ran nothing else; not multiprocessing's
-shared one, which anything else in the trainer's process may have started with other modules), never from the
-trainer: a trainer's process may hold threads in
-the middle of anything at the moment it forks (MKL's buffer allocator, OpenMP's pools, a Ray client's gRPC
-threads), and a process forked from it could wait for ever on a lock that no thread of its own will release
+The process is forked from the update processes' own fork server (``_SERVER``, one for the trainer's process: a
+``multiprocessing.forkserver.ForkServer``, a fresh interpreter that loaded ``train.update_server`` and ran nothing
+else; not multiprocessing's shared one, which anything else in the trainer's process may have started with other
+modules), never from the trainer: a trainer's process may hold threads in the middle of anything at the moment it
+forks (MKL's buffer allocator, OpenMP's pools, a Ray client's gRPC threads), and a process forked from it could wait
+for ever on a lock that no thread of its own will release
 (on an Intel Xeon, after a test process had run Ray, one spun in MKL's allocator at its first matrix product).
 The process runs a function of this module, never the script that trains (so a script needs no
 ``if __name__ == "__main__"`` guard: ``_ForkserverPopen``). It holds a ``Learner`` on the same network: its
@@ -32,7 +32,8 @@ exit code named), and one that is alive but has used no CPU for ``STALL_S`` whil
 an update waits on nothing) is stopped with SIGABRT, which makes it write every thread's
 stack to stderr (``faulthandler``) as it ends, and is an error naming it. The fork server is held to the same
 rule while a process is asked of it: one that has used no CPU for ``STALL_S`` before it forks (its start blocked) is
-ended the same way, and the trainer updates on threads (``Unavailable``). A run never hangs on its update process.
+ended the same way, and the trainer updates on threads (``Unavailable``), as every trainer of the process does
+from then on. A run never hangs on its update process.
 """
 
 from __future__ import annotations
@@ -43,12 +44,11 @@ import io
 import multiprocessing
 import os
 import resource
-import select
 import signal
 import sys
 import time
 import traceback
-from multiprocessing import forkserver, popen_forkserver, reduction, spawn, util
+from multiprocessing import connection, forkserver, popen_forkserver, reduction, spawn, util
 from multiprocessing.context import ForkServerProcess, set_spawning_popen
 
 import numpy as np
@@ -95,6 +95,8 @@ class UpdateProcess:
                               f"{learner.name} is on {learner.device}, on {sys.platform}")
         if multiprocessing.current_process().daemon:
             raise Unavailable("this trainer runs in a daemonic process, which may not start processes")
+        if _SERVER_BLOCKED:
+            raise Unavailable(f"no process for the {learner.name} learner's update ({_SERVER_BLOCKED} before)")
         self.name, self.stall_s = learner.name, stall_s
         try:  # before the start: the process's network and views are these, where they lie
             learner.model.share_memory()
@@ -263,7 +265,12 @@ def _new_server() -> forkserver.ForkServer:
 
 
 _SERVER = _new_server()
-"""The fork server of this process's update processes (started at the first; it ends with this process)."""
+"""The fork server of this process's update processes, one for every trainer of the process (started at the
+first process asked of it; it ends with this process)."""
+
+_SERVER_BLOCKED: str | None = None
+"""Why this process's fork server was ended as blocked, if it was: no update process starts here again (a server
+that blocks at its start would block again, and each trainer would wait ``stall_s`` to learn it)."""
 
 
 def _forget_server() -> None:  # a process forked from the trainer (not from the server) starts its own server
@@ -276,24 +283,48 @@ os.register_at_fork(after_in_child=_forget_server)
 
 def _forked_pid(sentinel: int, stall_s: float) -> int:
     """The pid of the process ``_SERVER`` forks for a request whose status pipe is ``sentinel``, read as long as the
-    server works: a server that has used no CPU for ``stall_s`` (its start blocked) is ended with SIGABRT (its
-    stacks to stderr, ``train.update_server`` enabled ``faulthandler``) and raises ``OSError``; one that ended
-    raises ``EOFError`` (the standard library's)."""
+    server works. A server that has used no CPU for ``stall_s`` (its start blocked) is ended (``_end_server``) and
+    raises ``OSError``; one that ended raises ``EOFError`` (the standard library's)."""
+    global _SERVER, _SERVER_BLOCKED
     server = _SERVER._forkserver_pid
-    if not _working(lambda timeout: bool(select.select([sentinel], [], [], timeout)[0]), server, stall_s):
-        with contextlib.suppress(ProcessLookupError):  # (not yet waited for: it is there, ended or not)
-            os.kill(server, signal.SIGABRT)
-            os.kill(server, signal.SIGCONT)
-            ended = os.pidfd_open(server)
-            try:
-                if not select.select([ended], [], [], 10)[0]:
-                    os.kill(server, signal.SIGKILL)
-            finally:
-                os.close(ended)
-        _SERVER._stop()  # (waits for it; the next process starts a new server)
-        raise OSError(f"the update processes' fork server (pid {server}) used no CPU for {stall_s:g} s before "
-                      f"forking: stopped (its threads' stacks are on stderr)")
+    if not _working(lambda timeout: bool(connection.wait([sentinel], timeout)), server, stall_s):
+        blocked, _SERVER = _SERVER, _new_server()
+        _SERVER_BLOCKED = (f"the update processes' fork server (pid {server}) used no CPU for {stall_s:g} s before "
+                           f"forking: stopped (its threads' stacks are on stderr)")
+        _end_server(blocked)
+        raise OSError(_SERVER_BLOCKED)
     return forkserver.read_signed(sentinel)
+
+
+def _end_server(server: forkserver.ForkServer) -> None:
+    """End the fork server ``server``, found blocked: SIGABRT, whose ``faulthandler`` (enabled by the first lines of
+    ``train.update_server``) writes its threads' stacks to stderr, then SIGKILL if it has not ended in 10 s; waited
+    for 10 s more at most (a process stuck in the kernel is left, never waited on for ever). Processes it forked
+    before lose their sentinel with it (they end when their trainer closes their pipe)."""
+    pid = server._forkserver_pid
+    for sent in (signal.SIGABRT, signal.SIGKILL):
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(pid, sent)
+            os.kill(pid, signal.SIGCONT)  # (a stopped process takes the signal once continued)
+        if _reaped(pid, 10.0):
+            break
+    with contextlib.suppress(OSError):
+        os.close(server._forkserver_alive_fd)
+        os.unlink(server._forkserver_address)
+
+
+def _reaped(pid: int, within: float) -> bool:
+    """Whether the child ``pid`` ended within ``within`` seconds (waited for: reaped), or was already gone."""
+    end = time.monotonic() + within
+    while True:
+        try:
+            if os.waitpid(pid, os.WNOHANG)[0]:
+                return True
+        except ChildProcessError:  # (reaped elsewhere)
+            return True
+        if time.monotonic() >= end:
+            return False
+        time.sleep(0.05)
 
 
 def _working(ready, pid: int, stall_s: float, ended=lambda: False) -> bool:
