@@ -74,12 +74,10 @@ def test_pinned_files_kept_in_the_repository_are_the_ones_pinned(monkeypatch):
     for path in sorted((ROOT / "sweeps").glob("*.toml")):
         spec = load_sweep(path)
         inside = {name: digest for name, digest in spec.pinned.items() if not name.startswith("runs/")}
-        for name, digest in inside.items():
+        for name in inside:
             assert name.startswith("sweeps/inputs/"), f"{path.name} pins {name}: keep it in sweeps/inputs/"
-            with open(name, "rb") as f:
-                assert hashlib.file_digest(f, "sha256").hexdigest() == digest, f"{path.name}: {name} changed"
         if inside:
-            spec.check_files()
+            spec.check_files()  # (each pinned file's sha256 against its pin; the error names the file)
             kept[path.name] = inside
     assert "paper_warmstart_small_confirm_kept.toml" in kept, kept
 

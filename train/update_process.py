@@ -204,13 +204,7 @@ class UpdateProcess:
             if self.conn.poll():  # (its answer, or the end of the pipe, came, perhaps as it ended)
                 return
             raise RuntimeError(self._stopped(EOFError("no answer")))
-        with contextlib.suppress(ProcessLookupError):  # (ended meanwhile: its exit code says how)
-            os.kill(self.process.pid, signal.SIGABRT)  # faulthandler writes its threads' stacks as it ends
-            os.kill(self.process.pid, signal.SIGCONT)  # (a stopped process takes the signal once continued)
-        self.process.join(10)
-        if self.process.is_alive():
-            self.process.kill()
-            self.process.join()
+        _abort(self.process.pid, ended=lambda within: self.process.join(within) or not self.process.is_alive())
         raise RuntimeError(f"the {self.name} learner's update process used no CPU for {self.stall_s:g} s "
                            f"while its answer was owed: stopped (exit code {self.process.exitcode}; its "
                            f"threads' stacks are on stderr)")
@@ -302,15 +296,23 @@ def _end_server(server: forkserver.ForkServer) -> None:
     for 10 s more at most (a process stuck in the kernel is left, never waited on for ever). Processes it forked
     before lose their sentinel with it (they end when their trainer closes their pipe)."""
     pid = server._forkserver_pid
-    for sent in (signal.SIGABRT, signal.SIGKILL):
-        with contextlib.suppress(ProcessLookupError):
-            os.kill(pid, sent)
-            os.kill(pid, signal.SIGCONT)  # (a stopped process takes the signal once continued)
-        if _reaped(pid, 10.0):
-            break
+    _abort(pid, ended=lambda within: _reaped(pid, within))
     with contextlib.suppress(OSError):
         os.close(server._forkserver_alive_fd)
+    with contextlib.suppress(OSError):  # (its socket's file, left in the temporary folder otherwise)
         os.unlink(server._forkserver_address)
+
+
+def _abort(pid: int, ended) -> None:
+    """Stop the process ``pid``, found blocked: SIGABRT, whose ``faulthandler`` writes its threads' stacks to stderr
+    as it ends, then SIGKILL if ``ended(10.0)`` (which waits at most that many seconds for it to end) is false;
+    ``ended`` is asked once more after SIGKILL, so every wait is bounded (a process stuck in the kernel is left)."""
+    for sent in (signal.SIGABRT, signal.SIGKILL):
+        with contextlib.suppress(ProcessLookupError):  # (ended meanwhile)
+            os.kill(pid, sent)
+            os.kill(pid, signal.SIGCONT)  # (a stopped process takes the signal once continued)
+        if ended(10.0):
+            return
 
 
 def _reaped(pid: int, within: float) -> bool:
