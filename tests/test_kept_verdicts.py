@@ -60,7 +60,8 @@ QUOTES = {  # (doc, a table row's first cell or a paragraph's first 40 character
         ("warmstart_small", "the warm pair beats the cold pair")],
     ("docs/REPRODUCTION.md", "Warm start: the warm follower adds to the team"): [
         ("warmstart_small", "a warm follower beats a fresh one (team)"),
-        ("warmstart_small", "a warm follower beats a fresh one (follower)")],
+        ("warmstart_small", "a warm follower beats a fresh one (follower)"),
+        ("warmstart_small_confirm_kept", "the team scores more beside a warm follower than a fresh one")],
     ("docs/REPRODUCTION.md", "annealing makes learning possible, kappa 0.2"): [(T1, K02), (T8, K02)],
     ("docs/REPRODUCTION.md", "annealing makes learning possible, kappa 0"): [(T1, K0), (T8, K0)],
     ("docs/REPRODUCTION.md", "the auxiliary loss helps, annealed"): [(T1, AUX), (T8, AUX)],
