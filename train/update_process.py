@@ -174,7 +174,7 @@ class UpdateProcess:
         """End the process now (an update it is in is lost with it)."""
         if self.process.is_alive():
             self.process.kill()
-        self.process.join()
+        self.process.join(10)  # (bounded: a process stuck in the kernel is left, never waited on for ever)
         self.conn.close()
 
     def _idle(self, what: str) -> None:
@@ -205,9 +205,10 @@ class UpdateProcess:
                 return
             raise RuntimeError(self._stopped(EOFError("no answer")))
         _abort(self.process.pid, ended=lambda within: self.process.join(within) or not self.process.is_alive())
+        ending = (f"stopped (exit code {self.process.exitcode}" if self.process.exitcode is not None else
+                  f"sent SIGKILL, still not ended after 20 s (pid {self.process.pid}")
         raise RuntimeError(f"the {self.name} learner's update process used no CPU for {self.stall_s:g} s "
-                           f"while its answer was owed: stopped (exit code {self.process.exitcode}; its "
-                           f"threads' stacks are on stderr)")
+                           f"while its answer was owed: {ending}; its threads' stacks are on stderr)")
 
     def _stopped(self, error: Exception) -> str:
         self.process.join(1)
@@ -307,12 +308,14 @@ def _abort(pid: int, ended) -> None:
     """Stop the process ``pid``, found blocked: SIGABRT, whose ``faulthandler`` writes its threads' stacks to stderr
     as it ends, then SIGKILL if ``ended(10.0)`` (which waits at most that many seconds for it to end) is false;
     ``ended`` is asked once more after SIGKILL, so every wait is bounded (a process stuck in the kernel is left)."""
-    for sent in (signal.SIGABRT, signal.SIGKILL):
-        with contextlib.suppress(ProcessLookupError):  # (ended meanwhile)
-            os.kill(pid, sent)
-            os.kill(pid, signal.SIGCONT)  # (a stopped process takes the signal once continued)
-        if ended(10.0):
-            return
+    with contextlib.suppress(ProcessLookupError, PermissionError):  # (ended meanwhile; its pid no longer ours)
+        os.kill(pid, signal.SIGABRT)
+        os.kill(pid, signal.SIGCONT)  # (a stopped process takes the signal once continued)
+    if ended(10.0):
+        return
+    with contextlib.suppress(ProcessLookupError, PermissionError):
+        os.kill(pid, signal.SIGKILL)  # (a stopped process takes it as it is)
+    ended(10.0)
 
 
 def _reaped(pid: int, within: float) -> bool:
