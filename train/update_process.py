@@ -64,6 +64,10 @@ STALL_S = 120.0
 """Seconds an update process may use no CPU while an answer is owed before it is taken as blocked (an update at
 the paper's batch takes about 0.2 s of CPU; a process that only waits for a core still gets some)."""
 
+ABORT_WAIT_S = 10.0
+"""Seconds a blocked process is given to end after SIGABRT, and again after SIGKILL (``_abort``); one stuck in the
+kernel beyond both is left, never waited on for ever."""
+
 
 def _out(t):
     """A rollout entry for the pipe: network views (in shared memory) as they are, small tensors as arrays."""
@@ -174,7 +178,7 @@ class UpdateProcess:
         """End the process now (an update it is in is lost with it)."""
         if self.process.is_alive():
             self.process.kill()
-        self.process.join(10)  # (bounded: a process stuck in the kernel is left, never waited on for ever)
+        self.process.join(ABORT_WAIT_S)  # (bounded: a process stuck in the kernel is left, never waited on for ever)
         self.conn.close()
 
     def _idle(self, what: str) -> None:
@@ -206,7 +210,7 @@ class UpdateProcess:
             raise RuntimeError(self._stopped(EOFError("no answer")))
         _abort(self.process.pid, ended=lambda within: self.process.join(within) or not self.process.is_alive())
         ending = (f"stopped (exit code {self.process.exitcode}" if self.process.exitcode is not None else
-                  f"sent SIGKILL, still not ended after 20 s (pid {self.process.pid}")
+                  f"sent SIGKILL, still not ended after {2 * ABORT_WAIT_S:g} s (pid {self.process.pid}")
         raise RuntimeError(f"the {self.name} learner's update process used no CPU for {self.stall_s:g} s "
                            f"while its answer was owed: {ending}; its threads' stacks are on stderr)")
 
@@ -293,9 +297,9 @@ def _forked_pid(sentinel: int, stall_s: float) -> int:
 
 def _end_server(server: forkserver.ForkServer) -> None:
     """End the fork server ``server``, found blocked: SIGABRT, whose ``faulthandler`` (enabled by the first lines of
-    ``train.update_server``) writes its threads' stacks to stderr, then SIGKILL if it has not ended in 10 s; waited
-    for 10 s more at most (a process stuck in the kernel is left, never waited on for ever). Processes it forked
-    before lose their sentinel with it (they end when their trainer closes their pipe)."""
+    ``train.update_server``) writes its threads' stacks to stderr, then SIGKILL if it has not ended in
+    ``ABORT_WAIT_S``; waited for as long again at most (``_abort``). Processes it forked before lose their sentinel
+    with it (they end when their trainer closes their pipe)."""
     pid = server._forkserver_pid
     _abort(pid, ended=lambda within: _reaped(pid, within))
     with contextlib.suppress(OSError):
@@ -306,16 +310,17 @@ def _end_server(server: forkserver.ForkServer) -> None:
 
 def _abort(pid: int, ended) -> None:
     """Stop the process ``pid``, found blocked: SIGABRT, whose ``faulthandler`` writes its threads' stacks to stderr
-    as it ends, then SIGKILL if ``ended(10.0)`` (which waits at most that many seconds for it to end) is false;
+    as it ends, then SIGKILL if ``ended(ABORT_WAIT_S)`` (which waits at most that many seconds for it to end) is
+    false;
     ``ended`` is asked once more after SIGKILL, so every wait is bounded (a process stuck in the kernel is left)."""
     with contextlib.suppress(ProcessLookupError, PermissionError):  # (ended meanwhile; its pid no longer ours)
         os.kill(pid, signal.SIGABRT)
         os.kill(pid, signal.SIGCONT)  # (a stopped process takes the signal once continued)
-    if ended(10.0):
+    if ended(ABORT_WAIT_S):
         return
     with contextlib.suppress(ProcessLookupError, PermissionError):
         os.kill(pid, signal.SIGKILL)  # (a stopped process takes it as it is)
-    ended(10.0)
+    ended(ABORT_WAIT_S)
 
 
 def _reaped(pid: int, within: float) -> bool:
