@@ -12,6 +12,8 @@ With ``--pack K [K ...]``, each setup is also measured as a pack of K trials (se
 (``train.pack``): the pack's env-steps/s are all its trials' steps together, and its share of the ceiling
 is what the machine does for all of them.
 
+``--setup goal-vector goal-planes`` compares the goal's two ways into the fast network, both agents seeing it.
+
 Usage: python bench/bench_train.py [--setup fast fast-lstm paper] [--iterations 5] [--threads 0] [--device auto]
                                   [--num-envs 16] [--pack 1 2 4 8 16] [--pack-mode auto]
 
@@ -47,6 +49,11 @@ SETUPS = {
     # as the paper_* presets run it (keep_freed_memory; see docs/PERFORMANCE.md and bench/bench_memory.py)
     "paper": {"leader": {"net": {"arch": "paper"}}, "follower": {"net": {"arch": "paper"}}, "keep_freed_memory": True},
     "paper-default-malloc": {"leader": {"net": {"arch": "paper"}}, "follower": {"net": {"arch": "paper"}}},
+    # the goal's two ways in, both agents seeing it (env.asymmetric=false, as Table 1's sweeps run): a vector joined
+    # after the convolutions, or input planes through them (sweeps/paper_table1_eighth_small_settings.toml)
+    "goal-vector": {"env": {"asymmetric": False}},
+    "goal-planes": {"env": {"asymmetric": False}, "leader": {"net": {"goal_fusion": "planes"}},
+                    "follower": {"net": {"goal_fusion": "planes"}}},
 }
 
 
@@ -168,14 +175,14 @@ def main() -> None:
     args = parser.parse_args()
     print(f"machine: {machine()}; torch {torch.__version__}; cuda: {torch.cuda.is_available()}; "
           f"pack mode: {args.pack_mode}")
-    print(f"{'setup':<10} {'pack':>4} {'device':<7} {'threads':>7} {'env-steps/s':>12} {'rollout/s':>10} "
+    print(f"{'setup':<12} {'pack':>4} {'device':<7} {'threads':>7} {'env-steps/s':>12} {'rollout/s':>10} "
           f"{'update/s':>10} {'CPU s/iter':>10}")
     measured = {}
     for name in args.setup:
         for pack in args.pack:
             r = measured[name, pack] = measure(name, args.iterations, args.threads, args.device, args.num_envs, pack,
                                                args.pack_mode)
-            print(f"{r['setup']:<10} {pack:>4} {r['device']:<7} {r['threads']:>7} {r['sps']:>12.0f} "
+            print(f"{r['setup']:<12} {pack:>4} {r['device']:<7} {r['threads']:>7} {r['sps']:>12.0f} "
                   f"{r['rollout_sps']:>10.0f} {r['update_sps']:>10.0f} {r['cpu_s_per_iter']:>10.2f}", flush=True)
     print(f"(median over iterations of {args.num_envs} envs x 128 steps a trial, both agents learning, every trial of "
           "a pack counted; the paper's public trainer: about 36 env-steps/s on a 2-core CPU)")
@@ -183,12 +190,12 @@ def main() -> None:
     rate = matmul_rate(args.threads, device=device)
     where = torch.cuda.get_device_name() if device.startswith("cuda") else f"this CPU ({torch.get_num_threads()} threads)"
     print(f"\n{where}: float32 matmul rate {rate / 1e9:.0f} GFLOP/s")
-    print(f"{'setup':<10} {'pack':>4} {'GFLOP/env-step':>15} {'ceiling env-steps/s':>20} {'share of the ceiling':>21}")
+    print(f"{'setup':<12} {'pack':>4} {'GFLOP/env-step':>15} {'ceiling env-steps/s':>20} {'share of the ceiling':>21}")
     for name in args.setup:
         work = flops_per_env_step(name)
         ceiling = rate / work
         for pack in args.pack:
-            print(f"{name:<10} {pack:>4} {work / 1e9:>15.4f} {ceiling:>20.0f} "
+            print(f"{name:<12} {pack:>4} {work / 1e9:>15.4f} {ceiling:>20.0f} "
                   f"{measured[name, pack]['sps'] / ceiling:>21.0%}", flush=True)
     print("(the ceiling: every operation at the matmul rate; nothing else costs time)")
     if args.profile:
