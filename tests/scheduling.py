@@ -1,5 +1,7 @@
-"""How `make test` shares the tests between its two workers (pytest-xdist): by file, with the files that start a Ray
-as one unit, so that two Rays never run at once (each takes the machine's CPUs and a share of its memory).
+"""How `make test` shares the tests between its workers (pytest-xdist, three on a 2-core machine: most tests wait on
+servers, browsers and subprocesses): by file, with the files that start a Ray as one unit, so that two Rays never run
+at once (each takes the machine's CPUs and a share of its memory), and the longest units handed out first, so that no
+worker is left with a long file while the others have ended.
 
 xdist's own ``--dist loadgroup`` would do the second part from ``xdist_group`` marks, but it renames each test's node
 id to carry its group, which pytest 9.2 no longer allows (the node id is derived, not stored): the marks are ignored
@@ -19,16 +21,35 @@ RAY_FILES = frozenset({
 """The test files that start a Ray (in the test process or as a ``ray start`` cluster): one unit of work."""
 
 
+LONGEST_FIRST = (
+    "ray",
+    "tests/test_train.py",
+    "tests/test_sweep_local.py",
+    "tests/test_wheel.py",
+    "tests/test_page_connections.py",
+    "tests/test_benchmarl.py",
+    "tests/test_server_hardening.py",
+    "tests/test_viewer.py",
+    "tests/test_cluster_failover.py",
+    "tests/test_study_power.py",
+    "tests/test_browser.py",
+    "tests/test_study.py",
+)
+"""The units that took longest (the sum of their tests' setup, call and teardown; ``PYTEST_ADDOPTS=--durations=0``,
+docs/PERFORMANCE.md), longest first: handed out before every other unit (which follow in xdist's order, most tests
+first). The order changes only when each file runs, never what it finds: each file starts what it needs."""
+
+
 class FileScheduling(LoadScopeScheduling):
-    """Each test file one unit of work, and the Ray files together one unit, handed out first: it is the longest
-    (about half the suite's wall time on a 2-core machine), so the other worker runs the rest beside it rather than
-    after it."""
+    """Each test file one unit of work, and the Ray files together one unit; ``LONGEST_FIRST`` handed out first
+    (the Ray unit is the longest, so the other workers run the rest beside it rather than after it)."""
 
     def _split_scope(self, nodeid: str) -> str:
         path = nodeid.split("::", 1)[0]
         return "ray" if path in RAY_FILES else path
 
     def _assign_work_unit(self, node) -> None:
-        if "ray" in self.workqueue:
-            self.workqueue.move_to_end("ray", last=False)
+        for scope in reversed(LONGEST_FIRST):
+            if scope in self.workqueue:
+                self.workqueue.move_to_end(scope, last=False)
         super()._assign_work_unit(node)

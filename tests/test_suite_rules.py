@@ -43,10 +43,19 @@ def test_no_test_waits_a_fixed_time_or_asserts_one():
 
 
 def test_every_file_that_starts_a_ray_runs_on_the_ray_worker():
-    """`make test` runs two workers (tests/scheduling.py); a file that starts a Ray beside another would give each
+    """`make test` runs several workers (tests/scheduling.py); a file that starts a Ray beside another would give each
     Ray the machine's CPUs: every such file is in RAY_FILES, and every file there exists."""
     from tests.scheduling import RAY_FILES
 
     starts_ray = re.compile(r"^\s*(import|from) ray\b|\bray\.init\(|\"--head\"|\bray_instance\b", re.M)
     found = {f"tests/{path.name}" for path in (ROOT / "tests").glob("test_*.py") if starts_ray.search(path.read_text())}
     assert found == set(RAY_FILES)
+
+
+def test_the_longest_units_named_for_the_workers_exist():
+    """A renamed or removed file left in LONGEST_FIRST would no longer be handed out first, silently."""
+    from tests.scheduling import LONGEST_FIRST
+
+    assert LONGEST_FIRST[0] == "ray" and len(set(LONGEST_FIRST)) == len(LONGEST_FIRST)
+    missing = [name for name in LONGEST_FIRST[1:] if not (ROOT / name).is_file()]
+    assert missing == []
