@@ -50,9 +50,10 @@ def pytest_make_collect_report(collector):
 
 
 def pytest_xdist_make_scheduler(config, log):
-    """`make test` runs the tests three at a time (pytest-xdist, ``-n 3 --dist loadscope``) by file: a file's tests run
-    on one worker in their order, so that a module's server or cluster starts once and each test finds it as the test
-    before left it; the files that start a Ray run on one worker, one after another (``tests/scheduling.py``)."""
+    """`make test` runs the tests on several workers (pytest-xdist, ``-n $TEST_WORKERS --dist loadscope``: the
+    Makefile says how many) by file: a file's tests run on one worker in their order, so that a module's server or
+    cluster starts once and each test finds it as the test before left it; the files that start a Ray run on one
+    worker, one after another (``tests/scheduling.py``)."""
     if config.getoption("dist") == "loadscope":
         from tests.scheduling import FileScheduling
 

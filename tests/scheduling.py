@@ -1,7 +1,7 @@
-"""How `make test` shares the tests between its workers (pytest-xdist, three on a 2-core machine: most tests wait on
-servers, browsers and subprocesses): by file, with the files that start a Ray as one unit, so that two Rays never run
-at once (each takes the machine's CPUs and a share of its memory), and the longest units handed out first, so that no
-worker is left with a long file while the others have ended.
+"""How `make test` shares the tests between its workers (pytest-xdist; the Makefile's ``TEST_WORKERS`` says how many):
+by file, with the files that start a Ray as one unit, so that two Rays never run at once (each takes the machine's
+CPUs and a share of its memory), and the longest units handed out first, so that no worker is left with a long file
+while the others have ended.
 
 xdist's own ``--dist loadgroup`` would do the second part from ``xdist_group`` marks, but it renames each test's node
 id to carry its group, which pytest 9.2 no longer allows (the node id is derived, not stored): the marks are ignored
