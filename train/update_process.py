@@ -27,10 +27,10 @@ thread, as the trainer's thread would: the results are the same bit for bit
 (``tests/test_train.py`` checks). Where it cannot start (not Linux, no shared memory left, no process to be
 had, a daemonic parent), ``Unavailable`` says why and the trainer updates on threads.
 
-The trainer waits for an answer as long as the process works: a process that has died is an error at once (its
-exit code named), and one that is alive but has used no CPU for ``STALL_S`` while an answer is owed (blocked:
-an update waits on nothing) is stopped with SIGABRT, which makes it write every thread's
-stack to stderr (``faulthandler``) as it ends, and is an error naming it. The fork server is held to the same
+The trainer waits for an answer as long as the process works (``train.stalls``): a process that has died is an
+error at once (its exit code named), and one that is alive but has used no CPU for ``STALL_S`` while an answer is
+owed (blocked: an update waits on nothing) is stopped with SIGABRT, which makes it write every thread's stack to
+stderr (``faulthandler``) as it ends, and is an error naming it. The fork server is held to the same
 rule while a process is asked of it: one that has used no CPU for ``STALL_S`` before it forks (its start blocked) is
 ended the same way, and the trainer updates on threads (``Unavailable``), as every trainer of the process does
 from then on. A run never hangs on its update process.
@@ -46,7 +46,6 @@ import os
 import resource
 import signal
 import sys
-import time
 import traceback
 from multiprocessing import connection, forkserver, popen_forkserver, reduction, spawn, util
 from multiprocessing.context import ForkServerProcess, set_spawning_popen
@@ -55,6 +54,7 @@ import numpy as np
 import torch
 
 from train.learner import Learner
+from train.stalls import ABORT_WAIT_S, abort, reaped, working
 
 AVAILABLE = sys.platform.startswith("linux")
 """Whether update processes start here: from a fork server, on Linux (macOS's system libraries are not safe to
@@ -63,10 +63,6 @@ use after a fork; Windows has none)."""
 STALL_S = 120.0
 """Seconds an update process may use no CPU while an answer is owed before it is taken as blocked (an update at
 the paper's batch takes about 0.2 s of CPU; a process that only waits for a core still gets some)."""
-
-ABORT_WAIT_S = 10.0
-"""Seconds a blocked process is given to end after SIGABRT, and again after SIGKILL (``_abort``); one stuck in the
-kernel beyond both is left, never waited on for ever."""
 
 
 def _out(t):
@@ -204,11 +200,11 @@ class UpdateProcess:
     def _wait(self) -> None:
         """Until an answer (or the end of the pipe) is there to read; a process that died, or that has used no CPU
         for ``stall_s``, raises (see the module docstring)."""
-        if _working(self.conn.poll, self.process.pid, self.stall_s, ended=lambda: not self.process.is_alive()):
+        if working(self.conn.poll, self.process.pid, self.stall_s, ended=lambda: not self.process.is_alive()):
             if self.conn.poll():  # (its answer, or the end of the pipe, came, perhaps as it ended)
                 return
             raise RuntimeError(self._stopped(EOFError("no answer")))
-        _abort(self.process.pid, ended=lambda within: self.process.join(within) or not self.process.is_alive())
+        abort(self.process.pid, ended=lambda within: self.process.join(within) or not self.process.is_alive())
         ending = (f"stopped (exit code {self.process.exitcode}" if self.process.exitcode is not None else
                   f"sent SIGKILL, still not ended after {2 * ABORT_WAIT_S:g} s (pid {self.process.pid}")
         raise RuntimeError(f"the {self.name} learner's update process used no CPU for {self.stall_s:g} s "
@@ -286,7 +282,7 @@ def _forked_pid(sentinel: int, stall_s: float) -> int:
     raises ``OSError``; one that ended raises ``EOFError`` (the standard library's)."""
     global _SERVER, _SERVER_BLOCKED
     server = _SERVER._forkserver_pid
-    if not _working(lambda timeout: bool(connection.wait([sentinel], timeout)), server, stall_s):
+    if not working(lambda timeout: bool(connection.wait([sentinel], timeout)), server, stall_s):
         blocked, _SERVER = _SERVER, _new_server()
         _SERVER_BLOCKED = (f"the update processes' fork server (pid {server}) used no CPU for {stall_s:g} s before "
                            f"forking: stopped (its threads' stacks are on stderr)")
@@ -297,60 +293,14 @@ def _forked_pid(sentinel: int, stall_s: float) -> int:
 
 def _end_server(server: forkserver.ForkServer) -> None:
     """End the fork server ``server``, found blocked: SIGABRT, whose ``faulthandler`` (enabled by the first lines of
-    ``train.update_server``) writes its threads' stacks to stderr, then SIGKILL if it has not ended in
-    ``ABORT_WAIT_S``; waited for as long again at most (``_abort``). Processes it forked before lose their sentinel
-    with it (they end when their trainer closes their pipe)."""
+    ``train.update_server``) writes its threads' stacks to stderr, then SIGKILL (``train.stalls.abort``). Processes
+    it forked before lose their sentinel with it (they end when their trainer closes their pipe)."""
     pid = server._forkserver_pid
-    _abort(pid, ended=lambda within: _reaped(pid, within))
+    abort(pid, ended=lambda within: reaped(pid, within))
     with contextlib.suppress(OSError):
         os.close(server._forkserver_alive_fd)
     with contextlib.suppress(OSError):  # (its socket's file, left in the temporary folder otherwise)
         os.unlink(server._forkserver_address)
-
-
-def _abort(pid: int, ended) -> None:
-    """Stop the process ``pid``, found blocked: SIGABRT, whose ``faulthandler`` writes its threads' stacks to stderr
-    as it ends, then SIGKILL if ``ended(ABORT_WAIT_S)`` (which waits at most that many seconds for it to end) is
-    false;
-    ``ended`` is asked once more after SIGKILL, so every wait is bounded (a process stuck in the kernel is left)."""
-    with contextlib.suppress(ProcessLookupError, PermissionError):  # (ended meanwhile; its pid no longer ours)
-        os.kill(pid, signal.SIGABRT)
-        os.kill(pid, signal.SIGCONT)  # (a stopped process takes the signal once continued)
-    if ended(ABORT_WAIT_S):
-        return
-    with contextlib.suppress(ProcessLookupError, PermissionError):
-        os.kill(pid, signal.SIGKILL)  # (a stopped process takes it as it is)
-    ended(ABORT_WAIT_S)
-
-
-def _reaped(pid: int, within: float) -> bool:
-    """Whether the child ``pid`` ended within ``within`` seconds (waited for: reaped), or was already gone."""
-    end = time.monotonic() + within
-    while True:
-        try:
-            if os.waitpid(pid, os.WNOHANG)[0]:
-                return True
-        except ChildProcessError:  # (reaped elsewhere)
-            return True
-        if time.monotonic() >= end:
-            return False
-        time.sleep(0.05)
-
-
-def _working(ready, pid: int, stall_s: float, ended=lambda: False) -> bool:
-    """Wait until ``ready(timeout)`` says there is something to read, or ``ended()``, while process ``pid`` works: true
-    then; false once ``pid`` has used no CPU for ``stall_s`` (blocked)."""
-    cpu, still, last = _cpu_ticks(pid), 0.0, time.monotonic()
-    while not ready(min(1.0, stall_s)):
-        if ended():
-            return True
-        now, clock = _cpu_ticks(pid), time.monotonic()
-        # (at most 2 s a pass: a trainer stopped itself, by Ctrl+Z or a suspended job, counts no stall)
-        still, last = (0.0 if now != cpu else still + min(clock - last, 2.0)), clock
-        cpu = now
-        if still >= stall_s:
-            return False
-    return True
 
 
 class _Fd:
@@ -365,17 +315,6 @@ class _Fd:
     @staticmethod
     def _detach(fd) -> int:
         return fd.detach()
-
-
-def _cpu_ticks(pid: int) -> int:
-    """The CPU time process ``pid`` has used, user and system, in clock ticks (``/proc/PID/stat``); -1 once it is
-    gone."""
-    try:
-        with open(f"/proc/{pid}/stat", "rb") as f:
-            fields = f.read().rsplit(b")", 1)[1].split()  # (after the command's name, which may hold spaces)
-    except OSError:
-        return -1
-    return int(fields[11]) + int(fields[12])  # utime, stime: the stat file's 14th and 15th fields
 
 
 def share_views(learner: Learner) -> None:
