@@ -49,8 +49,9 @@ SETUPS = {
     # as the paper_* presets run it (keep_freed_memory; see docs/PERFORMANCE.md and bench/bench_memory.py)
     "paper": {"leader": {"net": {"arch": "paper"}}, "follower": {"net": {"arch": "paper"}}, "keep_freed_memory": True},
     "paper-default-malloc": {"leader": {"net": {"arch": "paper"}}, "follower": {"net": {"arch": "paper"}}},
-    # the goal's two ways in, both agents seeing it (env.asymmetric=false, as Table 1's sweeps run): a vector joined
-    # after the convolutions, or input planes through them (sweeps/paper_table1_eighth_small_settings.toml)
+    # the goal's two ways in, both agents seeing it (env.asymmetric=false, as Table 1's sweeps run), nothing else
+    # changed: a vector joined after the convolutions (sweeps/paper_table1_eighth.toml's), or input planes through
+    # them (sweeps/paper_table1_small.toml's)
     "goal-vector": {"env": {"asymmetric": False}},
     "goal-planes": {"env": {"asymmetric": False}, "leader": {"net": {"goal_fusion": "planes"}},
                     "follower": {"net": {"goal_fusion": "planes"}}},

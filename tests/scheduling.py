@@ -1,7 +1,7 @@
 """How `make test` shares the tests between its workers (pytest-xdist; the Makefile's ``TEST_WORKERS`` says how many):
 by file, with the files that start a Ray as one unit, so that two Rays never run at once (each takes the machine's
-CPUs and a share of its memory), and the longest units handed out first, so that no worker is left with a long file
-while the others have ended.
+CPUs and a share of its memory), and the longest units handed out first, so that long files start early rather than
+last (xdist gives a worker its next unit while two of its tests are still to run, so the order cannot promise more).
 
 xdist's own ``--dist loadgroup`` would do the second part from ``xdist_group`` marks, but it renames each test's node
 id to carry its group, which pytest 9.2 no longer allows (the node id is derived, not stored): the marks are ignored
@@ -35,9 +35,10 @@ LONGEST_FIRST = (
     "tests/test_browser.py",
     "tests/test_study.py",
 )
-"""The units that took longest (the sum of their tests' setup, call and teardown; ``PYTEST_ADDOPTS=--durations=0``,
-docs/PERFORMANCE.md), longest first: handed out before every other unit (which follow in xdist's order, most tests
-first). The order changes only when each file runs, never what it finds: each file starts what it needs."""
+"""The units that took longest (the sum of their tests' setup, call and teardown in run 41,
+``PYTEST_ADDOPTS=--durations=0``, docs/PERFORMANCE.md), longest first: handed out before every other unit (which
+follow in xdist's order, most tests first). The order changes only when each file runs, never what it finds: each
+file starts what it needs."""
 
 
 class FileScheduling(LoadScopeScheduling):

@@ -53,9 +53,11 @@ def test_every_file_that_starts_a_ray_runs_on_the_ray_worker():
 
 
 def test_the_longest_units_named_for_the_workers_exist():
-    """A renamed or removed file left in LONGEST_FIRST would no longer be handed out first, silently."""
-    from tests.scheduling import LONGEST_FIRST
+    """A renamed or removed file left in LONGEST_FIRST, or a Ray file (whose unit is the Ray unit), would no longer be
+    handed out first, silently."""
+    from tests.scheduling import LONGEST_FIRST, RAY_FILES
 
     assert LONGEST_FIRST[0] == "ray" and len(set(LONGEST_FIRST)) == len(LONGEST_FIRST)
+    assert not set(LONGEST_FIRST) & RAY_FILES
     missing = [name for name in LONGEST_FIRST[1:] if not (ROOT / name).is_file()]
     assert missing == []
