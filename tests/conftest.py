@@ -1,8 +1,9 @@
 """Fixtures: a real play server (uvicorn, started by the ``colorgrid play`` command) on a free loopback port.
 
 Suite-wide rules set here: playwright's ``expect`` waits up to ``EXPECT_TIMEOUT_MS`` (a loaded 2-core CI machine,
-not a fast desk), and a skipped test fails the run unless ``ALLOWED_SKIPS`` names it (a missing dependency of the
-project is a broken install, not a reason to pass)."""
+not a fast desk), a skipped test fails the run unless ``ALLOWED_SKIPS`` names it (a missing dependency of the
+project is a broken install, not a reason to pass), and every Ray the tests start runs its workers at the tests'
+own priority (``RAY_WORKER_NICENESS``)."""
 
 import json
 import os
@@ -23,6 +24,13 @@ EXPECT_TIMEOUT_MS = 30_000
 """How long an ``expect(...)`` waits for its condition, for every test: what a page shows within a second on a desk
 may take many on a CI machine running a sweep beside the suite."""
 expect.set_options(timeout=EXPECT_TIMEOUT_MS)
+RAY_WORKER_NICENESS = "0"
+"""Ray starts its worker processes (a sweep's trials, RLlib's runners) at nice 15 unless ``RAY_worker_niceness`` says
+otherwise, so that its own services keep the CPU. Beside the suite's other workers, at nice 0, they then get almost
+none: a tiny sweep of four trials that takes 31 s at nice 0 beside two busy cores had reached one trial's end
+after 200 s at nice 15 (docs/PERFORMANCE.md). Set here, before any test starts a Ray (in this process, or a
+``colorgrid`` or ``ray start`` subprocess, which inherit it); a sweep's results do not depend on it."""
+os.environ["RAY_worker_niceness"] = RAY_WORKER_NICENESS
 ALLOWED_SKIPS: dict[str, str] = {}
 """Tests that may skip (node id -> why): none today. Any other skip is reported as a failure."""
 

@@ -21,7 +21,7 @@ import grpc
 import pytest
 from ray.core.generated import gcs_pb2, gcs_service_pb2, gcs_service_pb2_grpc
 
-from tests.conftest import ROOT, free_port
+from tests.conftest import RAY_WORKER_NICENESS, ROOT, free_port
 from tests.test_sweep_cluster import SWEEP
 from train.sweep.results import read_tables
 
@@ -39,9 +39,11 @@ class RayStartCluster:
 
 def node_env(home: Path) -> dict[str, str]:
     """This environment without Ray's settings, a home of the node's own and token authentication on; a node
-    that is stopped leaves at once (Ray 2.60 drains one for up to 30 s on SIGTERM)."""
+    that is stopped leaves at once (Ray 2.60 drains one for up to 30 s on SIGTERM), and its workers run at the
+    tests' priority (``tests.conftest.RAY_WORKER_NICENESS``)."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("RAY_")}
-    return {**env, "HOME": str(home), "RAY_AUTH_MODE": "token", "RAY_GRACEFUL_SHUTDOWN_DRAIN_TIMEOUT_S": "0"}
+    return {**env, "HOME": str(home), "RAY_AUTH_MODE": "token", "RAY_GRACEFUL_SHUTDOWN_DRAIN_TIMEOUT_S": "0",
+            "RAY_worker_niceness": RAY_WORKER_NICENESS}
 
 
 def start_node(folder: Path, env: dict[str, str], *flags: str) -> subprocess.Popen:
