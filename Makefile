@@ -43,7 +43,7 @@ play: $(STAMP)
 
 # Three tests at a time (pytest-xdist), file by file, the longest files first; the files that start a Ray run one
 # after another on one worker (tests/scheduling.py): most of the suite waits on servers, browsers and subprocesses,
-# not the CPU, so three workers finish sooner than two on a 2-core machine (docs/PERFORMANCE.md, runs 43-44).
+# not the CPU, so three workers finish sooner than two on a 2-core machine (docs/PERFORMANCE.md, runs 43-46).
 # TEST_WORKERS=0 runs them one at a time in this process.
 TEST_WORKERS ?= 3
 test: $(STAMP) browser services
