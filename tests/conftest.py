@@ -27,8 +27,8 @@ expect.set_options(timeout=EXPECT_TIMEOUT_MS)
 RAY_WORKER_NICENESS = "0"
 """Ray starts its worker processes (a sweep's trials, RLlib's runners) at nice 15 unless ``RAY_worker_niceness`` says
 otherwise, so that its own services keep the CPU. Beside the suite's other workers, at nice 0, they then get almost
-none: a tiny sweep of four trials that takes 31 s at nice 0 beside two busy cores had reached one trial's end
-after 200 s at nice 15 (docs/PERFORMANCE.md). Set here, before any test starts a Ray (in this process, or a
+none: beside two busy cores, ``tests/test_sweep.py::test_tiny_sweep_writes_tables_and_report`` took 224 s at nice
+15 and 25 s at nice 0 (docs/PERFORMANCE.md, run 46). Set here, before any test starts a Ray (in this process, or a
 ``colorgrid`` or ``ray start`` subprocess, which inherit it); a sweep's results do not depend on it."""
 os.environ["RAY_worker_niceness"] = RAY_WORKER_NICENESS
 ALLOWED_SKIPS: dict[str, str] = {}
