@@ -1,6 +1,7 @@
 """Scripted agents and the Bayesian follower's inference."""
 
 import math
+from collections import deque
 
 import numpy as np
 import pytest
@@ -9,6 +10,7 @@ from colorgrid import EnvConfig
 from colorgrid.policies import AgentInput, BayesConfig, make_policy
 from colorgrid.policies.bayes import move_likelihood, reward_likelihood, transition
 from colorgrid.evaluate import switch_lags
+from colorgrid.policies.grid import INF, distance_field
 from colorgrid.rollout import run_episodes
 from tests.helpers import env_from_text
 
@@ -74,6 +76,41 @@ def test_astar_leader_without_any_path_still_acts_and_terminates():
     cells, picked = leader_walk(env, 40, follower_action=1)
     assert all(c % 6 < 3 for c in cells), "the leader stays in its half"
     assert len(set(cells)) > 1, "it keeps moving instead of freezing"
+
+
+def bfs(targets: np.ndarray, passable: np.ndarray) -> np.ndarray:
+    """One env's shortest 4-connected path lengths to the nearest passable target over passable cells, by a queue."""
+    H, W = targets.shape
+    dist = np.full((H, W), INF, dtype=np.int32)
+    queue = deque(zip(*np.nonzero(targets & passable)))
+    dist[targets & passable] = 0
+    while queue:
+        r, c = queue.popleft()
+        for nr, nc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
+            if 0 <= nr < H and 0 <= nc < W and passable[nr, nc] and dist[nr, nc] == INF:
+                dist[nr, nc] = dist[r, c] + 1
+                queue.append((nr, nc))
+    return dist
+
+
+def test_distance_fields_are_shortest_paths_kept_up_to_the_farthest_start():
+    """Each env's field is its own breadth-first search; with start cells, the distances beyond the farthest start's
+    are ``INF`` (where every start is reached; else every field is whole)."""
+    corridor = distance_field(np.array([[[False, False, True]]]), np.array([[[True, True, True]]]))
+    assert corridor.tolist() == [[[2, 1, 0]]] and corridor.dtype == np.int32
+    walled = distance_field(np.array([[[False, False, True]]]), np.array([[[True, False, True]]]))
+    assert walled.tolist() == [[[INF, INF, 0]]]
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        B, H, W = (int(n) for n in rng.integers(1, [6, 14, 14]))
+        targets = rng.random((B, H, W)) < rng.random() * 0.2
+        passable = rng.random((B, H, W)) < 0.5 + rng.random() * 0.5
+        whole = np.stack([bfs(t, p) for t, p in zip(targets, passable)])
+        np.testing.assert_array_equal(distance_field(targets, passable), whole)
+        start = rng.integers(0, H * W, B)
+        reached = whole.reshape(B, -1)[np.arange(B), start]
+        kept = np.where(whole > reached.max(), INF, whole) if (reached < INF).all() else whole
+        np.testing.assert_array_equal(distance_field(targets, passable, start_cell=start), kept)
 
 
 def test_copy_follower_waits_for_a_paying_pickup_then_copies_its_color():

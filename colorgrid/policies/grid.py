@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from colorgrid.config import EnvConfig
 from colorgrid.env import move_table
@@ -32,27 +33,45 @@ def allowed_cells(config: EnvConfig, agent_index: int) -> np.ndarray:
 def distance_field(targets: np.ndarray, passable: np.ndarray, start_cell: np.ndarray | None = None) -> np.ndarray:
     """[B, H, W] int32 shortest 4-connected path lengths to the nearest target (``INF`` if none).
 
-    targets, passable: [B, H, W] bool (targets must be passable to count). Breadth-first
-    relaxation for the whole batch at once; with ``start_cell [B]`` it stops as soon
-    as every env's start cell is reached, which is all a greedy step needs (the
-    start's neighbours on a shortest path are final by then). At most H*W rounds.
+    targets, passable: [B, H, W] bool (targets must be passable to count). With ``start_cell [B]`` only the
+    distances up to the farthest start cell's are kept (``INF`` beyond), which is all a greedy step needs (the
+    start's neighbours on a shortest path are final by then): the field that a breadth-first relaxation of the
+    whole batch at once, stopped as soon as every env's start cell is reached, leaves. Where a start cannot be
+    reached, every env's field is whole. One compiled breadth-first search an env (``_search``).
     """
-    B, H, W = targets.shape
-    dist = np.where(targets & passable, 0, INF).astype(np.int32)
-    padded = np.full((B, H + 2, W + 2), INF, dtype=np.int32)
-    rows = np.arange(B)
-    start_r, start_c = (None, None) if start_cell is None else np.divmod(start_cell, W)
-    for _ in range(H * W):
-        if start_cell is not None and (dist[rows, start_r, start_c] < INF).all():
-            break
-        padded[:, 1:-1, 1:-1] = dist
-        best = np.minimum(np.minimum(padded[:, :-2, 1:-1], padded[:, 2:, 1:-1]),
-                          np.minimum(padded[:, 1:-1, :-2], padded[:, 1:-1, 2:])) + 1
-        new = np.where(passable, np.minimum(dist, best), dist)
-        if np.array_equal(new, dist):
-            break
-        dist = new
+    dist = np.empty(targets.shape, dtype=np.int32)
+    _search(np.ascontiguousarray(targets), np.ascontiguousarray(passable), dist)
+    if start_cell is not None and len(start_cell):
+        reached = dist.reshape(len(dist), -1)[np.arange(len(dist)), start_cell]
+        if (reached < INF).all():
+            dist[dist > reached.max()] = INF
     return dist
+
+
+@njit(cache=True, nogil=True)
+def _search(targets, passable, dist):
+    """``dist [B, H, W]``: each env's breadth-first search from its passable targets over its passable cells."""
+    B, H, W = targets.shape
+    queue = np.empty(H * W, dtype=np.int64)
+    for b in range(B):
+        head, tail = 0, 0
+        for r in range(H):
+            for c in range(W):
+                if targets[b, r, c] and passable[b, r, c]:
+                    dist[b, r, c] = 0
+                    queue[tail] = r * W + c
+                    tail += 1
+                else:
+                    dist[b, r, c] = INF
+        while head < tail:
+            r, c = divmod(queue[head], W)
+            head += 1
+            d = dist[b, r, c] + 1
+            for nr, nc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
+                if 0 <= nr < H and 0 <= nc < W and passable[b, nr, nc] and dist[b, nr, nc] == INF:
+                    dist[b, nr, nc] = d
+                    queue[tail] = nr * W + nc
+                    tail += 1
 
 
 class Mover:
