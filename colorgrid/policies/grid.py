@@ -13,13 +13,35 @@ INF = np.int32(1 << 20)
 
 
 def decode(observation: np.ndarray, config: EnvConfig):
-    """Planes -> ``block_color [B, H, W]`` (-1 if none) and ``agent_cell [B, A]``."""
-    C = config.num_colors
-    blocks = observation[:, :C]
-    block_color = np.where(blocks.any(axis=1), blocks.argmax(axis=1), -1)
-    B = observation.shape[0]
-    agent_cell = observation[:, C:].reshape(B, config.num_agents, -1).argmax(axis=2)
-    return block_color, agent_cell
+    """Planes -> ``block_color [B, H, W]`` (-1 if none; else the first color of the largest plane value, as
+    ``argmax``) and ``agent_cell [B, A]`` (each agent plane's first largest cell). Compiled (``_decode``)."""
+    observation = np.ascontiguousarray(observation)
+    B, _, H, W = observation.shape
+    block_color = np.empty((B, H * W), dtype=np.int64)
+    agent_cell = np.empty((B, config.num_agents), dtype=np.int64)
+    _decode(observation.reshape(B, observation.shape[1], -1), config.num_colors, block_color, agent_cell)
+    return block_color.reshape(B, H, W), agent_cell
+
+
+@njit(cache=True, nogil=True)
+def _decode(planes, C, block_color, agent_cell):
+    """``decode`` on ``planes [B, P, H * W]``: ``block_color [B, H * W]`` and ``agent_cell [B, P - C]``."""
+    B, P, N = planes.shape
+    for b in range(B):
+        for cell in range(N):
+            best, found = 0, False
+            for c in range(C):
+                value = planes[b, c, cell]
+                found |= value != 0
+                if value > planes[b, best, cell]:
+                    best = c
+            block_color[b, cell] = best if found else -1
+        for a in range(P - C):
+            best = 0
+            for cell in range(N):
+                if planes[b, C + a, cell] > planes[b, C + a, best]:
+                    best = cell
+            agent_cell[b, a] = best
 
 
 def allowed_cells(config: EnvConfig, agent_index: int) -> np.ndarray:
@@ -39,39 +61,53 @@ def distance_field(targets: np.ndarray, passable: np.ndarray, start_cell: np.nda
     whole batch at once, stopped as soon as every env's start cell is reached, leaves. Where a start cannot be
     reached, every env's field is whole. One compiled breadth-first search an env (``_search``).
     """
-    dist = np.empty(targets.shape, dtype=np.int32)
-    _search(np.ascontiguousarray(targets), np.ascontiguousarray(passable), dist)
-    if start_cell is not None and len(start_cell):
-        reached = dist.reshape(len(dist), -1)[np.arange(len(dist)), start_cell]
-        if (reached < INF).all():
-            dist[dist > reached.max()] = INF
-    return dist
+    B, H, W = targets.shape
+    dist = np.empty((B, H * W), dtype=np.int32)
+    start = np.full(B, -1, dtype=np.int64) if start_cell is None else np.asarray(start_cell, dtype=np.int64)
+    _search(np.ascontiguousarray(targets).reshape(B, -1), np.ascontiguousarray(passable).reshape(B, -1), W, start,
+            dist)
+    return dist.reshape(B, H, W)
 
 
 @njit(cache=True, nogil=True)
-def _search(targets, passable, dist):
-    """``dist [B, H, W]``: each env's breadth-first search from its passable targets over its passable cells."""
-    B, H, W = targets.shape
-    queue = np.empty(H * W, dtype=np.int64)
+def _search(targets, passable, W, start, dist):
+    """``dist [B, H * W]``: each env's breadth-first search from its passable targets over its passable cells, up
+    to each ``start`` cell (``-1``: none) and then on to the farthest start's distance (to the end where a start is
+    unreached)."""
+    B, N = targets.shape
+    queue = np.empty((B, N), dtype=np.int64)
+    head, tail = np.zeros(B, dtype=np.int64), np.zeros(B, dtype=np.int64)
+    farthest = 0
     for b in range(B):
-        head, tail = 0, 0
-        for r in range(H):
-            for c in range(W):
-                if targets[b, r, c] and passable[b, r, c]:
-                    dist[b, r, c] = 0
-                    queue[tail] = r * W + c
-                    tail += 1
-                else:
-                    dist[b, r, c] = INF
-        while head < tail:
-            r, c = divmod(queue[head], W)
-            head += 1
-            d = dist[b, r, c] + 1
-            for nr, nc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
-                if 0 <= nr < H and 0 <= nc < W and passable[b, nr, nc] and dist[b, nr, nc] == INF:
-                    dist[b, nr, nc] = d
-                    queue[tail] = nr * W + nc
-                    tail += 1
+        for cell in range(N):
+            if targets[b, cell] and passable[b, cell]:
+                dist[b, cell] = 0
+                queue[b, tail[b]] = cell
+                tail[b] += 1
+            else:
+                dist[b, cell] = INF
+        s = start[b]
+        while head[b] < tail[b] and (s < 0 or dist[b, s] == INF):
+            _visit(b, passable, W, dist, queue, head, tail)
+        farthest = max(farthest, INF if s < 0 else dist[b, s])
+    for b in range(B):
+        while head[b] < tail[b] and dist[b, queue[b, head[b]]] < farthest:
+            _visit(b, passable, W, dist, queue, head, tail)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _visit(b, passable, W, dist, queue, head, tail):
+    """Env ``b``'s next queued cell: its unvisited passable neighbours get its distance plus one, queued."""
+    cell = queue[b, head[b]]
+    head[b] += 1
+    r, c = divmod(cell, W)
+    H, d = passable.shape[1] // W, dist[b, cell] + 1
+    for nr, nc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
+        n = nr * W + nc
+        if 0 <= nr < H and 0 <= nc < W and passable[b, n] and dist[b, n] == INF:
+            dist[b, n] = d
+            queue[b, tail[b]] = n
+            tail[b] += 1
 
 
 class Mover:
