@@ -3,7 +3,7 @@
 Suite-wide rules set here: playwright's ``expect`` waits up to ``EXPECT_TIMEOUT_MS`` (a loaded 2-core CI machine,
 not a fast desk), a skipped test fails the run unless ``ALLOWED_SKIPS`` names it (a missing dependency of the
 project is a broken install, not a reason to pass), and every Ray the tests start runs its workers at the tests'
-own priority (``RAY_WORKER_NICENESS``)."""
+own priority (``RAY_WORKER_NICENESS``) and every torch waits for work without spinning (``OMP_WAIT_POLICY``)."""
 
 import json
 import os
@@ -31,6 +31,17 @@ none: beside two busy cores, ``tests/test_sweep.py::test_tiny_sweep_writes_table
 15 and 25 s at nice 0 (docs/PERFORMANCE.md, run 46). Set here, before any test starts a Ray (in this process, or a
 ``colorgrid`` or ``ray start`` subprocess, which inherit it); a sweep's results do not depend on it."""
 os.environ["RAY_worker_niceness"] = RAY_WORKER_NICENESS
+OMP_WAIT_POLICY = "PASSIVE"
+"""torch's OpenMP threads sleep between parallel regions instead of spinning (libgomp spins by default). The suite
+runs three test workers, their servers and subprocesses on two cores, so a torch at its default two threads shares
+them: a spinning thread then burns the CPU its partner and the other workers need. Beside a two-trial training
+sweep, ``tests/test_train.py::test_the_cautious_follower_reproduces_its_card_and_meets_its_held_out_figures`` took
+60 s wall and 57 s CPU spinning and 40 s and 26 s without (docs/PERFORMANCE.md). What torch computes does not change
+(the same threads split the same work), only how an idle thread waits. Set here, before torch is imported in this
+process (``TORCH_LOADED_BEFORE``: a rule test holds it False) and inherited by every subprocess the tests start."""
+TORCH_LOADED_BEFORE = "torch" in sys.modules
+"""Whether torch was imported before this file set ``OMP_WAIT_POLICY`` (its OpenMP runtime would then not read it)."""
+os.environ["OMP_WAIT_POLICY"] = OMP_WAIT_POLICY
 ALLOWED_SKIPS: dict[str, str] = {}
 """Tests that may skip (node id -> why): none today. Any other skip is reported as a failure."""
 

@@ -61,3 +61,13 @@ def test_the_longest_units_named_for_the_workers_exist():
     assert not set(LONGEST_FIRST) & RAY_FILES
     missing = [name for name in LONGEST_FIRST[1:] if not (ROOT / name).is_file()]
     assert missing == []
+
+
+def test_torch_threads_wait_without_spinning_in_every_process_the_tests_start():
+    """``OMP_WAIT_POLICY`` only counts if it is set before torch's OpenMP runtime starts: conftest sets it before
+    this worker imported torch, and a subprocess a test starts inherits it."""
+    conftest = sys.modules["conftest"]  # the copy pytest loaded first (``tests.conftest`` is imported again by name)
+    assert conftest.TORCH_LOADED_BEFORE is False
+    child = subprocess.run([sys.executable, "-c", "import os, torch; print(os.environ.get('OMP_WAIT_POLICY'))"],
+                           capture_output=True, text=True, timeout=300)
+    assert child.stdout.strip() == conftest.OMP_WAIT_POLICY == "PASSIVE", child.stderr
