@@ -1,11 +1,12 @@
 """Evaluation speed: 100 episodes of a leader and a follower, median over repeats.
 
-Usage: python bench/bench_eval.py [--follower bayes] [--episodes 100] [--repeats 3]
+Usage: python bench/bench_eval.py [--leader astar] [--follower bayes] [--episodes 100] [--repeats 3] [--threads N]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from pathlib import Path
 
@@ -26,8 +27,14 @@ def main() -> None:
     parser.add_argument("--follower", nargs="+", default=["copy", "bayes"])
     parser.add_argument("--episodes", type=int, default=100)
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's own)")
     args = parser.parse_args()
-    print(f"machine: {machine()}")
+    import torch
+
+    if args.threads is not None:
+        torch.set_num_threads(args.threads)
+    print(f"machine: {machine()}; torch threads {torch.get_num_threads()}; "
+          f"OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}")
     for follower in args.follower:
         wall, cpu = timed(lambda: evaluate(EnvConfig(), args.leader, follower, args.episodes, 0), args.repeats)
         print(f"{args.leader} + {follower}: {args.episodes} episodes in {wall:.2f} s wall, {cpu:.2f} s CPU (median)")
