@@ -45,6 +45,8 @@ def _mean_n(cell: str, row: dict, side: str) -> list[str]:
 
 
 def _difference(cell: str, row: dict) -> list[str]:
+    if cell == "-":  # a side with no finished trial yet
+        return [] if not math.isfinite(row["difference"]) else ["a - b '-' where the report has a difference"]
     alone = re.fullmatch(rf"({SIGNED}) \(no interval at one seed\)", cell)  # a side of one seed: no spread
     if alone is not None:
         return _figures([("difference", alone.group(1))], row) + (

@@ -159,9 +159,13 @@ def test_seeds_short_of_the_plan_are_interim_and_no_spread_is_inconclusive(tmp_p
 
 
 def test_a_side_with_no_finished_trial_reads_as_such_in_the_report(tmp_path):
-    o = decided(tmp_path, ">", [], [0.0, 1.0, 2.0])  # a sweep still running: one arm has no trial finished yet
+    """A sweep still running: an arm with no trial finished yet is short of the plan like one with some (interim,
+    whichever side it is), and the report prints no number for it."""
+    o = decided(tmp_path, ">", [], [0.0, 1.0, 2.0])
     shown = format_claims([o])
-    assert o.verdict is Verdict.INCONCLUSIVE and "nan" not in shown
+    assert o.verdict is Verdict.INTERIM and "nan" not in shown
+    assert decided(tmp_path, ">", [0.0, 1.0, 2.0], []).verdict is Verdict.INTERIM
+    assert decided(tmp_path, ">", [], []).verdict is Verdict.INTERIM
     assert "(n=0)" in shown and "| - |" in shown and "a: none finished; b: +0.00, +1.00, +2.00" in shown
 
 

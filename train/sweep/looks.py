@@ -86,9 +86,10 @@ def is_look(spec, claim: Claim, seeds_a, seeds_b, planned_a=None, planned_b=None
 
 def is_interim(spec, claim: Claim, seeds_a, seeds_b) -> bool:
     """Whether a report on these seeds is on the way to a look the file plans: every seed of each side within the
-    plan, some of them not finished yet, and not a look itself (a round's seeds all in). Its verdict waits."""
+    plan, some of them not finished yet (a side with none finished included), and not a look itself (a round's
+    seeds all in). Its verdict waits."""
     a, b = frozenset(seeds_a), frozenset(seeds_b)
-    if not a or is_look(spec, claim, a, b):
+    if is_look(spec, claim, a, b):
         return False
     plan_a, plan_b = rounds(spec, claim)[-1]
     return a <= plan_a and b <= plan_b
