@@ -61,7 +61,8 @@ def evaluate_matrix(config: EnvConfig, leaders: dict[str, str], followers: list[
     elif workers == 1:
         results = [cell(config, leaders[n], f, episodes, seed) for n, f in pairs]
     else:
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
+                                 initializer=one_thread) as pool:
             results = list(pool.map(cell, *zip(*[(config, leaders[n], f, episodes, seed) for n, f in pairs])))
     cells, per_episode = {name: {} for name in leaders}, {}
     for (name, follower), (metrics, nets) in zip(pairs, results):
@@ -77,6 +78,18 @@ def evaluate_matrix(config: EnvConfig, leaders: dict[str, str], followers: list[
             "paired_difference": paired, "mean_over_leaders": overall,
             "workers": None if address else workers, "ray_address": address,
             "wall_seconds": time.perf_counter() - start}
+
+
+def one_thread() -> None:
+    """A pool worker's torch computes on one thread, as a Ray task's does (Ray sets ``OMP_NUM_THREADS=1``): the pool
+    has up to one worker per CPU, and torch's default of one thread per CPU in each would put several threads on
+    every CPU, where they spin waiting for each other (docs/PERFORMANCE.md, "torch's threads beside other work").
+    Without torch (the core alone, scripted followers) there is nothing to set."""
+    try:
+        import torch
+    except ImportError:
+        return
+    torch.set_num_threads(1)
 
 
 def ray_cells(address: str, jobs: list[tuple]) -> list:

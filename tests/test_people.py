@@ -204,10 +204,12 @@ def test_the_population_matrix_json(tmp_path):
 
 
 def test_the_matrix_is_the_same_in_one_process_or_several():
+    """In this process (torch at its own threads) or in two workers (one torch thread each), with a trained
+    follower among the scripted ones: the same cells to the bit."""
     from colorgrid_apps.matrix import evaluate_matrix
 
     leaders = {"slips": "person:slip=0.2", "late": "person:notice_delay=5"}
     config = EnvConfig(horizon=32)
-    one = evaluate_matrix(config, leaders, ["copy", "bayes"], 4, 7, workers=1)
-    two = evaluate_matrix(config, leaders, ["copy", "bayes"], 4, 7, workers=2)
+    one = evaluate_matrix(config, leaders, ["copy", "bayes", "ippo-people"], 4, 7, workers=1)
+    two = evaluate_matrix(config, leaders, ["copy", "bayes", "ippo-people"], 4, 7, workers=2)
     assert one["cells"] == two["cells"] and one["paired_difference"] == two["paired_difference"]
