@@ -6,6 +6,7 @@ Usage: python bench/bench_eval.py [--leader astar] [--follower bayes] [--episode
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import sys
 from pathlib import Path
@@ -29,11 +30,14 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=None, help="torch threads (default: torch's own)")
     args = parser.parse_args()
-    import torch
+    threads = "no torch (scripted agents only)"
+    if importlib.util.find_spec("torch") is not None:  # a core-only install evaluates scripted agents without it
+        import torch
 
-    if args.threads is not None:
-        torch.set_num_threads(args.threads)
-    print(f"machine: {machine()}; torch threads {torch.get_num_threads()}; "
+        if args.threads is not None:
+            torch.set_num_threads(args.threads)
+        threads = torch.get_num_threads()
+    print(f"machine: {machine()}; torch threads {threads}; "
           f"OMP_WAIT_POLICY {os.environ.get('OMP_WAIT_POLICY', 'unset')}")
     for follower in args.follower:
         wall, cpu = timed(lambda: evaluate(EnvConfig(), args.leader, follower, args.episodes, 0), args.repeats)

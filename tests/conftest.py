@@ -32,16 +32,19 @@ none: beside two busy cores, ``tests/test_sweep.py::test_tiny_sweep_writes_table
 ``colorgrid`` or ``ray start`` subprocess, which inherit it); a sweep's results do not depend on it."""
 os.environ["RAY_worker_niceness"] = RAY_WORKER_NICENESS
 OMP_WAIT_POLICY = "PASSIVE"
-"""torch's OpenMP threads sleep between parallel regions instead of spinning (libgomp spins by default). The suite
-runs three test workers, their servers and subprocesses on two cores, so a torch at its default two threads shares
-them: a spinning thread then burns the CPU its partner and the other workers need. Beside a two-trial training
-sweep, ``tests/test_train.py::test_the_cautious_follower_reproduces_its_card_and_meets_its_held_out_figures`` took
-60 s wall and 57 s CPU spinning and 40 s and 26 s without (docs/PERFORMANCE.md). What torch computes does not change
-(the same threads split the same work), only how an idle thread waits. Set here, before torch is imported in this
-process (``TORCH_LOADED_BEFORE``: a rule test holds it False) and inherited by every subprocess the tests start."""
+"""torch's OpenMP threads sleep between parallel regions instead of spinning a while first (libgomp's default), unless
+the caller sets ``OMP_WAIT_POLICY`` itself. The suite's workers, servers and subprocesses share two cores with any
+torch at its default two threads; a spinning thread burns CPU that they need. Beside a two-trial training sweep,
+``python bench/bench_eval.py --leader population:people#training --follower checkpoints/follower_cautious.pt`` took
+19.9 s with the variable unset and 4.9 s with it passive, and
+``tests/test_train.py::test_the_cautious_follower_reproduces_its_card_and_meets_its_held_out_figures`` 60 s wall and
+57 s CPU active against 40 s and 26 s passive (docs/PERFORMANCE.md). A whole ``make test`` with nothing beside it did
+not change measurably (run 48). What torch computes does not change, only how an idle thread waits. Set here, before
+torch is imported in this process (``TORCH_LOADED_BEFORE``: a rule test holds it False), and inherited by every
+subprocess the tests start."""
 TORCH_LOADED_BEFORE = "torch" in sys.modules
 """Whether torch was imported before this file set ``OMP_WAIT_POLICY`` (its OpenMP runtime would then not read it)."""
-os.environ["OMP_WAIT_POLICY"] = OMP_WAIT_POLICY
+os.environ.setdefault("OMP_WAIT_POLICY", OMP_WAIT_POLICY)
 ALLOWED_SKIPS: dict[str, str] = {}
 """Tests that may skip (node id -> why): none today. Any other skip is reported as a failure."""
 

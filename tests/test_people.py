@@ -203,6 +203,21 @@ def test_the_population_matrix_json(tmp_path):
     assert "paired difference in follower net pickups against copy" in done.stdout
 
 
+def test_a_matrix_worker_computes_on_its_share_of_the_cpus():
+    """Each pool worker's torch gets the threads its initializer shares out (``OMP_NUM_THREADS``, read when a cell
+    imports torch), not a thread per core in every worker."""
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    import torch
+
+    from colorgrid_apps.matrix import share_cpus
+
+    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn"), initializer=share_cpus,
+                             initargs=(1,)) as pool:
+        assert [pool.submit(torch.get_num_threads).result() for _ in range(2)] == [1, 1]
+
+
 def test_the_matrix_is_the_same_in_one_process_or_several():
     """In this process (torch at its own threads) or in two workers (one torch thread each), with a trained
     follower among the scripted ones: the same cells to the bit."""

@@ -10,7 +10,7 @@ from colorgrid import EnvConfig
 from colorgrid.policies import AgentInput, BayesConfig, make_policy
 from colorgrid.policies.bayes import move_likelihood, reward_likelihood, transition
 from colorgrid.evaluate import switch_lags
-from colorgrid.policies.grid import INF, distance_field
+from colorgrid.policies.grid import INF, decode, distance_field
 from colorgrid.rollout import run_episodes
 from tests.helpers import env_from_text
 
@@ -100,6 +100,9 @@ def test_distance_fields_are_shortest_paths_kept_up_to_the_farthest_start():
     assert corridor.tolist() == [[[2, 1, 0]]] and corridor.dtype == np.int32
     walled = distance_field(np.array([[[False, False, True]]]), np.array([[[True, False, True]]]))
     assert walled.tolist() == [[[INF, INF, 0]]]
+    assert distance_field(np.zeros((0, 4, 5), bool), np.zeros((0, 4, 5), bool), np.zeros(0, int)).shape == (0, 4, 5)
+    with pytest.raises(ValueError, match=r"a start cell in \[0, H\*W\) for each env"):
+        distance_field(np.ones((1, 2, 2), bool), np.ones((1, 2, 2), bool), np.array([4]))
     rng = np.random.default_rng(7)
     for _ in range(200):
         B, H, W = (int(n) for n in rng.integers(1, [6, 14, 14]))
@@ -107,10 +110,28 @@ def test_distance_fields_are_shortest_paths_kept_up_to_the_farthest_start():
         passable = rng.random((B, H, W)) < 0.5 + rng.random() * 0.5
         whole = np.stack([bfs(t, p) for t, p in zip(targets, passable)])
         np.testing.assert_array_equal(distance_field(targets, passable), whole)
+        np.testing.assert_array_equal(distance_field(np.asfortranarray(targets), passable.transpose(0, 2, 1).copy()
+                                                     .transpose(0, 2, 1)), whole)  # not C-contiguous
         start = rng.integers(0, H * W, B)
         reached = whole.reshape(B, -1)[np.arange(B), start]
         kept = np.where(whole > reached.max(), INF, whole) if (reached < INF).all() else whole
         np.testing.assert_array_equal(distance_field(targets, passable, start_cell=start), kept)
+
+
+def test_decoding_reads_each_cell_as_argmax_does_and_refuses_other_planes():
+    """A cell's color is the first of its largest color planes (-1 where every one is 0), an agent's cell the first
+    largest of its plane, for 0/1 planes and others alike."""
+    planes = np.zeros((1, 5, 2, 2), dtype=np.float32)  # the default config's 3 colors and 2 agents
+    planes[0, :3, 0, 1] = [1, 0, 0]
+    planes[0, :3, 1, 0] = [0, 1, 1]  # a tie: the first color
+    planes[0, :3, 1, 1] = [0, 2, 1]
+    planes[0, 3, 1, 1] = planes[0, 4, 0, 1] = planes[0, 4, 1, 0] = 1  # the second agent's plane ties: its first cell
+    for observation in (planes, planes.astype(np.uint8), planes[:, :, ::-1, :][:, :, ::-1, :]):
+        block_color, agent_cell = decode(observation, EnvConfig())
+        assert block_color.tolist() == [[[-1, 0], [1, 1]]] and agent_cell.tolist() == [[3, 1]]
+        assert block_color.dtype == agent_cell.dtype == np.int64
+    with pytest.raises(ValueError, match="observation has 6 planes; this config's have 5"):
+        decode(np.zeros((1, 6, 2, 2), dtype=np.uint8), EnvConfig())
 
 
 def test_copy_follower_waits_for_a_paying_pickup_then_copies_its_color():

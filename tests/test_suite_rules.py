@@ -1,5 +1,6 @@
 """The suite's own rules (``tests/conftest.py``): a skip fails the run, and no test waits on the clock."""
 
+import os
 import re
 import subprocess
 import sys
@@ -63,11 +64,12 @@ def test_the_longest_units_named_for_the_workers_exist():
     assert missing == []
 
 
-def test_torch_threads_wait_without_spinning_in_every_process_the_tests_start():
-    """``OMP_WAIT_POLICY`` only counts if it is set before torch's OpenMP runtime starts: conftest sets it before
-    this worker imported torch, and a subprocess a test starts inherits it."""
-    conftest = sys.modules["conftest"]  # the copy pytest loaded first (``tests.conftest`` is imported again by name)
+def test_torch_threads_wait_without_spinning_in_every_process_the_tests_start(request):
+    """``OMP_WAIT_POLICY`` only counts if it is set before torch's OpenMP runtime starts: conftest sets it (passive,
+    unless the caller chose) before this worker imported torch, and a subprocess a test starts inherits it."""
+    conftest = request.config.pluginmanager.get_plugin(str(ROOT / "tests" / "conftest.py"))  # the copy pytest loaded
     assert conftest.TORCH_LOADED_BEFORE is False
-    child = subprocess.run([sys.executable, "-c", "import os, torch; print(os.environ.get('OMP_WAIT_POLICY'))"],
-                           capture_output=True, text=True, timeout=300)
-    assert child.stdout.strip() == conftest.OMP_WAIT_POLICY == "PASSIVE", child.stderr
+    assert conftest.OMP_WAIT_POLICY == "PASSIVE" and os.environ.get("OMP_WAIT_POLICY")
+    child = subprocess.run([sys.executable, "-c", "import os; print(os.environ.get('OMP_WAIT_POLICY'))"],
+                           capture_output=True, text=True, timeout=60)
+    assert child.stdout.strip() == os.environ["OMP_WAIT_POLICY"], child.stderr

@@ -164,9 +164,32 @@ def test_a_side_with_no_finished_trial_reads_as_such_in_the_report(tmp_path):
     o = decided(tmp_path, ">", [], [0.0, 1.0, 2.0])
     shown = format_claims([o])
     assert o.verdict is Verdict.INTERIM and "nan" not in shown
+    assert "(n=0)" in shown and "| - |" in shown and "a: none finished; b: +0.00, +1.00, +2.00" in shown
     assert decided(tmp_path, ">", [0.0, 1.0, 2.0], []).verdict is Verdict.INTERIM
     assert decided(tmp_path, ">", [], []).verdict is Verdict.INTERIM
-    assert "(n=0)" in shown and "| - |" in shown and "a: none finished; b: +0.00, +1.00, +2.00" in shown
+    threshold = spec_with(tmp_path, claim("above zero", A, "0.0", ">"))
+    assert [o.verdict for o in evaluate(threshold, trials_table({}))] == [Verdict.INTERIM]
+
+
+def test_a_baseline_not_computed_yet_leaves_a_finished_claim_undecided_not_interim(tmp_path):
+    """Interim counts the trials run, not the baseline's figures: with every planned trial finished and no
+    ``baselines.json`` kept, the claim has nothing to pair with and is inconclusive; with a trial still to run it
+    is interim."""
+    metric = "eval_astar/follower_net_pickups"
+    path = tmp_path / "claims.toml"
+    evaluated = 'set = ["eval_every=1", "leader.policy=astar", "eval_partners=[\\"astar\\"]", '
+    path.write_text(BASE.replace("set = [", evaluated)
+                    + claim("beats copy", A, '{ baseline = "astar/copy" }', ">", f'metric = "{metric}"'))
+    spec = load_sweep(path)
+
+    def finals(values):
+        table = trials_table({("+4/-1", 0.0): values})
+        return table.assign(**{f"final_{metric}": table["final_team_reward"]})
+
+    [done] = evaluate(spec, finals([20.0, 21.0, 22.0]))
+    assert done.a == [] and done.verdict is Verdict.INCONCLUSIVE
+    [running] = evaluate(spec, finals([20.0, 21.0]))
+    assert running.verdict is Verdict.INTERIM
 
 
 def test_pooled_sides_partial_sides_and_unfinished_trials(tmp_path):

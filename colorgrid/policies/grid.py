@@ -16,10 +16,12 @@ def decode(observation: np.ndarray, config: EnvConfig):
     """Planes -> ``block_color [B, H, W]`` (-1 if none; else the first color of the largest plane value, as
     ``argmax``) and ``agent_cell [B, A]`` (each agent plane's first largest cell). Compiled (``_decode``)."""
     observation = np.ascontiguousarray(observation)
-    B, _, H, W = observation.shape
+    B, P, H, W = observation.shape
+    if P != config.num_planes:
+        raise ValueError(f"observation has {P} planes; this config's have {config.num_planes} (colors, then agents)")
     block_color = np.empty((B, H * W), dtype=np.int64)
     agent_cell = np.empty((B, config.num_agents), dtype=np.int64)
-    _decode(observation.reshape(B, observation.shape[1], -1), config.num_colors, block_color, agent_cell)
+    _decode(observation.reshape(B, P, H * W), config.num_colors, block_color, agent_cell)
     return block_color.reshape(B, H, W), agent_cell
 
 
@@ -62,18 +64,23 @@ def distance_field(targets: np.ndarray, passable: np.ndarray, start_cell: np.nda
     reached, every env's field is whole. One compiled breadth-first search an env (``_search``).
     """
     B, H, W = targets.shape
-    dist = np.empty((B, H * W), dtype=np.int32)
     start = np.full(B, -1, dtype=np.int64) if start_cell is None else np.asarray(start_cell, dtype=np.int64)
-    _search(np.ascontiguousarray(targets).reshape(B, -1), np.ascontiguousarray(passable).reshape(B, -1), W, start,
-            dist)
+    outside = start_cell is not None and ((start < 0) | (start >= H * W)).any()
+    if passable.shape != targets.shape or start.shape != (B,) or outside:
+        raise ValueError(f"distance_field needs targets and passable of one shape [B, H, W] and a start cell in "
+                         f"[0, H*W) for each env: got {targets.shape}, {passable.shape} and start cells "
+                         f"{start_cell if start_cell is None else start.shape}")
+    dist = np.empty((B, H * W), dtype=np.int32)
+    _search(np.ascontiguousarray(targets).reshape(B, H * W), np.ascontiguousarray(passable).reshape(B, H * W), W,
+            start, dist)
     return dist.reshape(B, H, W)
 
 
 @njit(cache=True, nogil=True)
 def _search(targets, passable, W, start, dist):
     """``dist [B, H * W]``: each env's breadth-first search from its passable targets over its passable cells, up
-    to each ``start`` cell (``-1``: none) and then on to the farthest start's distance (to the end where a start is
-    unreached)."""
+    to each ``start`` cell (``-1``: none, for a whole field) and then on to the farthest start's distance (to the end
+    where a start is unreached)."""
     B, N = targets.shape
     queue = np.empty((B, N), dtype=np.int64)
     head, tail = np.zeros(B, dtype=np.int64), np.zeros(B, dtype=np.int64)

@@ -255,6 +255,16 @@ def sides(spec, claim: Claim, trials: pd.DataFrame, results) -> tuple[Side, Side
     return a, side_finals(trials, claim.b, column), Comparison.WELCH
 
 
+def trained_seeds(claim: Claim, trials: pd.DataFrame) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    """The seeds of each side's finished trials, which say whether the file's planned look is reached: a baseline
+    side has side a's (whether or not its figures are computed yet), a constant side none."""
+    column = f"final_{claim.metric}"
+    a = side_finals(trials, claim.a, column).seeds or ()
+    if isinstance(claim.b, dict):
+        return a, side_finals(trials, claim.b, column).seeds or ()
+    return a, (() if isinstance(claim.b, float) else a)
+
+
 def evaluate(spec, trials: pd.DataFrame, history: pd.DataFrame | None = None) -> list[Outcome]:
     """Every claim of ``spec`` decided on the ``trials`` table (its ``final_<metric>`` columns) as one family: each
     claim's looks counted from the file and the record (``history``, by default the results folder's), its p
@@ -271,6 +281,6 @@ def evaluate(spec, trials: pd.DataFrame, history: pd.DataFrame | None = None) ->
         seeds_b = () if isinstance(b, float) else b.seeds
         decided = decide(claim, a, b, kind, count_looks(spec, claim, a.seeds, seeds_b, history))
         outcomes.append(replace(decided, declared=status(spec, claim, trials, declarations),
-                                interim=is_interim(spec, claim, a.seeds, seeds_b)))
+                                interim=is_interim(spec, claim, *trained_seeds(claim, trials))))
     adjusted = st.holm([o.decisive_p for o in outcomes])
     return [adjust(o, p) for o, p in zip(outcomes, adjusted)]
