@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
 
@@ -61,8 +62,8 @@ def evaluate_matrix(config: EnvConfig, leaders: dict[str, str], followers: list[
     elif workers == 1:
         results = [cell(config, leaders[n], f, episodes, seed) for n, f in pairs]
     else:
-        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"),
-                                 initializer=one_thread) as pool:
+        with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=share_cpus,
+                                 initargs=(max(1, (os.cpu_count() or 1) // workers),)) as pool:
             results = list(pool.map(cell, *zip(*[(config, leaders[n], f, episodes, seed) for n, f in pairs])))
     cells, per_episode = {name: {} for name in leaders}, {}
     for (name, follower), (metrics, nets) in zip(pairs, results):
@@ -80,16 +81,14 @@ def evaluate_matrix(config: EnvConfig, leaders: dict[str, str], followers: list[
             "wall_seconds": time.perf_counter() - start}
 
 
-def one_thread() -> None:
-    """A pool worker's torch computes on one thread, as a Ray task's does (Ray sets ``OMP_NUM_THREADS=1``): the pool
-    has up to one worker per CPU, and torch's default of one thread per CPU in each would put several threads on
-    every CPU, where they spin waiting for each other (docs/PERFORMANCE.md, "torch's threads beside other work").
-    Without torch (the core alone, scripted followers) there is nothing to set."""
-    try:
-        import torch
-    except ImportError:
-        return
-    torch.set_num_threads(1)
+def share_cpus(threads: int) -> None:
+    """A pool worker's torch computes on ``threads`` threads, its share of the CPUs (as a Ray task of one CPU gets
+    ``OMP_NUM_THREADS=1``): torch's default of a thread per core in each of several workers would put several
+    threads on every core, where they spin waiting for each other (docs/PERFORMANCE.md, "torch's threads beside
+    other work"). Set for the torch a cell imports later; a scripted-only matrix never imports it."""
+    os.environ["OMP_NUM_THREADS"] = str(threads)
+    if "torch" in sys.modules:  # already imported by the main module the worker ran first
+        sys.modules["torch"].set_num_threads(threads)
 
 
 def ray_cells(address: str, jobs: list[tuple]) -> list:
