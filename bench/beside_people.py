@@ -36,7 +36,6 @@ import argparse
 import csv
 import json
 import multiprocessing
-import os
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -52,7 +51,7 @@ from colorgrid.evaluate import catch_lags  # noqa: E402
 from colorgrid.policies import make_policy  # noqa: E402
 from colorgrid.policies.population import load_population  # noqa: E402
 from colorgrid.rollout import run_episodes  # noqa: E402
-from colorgrid_apps.matrix import share_cpus  # noqa: E402
+from colorgrid_apps.matrix import cpu_share, share_cpus  # noqa: E402
 
 FOLLOWERS = ["copy", "bayes", "bayes-people", "bayes-limit", "ippo", "ippo-people", "ippo-cautious",
              "checkpoints/follower_unannealed.pt", "ippo-shielded"]
@@ -166,7 +165,7 @@ def measure(followers: list[str], episodes: int, seed: int, workers: int,
         results = [cell(*a) for a in args]
     else:
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=share_cpus,
-                                 initargs=(max(1, (os.cpu_count() or 1) // workers),)) as pool:
+                                 initargs=(cpu_share(workers),)) as pool:
             results = list(pool.map(cell, *zip(*args)))
     cells = {name: {} for name in leaders}
     for (name, follower), result in zip(jobs, results):

@@ -63,7 +63,7 @@ def evaluate_matrix(config: EnvConfig, leaders: dict[str, str], followers: list[
         results = [cell(config, leaders[n], f, episodes, seed) for n, f in pairs]
     else:
         with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn"), initializer=share_cpus,
-                                 initargs=(max(1, (os.cpu_count() or 1) // workers),)) as pool:
+                                 initargs=(cpu_share(workers),)) as pool:
             results = list(pool.map(cell, *zip(*[(config, leaders[n], f, episodes, seed) for n, f in pairs])))
     cells, per_episode = {name: {} for name in leaders}, {}
     for (name, follower), (metrics, nets) in zip(pairs, results):
@@ -79,6 +79,11 @@ def evaluate_matrix(config: EnvConfig, leaders: dict[str, str], followers: list[
             "paired_difference": paired, "mean_over_leaders": overall,
             "workers": None if address else workers, "ray_address": address,
             "wall_seconds": time.perf_counter() - start}
+
+
+def cpu_share(workers: int) -> int:
+    """Each of ``workers`` processes' share of this machine's CPUs: at least one."""
+    return max(1, (os.cpu_count() or 1) // workers)
 
 
 def share_cpus(threads: int) -> None:

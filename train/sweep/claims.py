@@ -255,14 +255,14 @@ def sides(spec, claim: Claim, trials: pd.DataFrame, results) -> tuple[Side, Side
     return a, side_finals(trials, claim.b, column), Comparison.WELCH
 
 
-def trained_seeds(claim: Claim, trials: pd.DataFrame) -> tuple[tuple[int, ...], tuple[int, ...]]:
-    """The seeds of each side's finished trials, which say whether the file's planned look is reached: a baseline
-    side has side a's (whether or not its figures are computed yet), a constant side none."""
-    column = f"final_{claim.metric}"
-    a = side_finals(trials, claim.a, column).seeds or ()
-    if isinstance(claim.b, dict):
-        return a, side_finals(trials, claim.b, column).seeds or ()
-    return a, (() if isinstance(claim.b, float) else a)
+def trained_seeds(claim: Claim, trials: pd.DataFrame, a: Side, b: Side | float) -> tuple[tuple, tuple]:
+    """The seeds of each side's finished trials, which say whether the file's planned look is reached: ``sides``'s,
+    except that a baseline side and side a count side a's trials whether or not the baseline's figures are
+    computed yet (``sides`` keeps only the seeds it can pair)."""
+    if isinstance(claim.b, Baseline):
+        seeds = side_finals(trials, claim.a, f"final_{claim.metric}").seeds
+        return seeds, seeds
+    return a.seeds, (() if isinstance(b, float) else b.seeds)
 
 
 def evaluate(spec, trials: pd.DataFrame, history: pd.DataFrame | None = None) -> list[Outcome]:
@@ -281,6 +281,6 @@ def evaluate(spec, trials: pd.DataFrame, history: pd.DataFrame | None = None) ->
         seeds_b = () if isinstance(b, float) else b.seeds
         decided = decide(claim, a, b, kind, count_looks(spec, claim, a.seeds, seeds_b, history))
         outcomes.append(replace(decided, declared=status(spec, claim, trials, declarations),
-                                interim=is_interim(spec, claim, *trained_seeds(claim, trials))))
+                                interim=is_interim(spec, claim, *trained_seeds(claim, trials, a, b))))
     adjusted = st.holm([o.decisive_p for o in outcomes])
     return [adjust(o, p) for o, p in zip(outcomes, adjusted)]
