@@ -317,7 +317,8 @@ def test_branch_here_draws_the_branch_beside_the_replay_on_one_cursor(server, br
     board = page.locator("#board")
     expect(board).to_have_attribute("data-step", "20", timeout=60_000)  # timelines come from a low-priority worker
     options = server.get("/api/options")[0]
-    assert page.locator("#branch-follower option").all_text_contents() == options["followers"]
+    # the page fills the list from its own /api/options request, which may answer after the board's step: wait for it
+    expect(page.locator("#branch-follower option")).to_have_text(options["followers"])
     expect(page.locator("#branch-panel")).to_be_hidden()
     page.select_option("#branch-follower", "copy")
     page.click("#branch-here")
